@@ -1,0 +1,15 @@
+"""torchakvf: intrinsically symmetric parts of triangle meshes, batched on CPU or CUDA.
+
+Pipeline (one folder a stage): io -> mesh -> operators -> solvers -> fields -> cluster ->
+parts -> io outputs. The public API is plain functions on a :class:`MeshBatch` or a
+:class:`Mesh`.
+"""
+from .errors import MeshError, ParameterError, SolverError, TorchAKVFError
+from .io import load_mesh
+from .mesh import CleanMesh, Mesh, MeshBatch, clean_mesh
+from .fields import AKVFResult, akvf
+
+__version__ = "0.1.0"
+
+__all__ = ["TorchAKVFError", "MeshError", "SolverError", "ParameterError", "load_mesh", "Mesh",
+           "CleanMesh", "clean_mesh", "MeshBatch", "AKVFResult", "akvf", "__version__"]

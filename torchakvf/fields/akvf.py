@@ -1,0 +1,88 @@
+"""Approximate Killing vector fields of a batch: operator, eigensolve, Whitney interpolation."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..errors import ParameterError
+from ..mesh.batch import MeshBatch
+from ..mesh.clean import CleanMesh
+from ..mesh.mesh import Mesh
+from ..operators.killing import KillingSystem, killing_operator
+from ..solvers.lobpcg import segmented_lobpcg
+from .whitney import whitney_face_vectors
+
+
+@dataclass
+class AKVFResult:
+    """The n smallest AKVFs of every mesh of a batch (unit-area frame).
+
+    eigenvalues : [B, n] ascending, λ·area (a unit sphere's rotations: 0, then 8π, ...)
+    forms : packed [ΣE, n] 1-forms (edge values), S1-orthonormal per mesh
+    face_vectors : packed [ΣF, n, 3] Whitney vectors at face barycenters
+    residuals : [B, n] relative residual of each eigenpair (see :class:`EigenResult`)
+    iterations, shifts, converged : [B] eigensolver diagnostics
+    batch : the :class:`MeshBatch`; ``system``: its :class:`KillingSystem`
+    """
+
+    eigenvalues: torch.Tensor
+    forms: torch.Tensor
+    face_vectors: torch.Tensor
+    residuals: torch.Tensor
+    iterations: torch.Tensor
+    shifts: torch.Tensor
+    converged: torch.Tensor
+    batch: MeshBatch
+    system: KillingSystem
+
+    @property
+    def n(self) -> int:
+        return self.eigenvalues.shape[1]
+
+    def mesh_forms(self, b: int) -> torch.Tensor:
+        """[E_b, n] forms of mesh b (edges of the cleaned mesh)."""
+        return self.forms[int(self.batch.edge_ptr[b]):int(self.batch.edge_ptr[b + 1])]
+
+    def mesh_face_vectors(self, b: int) -> np.ndarray:
+        """[F_input, n, 3] face vectors of mesh b on the input's faces (0 on dropped faces)."""
+        fv = self.face_vectors[int(self.batch.face_ptr[b]):int(self.batch.face_ptr[b + 1])]
+        return self.batch.meshes[b].to_input_faces(fv.detach().cpu().numpy())
+
+
+def as_batch(meshes, device=None) -> MeshBatch:
+    """A :class:`MeshBatch` from a batch, a mesh or a list of meshes."""
+    if isinstance(meshes, MeshBatch):
+        return meshes if device is None else meshes.to(device)
+    if isinstance(meshes, (Mesh, CleanMesh)):
+        meshes = [meshes]
+    return MeshBatch.from_meshes(list(meshes), device=device or "cpu")
+
+
+def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str = "none",
+         boundary_correction: bool = True, max_iter: int = 60) -> AKVFResult:
+    """The n smallest approximate Killing vector fields of each mesh.
+
+    Parameters
+    ----------
+    meshes : MeshBatch, Mesh, or list of Mesh (a mesh is a batch of one)
+    n : number of fields per mesh (each mesh needs at least n edges)
+    tol : eigenpair residual at which a mesh counts as converged
+    seed : seed of the solver's random start (the same start for every mesh)
+    remedy : mesh-quality remedy of the operator (:data:`torchakvf.operators.REMEDIES`)
+    boundary_correction : use the open-mesh boundary terms (akvf-math.md)
+
+    Work runs on the batch's device; the operator and solve are float64 whatever the
+    coordinates' dtype, and results are returned in the batch's dtype.
+    """
+    if not isinstance(n, int) or n < 1:
+        raise ParameterError(f"n must be a positive integer, got {n!r}")
+    batch = as_batch(meshes)
+    system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
+    eig = segmented_lobpcg(system, n, tol=tol, seed=seed, names=batch.names, max_iter=max_iter)
+    fv = whitney_face_vectors(batch, system.geometry, eig.vectors)
+    out_dt = batch.dtype
+    return AKVFResult(eigenvalues=eig.eigenvalues.to(out_dt), forms=eig.vectors.to(out_dt),
+                      face_vectors=fv.to(out_dt), residuals=eig.residuals, iterations=eig.iterations,
+                      shifts=eig.shifts, converged=eig.converged, batch=batch, system=system)

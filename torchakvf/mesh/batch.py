@@ -1,0 +1,166 @@
+"""Many meshes packed into one set of tensors (pytorch3d's packed layout, PyG's vocabulary).
+
+Packed tensors hold every mesh's rows one after another with *global* indices: ``faces`` of
+mesh b are shifted by ``vert_ptr[b]``. ``(B+1,)`` offset vectors ``vert_ptr``, ``face_ptr``,
+``edge_ptr`` delimit the meshes, and ``*_to_mesh`` vectors give each row's mesh, so
+``index_add_``/segment reductions work directly on the batch. Per-mesh dense work uses padded
+views from :func:`pad_packed`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from ..errors import ParameterError
+from .clean import CleanMesh, clean_mesh
+from .mesh import Mesh
+
+
+def mesh_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Undirected edges of a triangle mesh and each face's edges.
+
+    Returns
+    -------
+    edges : [E, 2] int64, (i, j) with i < j, sorted lexicographically; edge e is oriented i -> j
+    face_edges : [F, 3] int64, edge k of face (v0, v1, v2) joins v_k -> v_{k+1}
+    face_edge_sign : [F, 3] float64, +1 where v_k -> v_{k+1} agrees with the edge's orientation
+    """
+    tail = faces
+    head = np.roll(faces, -1, axis=1)
+    lo, hi = np.minimum(tail, head), np.maximum(tail, head)
+    n = int(faces.max()) + 1
+    key = (lo * n + hi).ravel()
+    ukey, inverse = np.unique(key, return_inverse=True)
+    edges = np.stack([ukey // n, ukey % n], axis=1)
+    sign = np.where(tail < head, 1.0, -1.0)
+    return edges, inverse.reshape(-1, 3), sign
+
+
+@dataclass
+class MeshBatch:
+    """B cleaned meshes as packed tensors on one device.
+
+    Attributes
+    ----------
+    verts : [ΣV, 3] float, coordinates as given (units of the input)
+    faces : [ΣF, 3] int64, global vertex indices, consistently oriented
+    edges : [ΣE, 2] int64, global vertex indices, i < j within each mesh, oriented i -> j
+    face_edges : [ΣF, 3] int64, global edge index of edge v_k -> v_{k+1} of each face
+    face_edge_sign : [ΣF, 3] float, +1/-1: that half-edge's direction relative to its edge
+    vert_ptr, face_ptr, edge_ptr : [B+1] int64 offsets
+    meshes : list of the B :class:`CleanMesh` (host-side maps back to the input faces)
+    """
+
+    verts: torch.Tensor
+    faces: torch.Tensor
+    edges: torch.Tensor
+    face_edges: torch.Tensor
+    face_edge_sign: torch.Tensor
+    vert_ptr: torch.Tensor
+    face_ptr: torch.Tensor
+    edge_ptr: torch.Tensor
+    meshes: list
+
+    @classmethod
+    def from_meshes(cls, meshes: Sequence[Mesh | CleanMesh] | Mesh | CleanMesh,
+                    device: str | torch.device = "cpu",
+                    dtype: torch.dtype = torch.float64) -> "MeshBatch":
+        """Clean (if needed) and pack meshes. ``dtype`` is the coordinates' float type."""
+        if isinstance(meshes, (Mesh, CleanMesh)):
+            meshes = [meshes]
+        meshes = [m if isinstance(m, CleanMesh) else clean_mesh(m) for m in meshes]
+        if not meshes:
+            raise ParameterError("MeshBatch.from_meshes needs at least one mesh")
+        if dtype not in (torch.float32, torch.float64):
+            raise ParameterError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        verts, faces, edges, fe, fs = [], [], [], [], []
+        nv = nf = ne = 0
+        vptr, fptr, eptr = [0], [0], [0]
+        for m in meshes:
+            e, f_e, f_s = mesh_edges(m.faces)
+            verts.append(m.vertices)
+            faces.append(m.faces + nv)
+            edges.append(e + nv)
+            fe.append(f_e + ne)
+            fs.append(f_s)
+            nv, nf, ne = nv + len(m.vertices), nf + len(m.faces), ne + len(e)
+            vptr.append(nv), fptr.append(nf), eptr.append(ne)
+        dev = torch.device(device)
+        t = lambda a, dt: torch.as_tensor(np.concatenate(a), dtype=dt, device=dev)  # noqa: E731
+        return cls(verts=t(verts, dtype), faces=t(faces, torch.int64), edges=t(edges, torch.int64),
+                   face_edges=t(fe, torch.int64), face_edge_sign=t(fs, dtype),
+                   vert_ptr=torch.tensor(vptr, device=dev), face_ptr=torch.tensor(fptr, device=dev),
+                   edge_ptr=torch.tensor(eptr, device=dev), meshes=list(meshes))
+
+    # ---- sizes and index maps ------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.meshes)
+
+    @property
+    def device(self) -> torch.device:
+        return self.verts.device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.verts.dtype
+
+    @property
+    def names(self) -> list[str]:
+        return [m.name for m in self.meshes]
+
+    def _to_mesh(self, ptr: torch.Tensor) -> torch.Tensor:
+        counts = ptr[1:] - ptr[:-1]
+        return torch.repeat_interleave(torch.arange(len(self), device=self.device), counts)
+
+    @property
+    def vert_to_mesh(self) -> torch.Tensor:
+        """[ΣV] mesh index of each vertex."""
+        return self._to_mesh(self.vert_ptr)
+
+    @property
+    def face_to_mesh(self) -> torch.Tensor:
+        """[ΣF] mesh index of each face."""
+        return self._to_mesh(self.face_ptr)
+
+    @property
+    def edge_to_mesh(self) -> torch.Tensor:
+        """[ΣE] mesh index of each edge."""
+        return self._to_mesh(self.edge_ptr)
+
+    def to(self, device) -> "MeshBatch":
+        """The same batch on another device."""
+        mv = {k: getattr(self, k).to(device) for k in
+              ("verts", "faces", "edges", "face_edges", "face_edge_sign", "vert_ptr", "face_ptr", "edge_ptr")}
+        return MeshBatch(meshes=self.meshes, **mv)
+
+    def split(self, packed: torch.Tensor, ptr: torch.Tensor) -> list[torch.Tensor]:
+        """Split a packed tensor into per-mesh pieces along dim 0 using offsets ``ptr``."""
+        sizes = (ptr[1:] - ptr[:-1]).tolist()
+        return list(torch.split(packed, sizes, dim=0))
+
+
+def pad_packed(x: torch.Tensor, ptr: torch.Tensor, fill: float = 0.0
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Padded view of a packed tensor.
+
+    x : [ΣN, ...] packed rows; ptr : [B+1] offsets.
+    Returns ``padded`` [B, N_max, ...] (``fill`` in the padding) and ``mask`` [B, N_max] bool.
+    """
+    counts = ptr[1:] - ptr[:-1]
+    b = len(counts)
+    n_max = int(counts.max()) if b else 0
+    owner = torch.repeat_interleave(torch.arange(b, device=x.device), counts)
+    pos = torch.arange(x.shape[0], device=x.device) - ptr[:-1][owner]
+    padded = x.new_full((b, n_max) + tuple(x.shape[1:]), fill)
+    padded[owner, pos] = x
+    mask = torch.zeros(b, n_max, dtype=torch.bool, device=x.device)
+    mask[owner, pos] = True
+    return padded, mask
+
+
+def unpad(padded: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`pad_packed`: [B, N_max, ...] + mask -> packed [ΣN, ...]."""
+    return padded[mask]

@@ -1,0 +1,215 @@
+"""Validation and clean-up of one mesh, with index maps back to the input's faces.
+
+What is repaired (and counted in ``CleanMesh.report``): exact duplicate vertices are merged,
+faces with a repeated vertex index, zero-area faces and repeated faces are dropped, faces are
+re-oriented consistently per component, unreferenced vertices are removed.
+What is refused (``MeshError``): non-manifold edges (shared by more than two faces),
+non-orientable surfaces, and meshes with nothing left after clean-up.
+Open boundaries and several connected components are supported as they are.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ..errors import MeshError
+from .mesh import Mesh
+
+#: Faces with area below this fraction of the mean face area are treated as degenerate:
+#: their cotangents are unbounded and their star2 = 1/A is infinite.
+DEGENERATE_AREA_FRACTION = 1e-10
+
+
+@dataclass(frozen=True)
+class CleanMesh:
+    """A validated, cleaned mesh and the maps back to the input it came from.
+
+    Attributes
+    ----------
+    vertices : [V, 3] float64
+    faces : [F, 3] int64, consistently oriented
+    face_index : [F] int64, for each kept face the index of the input face it is
+    n_input_faces : int, face count of the input (file order is 0..n_input_faces-1)
+    face_component : [F] int64, connected component of each face (0..n_components-1)
+    name : str
+    report : dict, counts of what clean-up changed
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_index: np.ndarray
+    n_input_faces: int
+    face_component: np.ndarray
+    name: str
+    input_faces: np.ndarray = field(repr=False)
+    report: dict = field(default_factory=dict)
+
+    @property
+    def n_components(self) -> int:
+        return int(self.face_component.max()) + 1
+
+    def to_input_faces(self, values: np.ndarray, fill=0) -> np.ndarray:
+        """Scatter per-face ``values`` [F, ...] onto the input's faces [n_input_faces, ...].
+
+        Dropped (degenerate) input faces get ``fill``.
+        """
+        values = np.asarray(values)
+        out = np.full((self.n_input_faces,) + values.shape[1:], fill, dtype=values.dtype)
+        out[self.face_index] = values
+        return out
+
+    def labels_to_input_faces(self, labels: np.ndarray) -> np.ndarray:
+        """Per-face integer labels [F] onto the input's faces [n_input_faces].
+
+        A dropped face takes the most common label among kept faces sharing a vertex with it
+        (a degenerate sliver belongs to the part around it); -1 where it touches none.
+        """
+        out = self.to_input_faces(np.asarray(labels, dtype=np.int64), fill=-1)
+        dropped = np.setdiff1d(np.arange(self.n_input_faces), self.face_index)
+        if len(dropped) == 0:
+            return out
+        n_in_vertices = int(self.input_faces.max()) + 1
+        # Vertex -> label of one kept face using it; several passes spread labels into
+        # clusters of dropped faces.
+        for _ in range(3):
+            vertex_label = np.full(n_in_vertices, -1, dtype=np.int64)
+            known = out >= 0
+            vertex_label[self.input_faces[known].ravel()] = np.repeat(out[known], 3)
+            for f in dropped:
+                if out[f] < 0:
+                    cand = vertex_label[self.input_faces[f]]
+                    cand = cand[cand >= 0]
+                    if len(cand):
+                        out[f] = np.bincount(cand).argmax()
+        return out
+
+
+def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Triangle areas [F] (units of length^2)."""
+    p = vertices[faces]
+    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+
+def clean_mesh(mesh: Mesh) -> CleanMesh:
+    """Validate and clean ``mesh``; see the module docstring for what is repaired or refused."""
+    name = mesh.name
+    report = {}
+    # Merge exact duplicate vertices (STL and many exporters write one copy per face).
+    verts, inverse = np.unique(mesh.vertices, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    report["merged_vertices"] = mesh.n_vertices - len(verts)
+    faces = inverse[mesh.faces]
+    keep = np.arange(mesh.n_faces)
+
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    report["repeated_index_faces"] = int(repeated.sum())
+    faces, keep = faces[~repeated], keep[~repeated]
+    if len(faces) == 0:
+        raise MeshError(name, "every face repeats a vertex index; nothing is left to process")
+
+    area = face_areas(verts, faces)
+    degenerate = area <= DEGENERATE_AREA_FRACTION * area.mean()
+    report["zero_area_faces"] = int(degenerate.sum())
+    faces, keep = faces[~degenerate], keep[~degenerate]
+    if len(faces) == 0:
+        raise MeshError(name, "every face has zero area; nothing is left to process")
+
+    _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    first = np.sort(first)
+    report["repeated_faces"] = len(faces) - len(first)
+    faces, keep = faces[first], keep[first]
+
+    edge_faces = _undirected_edges(faces)
+    counts = np.bincount(edge_faces.inverse)
+    if counts.max() > 2:
+        e = int(np.argmax(counts))
+        i, j = edge_faces.unique[e]
+        raise MeshError(name, f"non-manifold edge ({int(i)}, {int(j)}) is shared by "
+                              f"{int(counts[e])} faces ({int((counts > 2).sum())} such edges); "
+                              "repair the mesh (e.g. split it into manifold pieces) first")
+
+    used, faces = np.unique(faces, return_inverse=True)
+    faces = faces.reshape(-1, 3)
+    report["unreferenced_vertices"] = len(verts) - len(used)
+    verts = verts[used]
+
+    faces, flipped = _orient_consistently(faces, name)
+    report["flipped_faces"] = flipped
+
+    n_comp, vertex_comp = connected_components(_vertex_adjacency(faces, len(verts)), directed=False)
+    report["components"] = int(n_comp)
+    report["boundary_edges"] = int((counts == 1).sum())
+    return CleanMesh(vertices=verts, faces=faces, face_index=keep, n_input_faces=mesh.n_faces,
+                     face_component=vertex_comp[faces[:, 0]].astype(np.int64), name=name,
+                     input_faces=mesh.faces, report=report)
+
+
+@dataclass
+class _EdgeTable:
+    unique: np.ndarray   # [E, 2] sorted vertex pairs
+    inverse: np.ndarray  # [3F] half-edge -> undirected edge
+
+
+def _undirected_edges(faces: np.ndarray) -> _EdgeTable:
+    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    unique, inverse = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True)
+    return _EdgeTable(unique, inverse.reshape(-1))
+
+
+def _vertex_adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
+    i = faces.ravel()
+    j = np.roll(faces, -1, axis=1).ravel()
+    return sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)).tocsr()
+
+
+def _orient_consistently(faces: np.ndarray, name: str) -> tuple[np.ndarray, int]:
+    """Flip faces so that each interior edge is traversed once in each direction.
+
+    Returns the oriented faces and how many were flipped. Each component keeps the orientation
+    of its lowest-numbered face. Raises on non-orientable surfaces (e.g. a Moebius strip).
+    """
+    half = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
+    table = _undirected_edges(faces)
+    forward = half[:, 0] < half[:, 1]
+    # An interior edge is consistent when its two half-edges point opposite ways.
+    n_fwd = np.bincount(table.inverse, weights=forward, minlength=len(table.unique))
+    n_all = np.bincount(table.inverse, minlength=len(table.unique))
+    if np.all((n_all == 1) | (n_fwd == 1)):
+        return faces, 0
+
+    # Face adjacency through shared edges, breadth first.
+    he_face = np.repeat(np.arange(len(faces)), 3)
+    order = np.argsort(table.inverse, kind="stable")
+    edge_sorted = table.inverse[order]
+    pair_start = np.flatnonzero(np.r_[True, edge_sorted[1:] != edge_sorted[:-1]])
+    neighbours = [[] for _ in range(len(faces))]
+    for s in pair_start:
+        if s + 1 < len(order) and edge_sorted[s + 1] == edge_sorted[s]:
+            a, b = order[s], order[s + 1]
+            same = forward[a] == forward[b]  # same direction => the two faces disagree
+            fa, fb = he_face[a], he_face[b]
+            neighbours[fa].append((fb, same))
+            neighbours[fb].append((fa, same))
+    flip = np.full(len(faces), -1, dtype=np.int8)
+    for seed in range(len(faces)):
+        if flip[seed] >= 0:
+            continue
+        flip[seed] = 0
+        queue = deque([seed])
+        while queue:
+            f = queue.popleft()
+            for g, same in neighbours[f]:
+                want = flip[f] ^ int(same)
+                if flip[g] < 0:
+                    flip[g] = want
+                    queue.append(g)
+                elif flip[g] != want:
+                    raise MeshError(name, "the surface is not orientable (faces cannot be "
+                                          "ordered consistently); torchakvf needs an orientable mesh")
+    out = faces.copy()
+    out[flip == 1] = out[flip == 1][:, ::-1]
+    return out, int((flip == 1).sum())

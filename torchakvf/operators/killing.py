@@ -1,0 +1,231 @@
+"""The discrete Killing operator R on 1-forms, block-diagonal over a batch.
+
+``w^T R w = (1/2) ∫ |L_X g|^2`` and ``w^T S1 w = ∫ |X|^2``; the AKVFs are the smallest
+eigenpairs of ``R w = λ S1 w``. Formulas from ../shared/design/akvf-math.md, Sec. 2:
+
+    R = d1^T S2 d1 + 2 D^T S0^{-1} D - 2 S1 diag(K_e) - 2 sym(R_b)
+
+with D = -d0^T S1 plus the boundary-flux correction, and R_b the boundary term (both vanish on
+closed meshes). Everything is computed on unit-area meshes, so eigenvalues are λ·area.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..errors import ParameterError
+from ..mesh.batch import MeshBatch
+from . import dec
+from .geometry import BatchGeometry, batch_geometry
+
+#: Mesh-quality remedies (see :func:`killing_operator`).
+REMEDIES = ("none", "clamp", "smooth")
+#: Rings of curvature averaging per remedy.
+CURVATURE_RINGS = {"none": 0, "clamp": 0, "smooth": 4}
+
+#: Floor of the "none" formulation: the mass matrix must be positive definite, so star1 is
+#: floored at this fraction of the mesh's mean |star1| (akvf-math.md, pitfall 2).
+MASS_FLOOR = 1e-8
+
+
+@dataclass
+class KillingSystem:
+    """The generalized eigenproblem ``R w = λ S1 w`` of a batch.
+
+    stiffness : sparse COO [ΣE, ΣE], R (block-diagonal, symmetric, coalesced)
+    mass : [ΣE] positive diagonal of S1 as used in R
+    edge_ptr : [B+1] offsets of each mesh's edges
+    star1_raw : [ΣE] cotangent weights before any floor or remedy
+    geometry : the unit-area :class:`BatchGeometry` the operator was built from
+    """
+
+    stiffness: torch.Tensor
+    mass: torch.Tensor
+    edge_ptr: torch.Tensor
+    star1_raw: torch.Tensor
+    geometry: BatchGeometry
+
+    @property
+    def n_meshes(self) -> int:
+        return len(self.edge_ptr) - 1
+
+    def block(self, b: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
+        """COO entries (rows, cols, vals) of mesh b's block with local indices, and its size."""
+        idx, vals = self.stiffness.indices(), self.stiffness.values()
+        lo, hi = int(self.edge_ptr[b]), int(self.edge_ptr[b + 1])
+        start, stop = torch.searchsorted(idx[0], torch.tensor([lo, hi], device=idx.device)).tolist()
+        return idx[0, start:stop] - lo, idx[1, start:stop] - lo, vals[start:stop], hi - lo
+
+    def negative_star1_counts(self) -> torch.Tensor:
+        """[B] number of edges with star1 <= 0 (obtuse pairs) per mesh."""
+        counts = self.edge_ptr.new_zeros(self.n_meshes)
+        owner = torch.repeat_interleave(torch.arange(self.n_meshes, device=counts.device),
+                                        self.edge_ptr[1:] - self.edge_ptr[:-1])
+        counts.index_add_(0, owner, (self.star1_raw <= 0).long())
+        return counts
+
+
+def _per_mesh_mean(x: torch.Tensor, ptr: torch.Tensor) -> torch.Tensor:
+    owner = torch.repeat_interleave(torch.arange(len(ptr) - 1, device=x.device), ptr[1:] - ptr[:-1])
+    total = x.new_zeros(len(ptr) - 1).index_add_(0, owner, x)
+    return (total / (ptr[1:] - ptr[:-1]).to(x.dtype))[owner]
+
+
+def mass_star1(star1: torch.Tensor, edge_ptr: torch.Tensor, remedy: str = "none") -> torch.Tensor:
+    """The positive star1 used as S1 under ``remedy`` ([ΣE] -> [ΣE]).
+
+    "none": the paper's cotan weights, floored at MASS_FLOOR * mean |star1| only so that the
+    mass matrix stays positive definite. "clamp": floored at 0.1 * mean |star1|, which also
+    removes the large negative curvature terms that obtuse pairs put into R.
+    """
+    if remedy not in REMEDIES:
+        raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
+    fraction = MASS_FLOOR if remedy == "none" else 0.1
+    floor = fraction * _per_mesh_mean(star1.abs(), edge_ptr)
+    return torch.maximum(star1, floor)
+
+
+def _ring_average_curvature(batch: MeshBatch, theta: torch.Tensor, a_v: torch.Tensor,
+                            rings: int) -> torch.Tensor:
+    """[ΣV] Gaussian curvature K_v = Σ θ / Σ A over ``rings`` rings around each vertex.
+
+    rings = 0 is the plain θ_v / A_v. Averaging over a neighbourhood is still consistent
+    (it converges to K under refinement) but spreads curvature concentrated at cone-like
+    vertices (finger tips, horns of coarse real meshes) over the area around them.
+    """
+    if rings == 0:
+        return theta / a_v
+    e = batch.edges
+    n = len(theta)
+    idx = torch.cat([e, e.flip(1), torch.arange(n, device=e.device)[:, None].expand(-1, 2)]).t()
+    adj = torch.sparse_coo_tensor(idx, torch.ones(idx.shape[1], dtype=theta.dtype, device=e.device),
+                                  (n, n), check_invariants=False).coalesce()
+    num, den = theta[:, None], a_v[:, None]
+    for _ in range(rings):
+        num, den = torch.sparse.mm(adj, num), torch.sparse.mm(adj, den)
+    return (num / den)[:, 0]
+
+
+def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy: str = "none",
+                     dtype: torch.dtype = torch.float64,
+                     curvature_rings: int | None = None) -> KillingSystem:
+    """Assemble R and S1 for every mesh of ``batch`` (on the batch's device).
+
+    Parameters
+    ----------
+    boundary_correction : add the boundary-flux and boundary terms on open meshes (without
+        them the operator's kernel is the Neumann-harmonic fields, not the Killing fields).
+    remedy : mesh-quality remedy, one of :data:`REMEDIES` (see :func:`mass_star1`).
+    dtype : float type of the assembly; float64 unless a float32 check says otherwise.
+    """
+    geo = batch_geometry(batch, dtype)
+    n_e, n_v = len(batch.edges), len(batch.verts)
+    dev = batch.verts.device
+    fe = batch.face_edges
+    sign = batch.face_edge_sign.to(dtype)
+    s1_raw = dec.star1(batch, geo)
+    s1 = mass_star1(s1_raw, batch.edge_ptr, remedy)
+    a_v = dec.star0(batch, geo)
+    theta = dec.angle_defect(batch, geo)
+    rings = CURVATURE_RINGS.get(remedy, 0) if curvature_rings is None else curvature_rings
+    k_v = _ring_average_curvature(batch, theta, a_v, rings)
+    k_e = 0.5 * (k_v[batch.edges[:, 0]] + k_v[batch.edges[:, 1]])
+
+    parts = []
+    # d1^T S2 d1: a 3x3 block per face.
+    vals = (sign[:, :, None] * sign[:, None, :]) / geo.face_area[:, None, None]
+    parts.append((fe[:, :, None].expand(-1, 3, 3), fe[:, None, :].expand(-1, 3, 3), vals))
+    # -2 S1 diag(K_e).
+    ar = torch.arange(n_e, device=dev)
+    parts.append((ar, ar, -2.0 * s1 * k_e))
+
+    # D = -d0^T S1 (+ boundary flux); D[i, e] = +S1_e, D[j, e] = -S1_e for e = (i -> j).
+    d_rows = [batch.edges[:, 0], batch.edges[:, 1]]
+    d_cols = [ar, ar]
+    d_vals = [s1, -s1]
+    bnd = _boundary_functionals(batch, geo, sign) if boundary_correction else None
+    if bnd is not None:
+        flux = -(bnd.length / 2)[:, None] * bnd.nu_coef                   # [Q, 3]
+        for end in (bnd.tail, bnd.head):
+            d_rows.append(end[:, None].expand(-1, 3))
+            d_cols.append(bnd.edges)
+            d_vals.append(flux)
+    dmat = dec.sparse_coo(torch.cat([r.reshape(-1) for r in d_rows]),
+                          torch.cat([c.reshape(-1) for c in d_cols]),
+                          torch.cat([v.reshape(-1) for v in d_vals]), (n_v, n_e))
+    d_scaled = torch.sparse_coo_tensor(dmat.indices(), dmat.values() / a_v[dmat.indices()[0]],
+                                       dmat.shape, check_invariants=False).coalesce()
+    ddd = torch.sparse.mm(dmat.t().coalesce(), d_scaled).coalesce()
+    parts.append((ddd.indices()[0], ddd.indices()[1], 2.0 * ddd.values()))
+
+    if bnd is not None:
+        # -2 sym(R_b): w^T R_b w = sum_q Im(conj(z_q) z_{q+1} e^{i phi_q}), z = u + i v.
+        nxt = bnd.successor
+        c, s = torch.cos(bnd.phi)[:, None, None], torch.sin(bnd.phi)[:, None, None]
+        u, v = bnd.tau_coef, bnd.nu_coef
+        un, vn = u[nxt], v[nxt]
+        block = (u[:, :, None] * (s * un[:, None, :] + c * vn[:, None, :])
+                 - v[:, :, None] * (c * un[:, None, :] - s * vn[:, None, :]))      # [Q, 3, 3]
+        rows = bnd.edges[:, :, None].expand(-1, 3, 3)
+        cols = bnd.edges[nxt][:, None, :].expand(-1, 3, 3)
+        parts.append((rows, cols, -block))          # -2 * (B + B^T) / 2
+        parts.append((cols, rows, -block))
+
+    rows = torch.cat([p[0].reshape(-1) for p in parts])
+    cols = torch.cat([p[1].reshape(-1) for p in parts])
+    vals = torch.cat([p[2].reshape(-1) for p in parts])
+    r = dec.sparse_coo(rows, cols, vals, (n_e, n_e))
+    return KillingSystem(stiffness=r, mass=s1, edge_ptr=batch.edge_ptr, star1_raw=s1_raw, geometry=geo)
+
+
+@dataclass
+class _BoundaryFunctionals:
+    """Linear functionals of the Whitney field at the midpoint of each boundary edge q.
+
+    edges : [Q, 3] global edges of q's face (slot order: t->h, h->o, o->t)
+    tau_coef, nu_coef : [Q, 3] coefficients of u_q = tau . X_mid and v_q = nu . X_mid on those edges
+    tail, head : [Q] vertices of q oriented with its face (interior on the left)
+    length : [Q]; phi : [Q] geodesic turning at head; successor : [Q] index of the next boundary edge
+    """
+
+    edges: torch.Tensor
+    tau_coef: torch.Tensor
+    nu_coef: torch.Tensor
+    tail: torch.Tensor
+    head: torch.Tensor
+    length: torch.Tensor
+    phi: torch.Tensor
+    successor: torch.Tensor
+
+
+def _boundary_functionals(batch: MeshBatch, geo: BatchGeometry, sign: torch.Tensor):
+    count = dec.edge_face_count(batch)
+    half = torch.nonzero(count[batch.face_edges.reshape(-1)] == 1).reshape(-1)
+    if len(half) == 0:
+        return None
+    face, k = half // 3, half % 3
+    slots = torch.stack([k, (k + 1) % 3, (k + 2) % 3], dim=1)                # t->h, h->o, o->t
+    fverts = batch.faces[face]
+    tail, head = fverts.gather(1, slots[:, :1])[:, 0], fverts.gather(1, slots[:, 1:2])[:, 0]
+    grads = geo.grad_bary[face]                                              # [Q, 3(l), 3(xyz)]
+    g = lambda idx: grads[torch.arange(len(face), device=face.device), idx]  # noqa: E731
+    g_t, g_h, g_o = g(slots[:, 0]), g(slots[:, 1]), g(slots[:, 2])
+    sg = sign[face].gather(1, slots)                                         # half-edge signs
+    # X_mid = 1/2 [w_th (grad l_h - grad l_t) + w_ho grad l_o - w_ot grad l_o], l_t = l_h = 1/2.
+    coef = 0.5 * torch.stack([sg[:, 0:1] * (g_h - g_t), sg[:, 1:2] * g_o, -sg[:, 2:3] * g_o], dim=1)
+    p = geo.points
+    edge_vec = p[head] - p[tail]
+    length = torch.linalg.norm(edge_vec, dim=1)
+    tau = edge_vec / length[:, None]
+    nu = torch.cross(geo.normal[face], tau, dim=1)
+    phi = math.pi - dec.angle_sum(batch, geo)[head]
+    # The next boundary edge starts where this one ends.
+    by_tail = torch.full((len(batch.verts),), -1, dtype=torch.long, device=face.device)
+    by_tail[tail] = torch.arange(len(face), device=face.device)
+    successor = by_tail[head]
+    return _BoundaryFunctionals(edges=batch.face_edges[face].gather(1, slots),
+                                tau_coef=(coef * tau[:, None, :]).sum(-1),
+                                nu_coef=(coef * nu[:, None, :]).sum(-1),
+                                tail=tail, head=head, length=length, phi=phi, successor=successor)
