@@ -54,7 +54,8 @@ def main(argv: list[str] | None = None) -> int:
         report = prepare_psb(args.source, args.out, compress=not args.no_compress,
                              overwrite=args.overwrite, withhold=args.withhold,
                              download_timeout=args.timeout, log=log)
-    except (OSError, ValueError) as exc:  # ArchiveError is a ValueError; FileNotFoundError an OSError
+    # ArchiveError is a ValueError, FileNotFoundError an OSError: every expected failure.
+    except (OSError, ValueError) as exc:
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"prepare_psb: error: {message}", file=sys.stderr)
         return 1

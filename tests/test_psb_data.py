@@ -254,7 +254,8 @@ def test_prepare_converts_layout(tmp_path, kind):
     out = tmp_path / "psb"
     report = prepare_psb(archive, out)
     assert (report.n_meshes, report.n_segmentations, report.meshes_with_gt) == (3, 12, 2)
-    assert sorted(p.name for p in (out / "meshes").iterdir()) == ["1.off.gz", "2.off.gz", "21.off.gz"]
+    assert sorted(p.name for p in (out / "meshes").iterdir()) == \
+        ["1.off.gz", "2.off.gz", "21.off.gz"]
     assert sorted(os.listdir(out)) == ["gt", "meshes"]  # the temporary folder is gone
     assert gzip.decompress((out / "meshes" / "1.off.gz").read_bytes()) == TETRA_OFF
 
@@ -384,7 +385,7 @@ PUBLISHED_HUMAN_RI_ERROR = 0.103  # Chen et al. 2009, Figure 5 (all 19 categorie
 
 
 def human_consistency(per_category: int | None) -> tuple[float, dict[str, float], int]:
-    """Mean over categories (20 meshes each, so also over meshes) of each mesh's mean pairwise 1-RI."""
+    """Mean over categories (of 20 meshes, so also over meshes) of the mesh's mean pairwise 1-RI."""
     entries = [e for e in find_psb_meshes(psb_root()) if e.has_gt]
     by_cat: dict[str, list[float]] = {}
     n_files = 0

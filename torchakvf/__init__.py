@@ -7,9 +7,11 @@ parts -> io outputs. The public API is plain functions on a :class:`MeshBatch` o
 from .errors import MeshError, ParameterError, SolverError, TorchAKVFError
 from .io import load_mesh
 from .mesh import CleanMesh, Mesh, MeshBatch, clean_mesh
-from .fields import AKVFResult, akvf
+from .fields import AKVFResult, UntangledFields, akvf, untangle
+from .parts import MeshSegmentation, Segmentation, segment
 
 __version__ = "0.1.0"
 
 __all__ = ["TorchAKVFError", "MeshError", "SolverError", "ParameterError", "load_mesh", "Mesh",
-           "CleanMesh", "clean_mesh", "MeshBatch", "AKVFResult", "akvf", "__version__"]
+           "CleanMesh", "clean_mesh", "MeshBatch", "AKVFResult", "akvf", "UntangledFields", "untangle",
+           "Segmentation", "MeshSegmentation", "segment", "__version__"]

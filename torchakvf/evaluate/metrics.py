@@ -189,8 +189,8 @@ def _table(a: np.ndarray, b: np.ndarray, with_face_cell: bool = False) -> _Table
     k1, k2 = len(size_a), len(size_b)
     code = ids_a * k2 + ids_b
     face_cell = None
-    # A dense k1*k2 table costs O(F + k1*k2); when that product is huge (e.g. "every face its own
-    # segment" against itself) fall back to sorting the F cell codes, O(F log F), so memory stays O(F).
+    # A dense k1*k2 table costs O(F + k1*k2); when that product is huge (e.g. "every face its
+    # own segment" against itself) sort the F cell codes instead, O(F log F) with O(F) memory.
     if k1 * k2 <= 4 * code.size + (1 << 16):
         counts = np.bincount(code, minlength=k1 * k2)
         cells = np.flatnonzero(counts)
@@ -303,7 +303,7 @@ def hamming_distance(a, b, face_areas=None) -> HammingResult:
 # ---------------------------------------------------------------------------------------------
 
 def consistency_errors(a, b, face_areas=None) -> tuple[float, float]:
-    """Global and local consistency error (Martin et al., ICCV 2001), as the benchmark computes them.
+    """Global and local consistency error (Martin et al., ICCV 2001), as the benchmark has them.
 
     With ``R(S, f)`` the segment of ``S`` containing face ``f``, the per-face refinement error
     ``E(S1, S2, f) = |R(S1, f) \\ R(S2, f)| / |R(S1, f)|`` and::
@@ -381,7 +381,7 @@ def _face_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 
 def average_radius(vertices, faces) -> float:
-    """Average distance from a point on the surface to the surface centroid (GAPS ``AverageRadius``).
+    """Mean distance from a point on the surface to its centroid (GAPS ``AverageRadius``).
 
     Area-weighted mean, over faces, of the distance from the face centroid (mean of its three
     corners) to the area-weighted centroid of the surface. This is the cut discrepancy's
@@ -434,7 +434,8 @@ class _EdgeGraph:
         uniq = code[self.edge_start]
         self.edge_ends = np.stack([uniq // n_v, uniq % n_v], axis=1)
         lengths = np.linalg.norm(v[self.edge_ends[:, 0]] - v[self.edge_ends[:, 1]], axis=1)
-        # Zero-length edges stay in the graph as explicit zeros (csgraph treats stored zeros as edges).
+        # Zero-length edges stay in the graph as explicit zeros (csgraph keeps stored zeros
+        # as edges), so "distance 0 from the cut" means what it means in the C++.
         self.graph = sp.csr_matrix((lengths, (self.edge_ends[:, 0], self.edge_ends[:, 1])),
                                    shape=(n_v, n_v))
         self._areas = None
@@ -470,7 +471,7 @@ class _EdgeGraph:
         return np.unique(self.edge_ends[is_cut].ravel())
 
     def distance_to(self, sources: np.ndarray) -> np.ndarray:
-        """Shortest edge-path length from every vertex to the nearest source vertex ([V], inf if unreachable)."""
+        """Edge-path distance from each vertex to the nearest source ([V]; inf: unreachable)."""
         return dijkstra(self.graph, directed=False, indices=sources, min_only=True)
 
     def cut_discrepancy(self, a: np.ndarray, b: np.ndarray) -> float:

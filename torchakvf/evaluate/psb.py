@@ -224,7 +224,7 @@ def read_seg(path) -> np.ndarray:
             labels = np.fromstring(data, dtype=np.int64, sep=" ")
         if labels.size == len(data.split()):
             return labels
-    except (ValueError, DeprecationWarning, AttributeError):  # AttributeError: a numpy without fromstring
+    except (ValueError, DeprecationWarning, AttributeError):  # AttributeError: no fromstring
         pass
     return _read_seg_slow(path, data)
 
@@ -304,12 +304,12 @@ def read_off(path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def human_segment_counts(entry: PSBEntry) -> list[int]:
-    """Number of distinct labels in each human segmentation of ``entry`` (k order); [] without gt."""
+    """Distinct labels in each human segmentation of ``entry`` (k order); [] without gt."""
     return [int(np.unique(read_seg(p)).size) for p in entry.seg_paths]
 
 
 def human_pairwise_rand_index_error(entry: PSBEntry, segs: list[np.ndarray] | None = None) -> float:
-    """Mean 1 - RI over all pairs of the human segmentations of one mesh (the benchmark's "human" score).
+    """Mean 1 - RI over all pairs of human segmentations of one mesh (the "human" score).
 
     Parameters
     ----------

@@ -85,7 +85,8 @@ def _member_parts(archive: Path, name: str) -> list[str]:
         raise ArchiveError(f"{archive}: refusing member {name!r}: absolute path")
     parts = [p for p in norm.split("/") if p not in ("", ".")]
     if ".." in parts:
-        raise ArchiveError(f"{archive}: refusing member {name!r}: '..' would leave the target folder")
+        raise ArchiveError(f"{archive}: refusing member {name!r}: "
+                           f"'..' would leave the target folder")
     return parts
 
 
@@ -193,7 +194,7 @@ _READ_ERRORS = (zipfile.BadZipFile, tarfile.TarError, EOFError, zlib.error, lzma
 
 
 def safe_extract(archive, dest) -> list[Path]:
-    """Extract a zip or tar (optionally gz / bz2 / xz) archive into ``dest``, refusing unsafe members.
+    """Extract a zip or tar (plain, gz, bz2, xz) archive into ``dest``, refusing unsafe members.
 
     Every member is checked before anything is written; one unsafe member refuses the whole
     archive. Refused: absolute paths (``/x``, ``C:x``), ``..`` components, symbolic or hard links
@@ -323,7 +324,7 @@ class ConversionReport:
 
 
 def find_benchmark_data_dir(root, max_depth: int = 5) -> Path:
-    """The folder ``D`` under ``root`` with ``D/off`` and ``D/seg/Benchmark`` (the benchmark's ``data``).
+    """The folder ``D`` under ``root`` holding ``D/off`` and ``D/seg/Benchmark`` (``data/``).
 
     Raises
     ------
@@ -343,7 +344,8 @@ def find_benchmark_data_dir(root, max_depth: int = 5) -> Path:
         if not level:
             break
     raise ArchiveError(f"{root}: no benchmark data found (expected a folder holding "
-                       f"'off/N.off' and 'seg/Benchmark/N/N_k.seg', as in MeshsegBenchmark-1.0/data)")
+                       f"'off/N.off' and 'seg/Benchmark/N/N_k.seg', as in "
+                       f"MeshsegBenchmark-1.0/data)")
 
 
 def _off_face_count(data: bytes, path: Path) -> int:
@@ -360,7 +362,8 @@ def _off_face_count(data: bytes, path: Path) -> int:
     try:
         return int(counts[1])
     except (TypeError, IndexError, ValueError):
-        raise ArchiveError(f"{path}: cannot read the vertex/face counts of the OFF header") from None
+        raise ArchiveError(f"{path}: cannot read the vertex/face counts "
+                           f"of the OFF header") from None
 
 
 def _write(data: bytes, target: Path, compress: bool) -> None:

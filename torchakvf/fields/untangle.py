@@ -1,0 +1,145 @@
+"""Untangling AKVFs (the paper's Algorithm 1): an orthomax (quartimax) rotation per mesh.
+
+Each mesh's n fields Φ_b [E_b, n] are rotated by an orthogonal A_b [n, n] maximizing the sum of
+fourth powers of the per-edge norms sqrt(S1) Φ A, which concentrates every rotated field on as
+few edges (one part) as possible. Horst's iteration: G = Yᵀ (Y A)^3, A <- U Vᵀ from svd(G).
+All meshes and all restarts run as one batched set of [B·R, n, n] SVDs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..errors import ParameterError
+from ..mesh.batch import pad_packed
+from .akvf import AKVFResult
+
+
+@dataclass
+class UntangledFields:
+    """Untangled AKVFs of a batch (first n of each mesh's AKVFs, rotated).
+
+    rotation : [B, n, n] orthogonal A_b (untangled = raw @ A_b)
+    forms : packed [ΣE, n] untangled 1-forms (S1-orthonormal per mesh)
+    face_vectors : packed [ΣF, n, 3] untangled Whitney vectors at barycenters
+    features : packed [ΣF, n] per-face norms |X_f| of the untangled fields (the paper's φ(f))
+    energies : [B, n] Killing energy (Rayleigh quotient, λ·area) of each untangled field
+    score : [B] the orthomax objective Σ (sqrt(S1) Φ A)^4 reached
+    iterations : [B] iterations of the restart kept
+    n_fields : list of B ints, the number of fields untangled per mesh (arrays padded to the max)
+    source : the :class:`AKVFResult` they came from
+    """
+
+    rotation: torch.Tensor
+    forms: torch.Tensor
+    face_vectors: torch.Tensor
+    features: torch.Tensor
+    energies: torch.Tensor
+    score: torch.Tensor
+    iterations: torch.Tensor
+    n_fields: list
+    source: AKVFResult
+
+    @property
+    def n(self) -> int:
+        return self.rotation.shape[-1]
+
+    def mesh_features(self, b: int) -> torch.Tensor:
+        """[F_b, n_b] features of mesh b (cleaned faces)."""
+        ptr = self.batch.face_ptr
+        return self.features[int(ptr[b]):int(ptr[b + 1]), :self.n_fields[b]]
+
+    @property
+    def batch(self):
+        return self.source.batch
+
+
+def random_rotations(count: int, n: int, generator: torch.Generator, dtype=torch.float64) -> torch.Tensor:
+    """[count, n, n] Haar-random orthogonal matrices (QR of Gaussians, sign-fixed)."""
+    g = torch.randn(count, n, n, generator=generator, dtype=dtype)
+    q, r = torch.linalg.qr(g)
+    return q * torch.sign(torch.diagonal(r, dim1=1, dim2=2))[:, None, :]
+
+
+def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: int = 8,
+             seed: int = 0, tol: float = 1e-5, max_iter: int = 500) -> UntangledFields:
+    """Algorithm 1 on the first ``n`` fields of every mesh (default: all of them).
+
+    n : one count for all meshes, or one per mesh; arrays are padded to the largest n
+        (zero columns beyond a mesh's own n).
+    restarts : random orthogonal starts besides the identity; the best by the orthomax
+        objective is kept. Started at the identity alone, the iteration cannot leave the
+        raw eigenbasis of an exactly symmetric shape (a symmetric dumbbell stays 50/50).
+    seed : each mesh's starts come from ``torch.Generator().manual_seed(seed)``, so a mesh
+        gets the same result in any batch.
+    tol : stop when the relative change of trace(D) is below tol (per restart); at most max_iter.
+    """
+    batch = fields.batch
+    nb = len(batch)
+    ns = [fields.n] * nb if n is None else ([int(n)] * nb if isinstance(n, int) else [int(v) for v in n])
+    if len(ns) != nb or min(ns) < 1 or max(ns) > fields.n:
+        raise ParameterError(f"n must be 1..{fields.n} per mesh (one int or {nb} ints), got {n!r}")
+    n_max = max(ns)
+    dev = fields.forms.device
+    phi = fields.forms[:, :n_max].to(torch.float64)
+    y = phi * fields.system.mass.to(torch.float64).sqrt()[:, None]
+    ypad, _ = pad_packed(y, batch.edge_ptr)                          # [B, Emax, n_max]
+    a = torch.zeros(nb, n_max, n_max, dtype=torch.float64, device=dev)
+    score = torch.zeros(nb, dtype=torch.float64, device=dev)
+    iters = torch.zeros(nb, dtype=torch.long, device=dev)
+    for group_n in sorted(set(ns)):
+        # Meshes sharing n run together; fields beyond a mesh's n are not part of its problem.
+        sel = torch.tensor([b for b in range(nb) if ns[b] == group_n], device=dev)
+        ag, sg, ig = _orthomax(ypad[sel][..., :group_n], restarts, seed, tol, max_iter)
+        a[sel, :group_n, :group_n], score[sel], iters[sel] = ag, sg, ig
+
+    owner_e, owner_f = batch.edge_to_mesh, batch.face_to_mesh
+    forms = torch.einsum("en,enm->em", phi, a[owner_e])
+    fv = fields.face_vectors[:, :n_max].to(torch.float64)
+    face_vectors = torch.einsum("fnc,fnm->fmc", fv, a[owner_f])
+    lam = fields.eigenvalues[:, :n_max].to(torch.float64)
+    energies = torch.einsum("bnm,bn->bm", a * a, lam)
+    dt = fields.forms.dtype
+    return UntangledFields(rotation=a.to(dt), forms=forms.to(dt), face_vectors=face_vectors.to(dt),
+                           features=torch.linalg.norm(face_vectors, dim=-1).to(dt),
+                           energies=energies.to(dt), score=score, iterations=iters,
+                           n_fields=ns, source=fields)
+
+
+def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter: int):
+    """Horst's iteration for [b, Emax, n] scaled forms, all restarts at once.
+
+    Returns the best rotation [b, n, n], its objective [b] and its iteration count [b].
+    """
+    nb, e_max, n = ypad.shape
+    dev = ypad.device
+    r = restarts + 1
+    starts = []
+    for _ in range(nb):
+        gen = torch.Generator().manual_seed(seed)
+        rots = random_rotations(restarts, n, gen)
+        starts.append(torch.cat([torch.eye(n, dtype=torch.float64)[None], rots]))
+    a = torch.stack(starts).to(dev).reshape(nb * r, n, n)
+    yr = ypad[:, None].expand(nb, r, e_max, n).reshape(nb * r, e_max, n)
+    d_old = torch.full((nb * r,), -1.0, dtype=torch.float64, device=dev)
+    active = torch.ones(nb * r, dtype=torch.bool, device=dev)
+    iters = torch.zeros(nb * r, dtype=torch.long, device=dev)
+    for _ in range(max_iter):
+        idx = torch.nonzero(active).reshape(-1)
+        if len(idx) == 0:
+            break
+        ya = yr[idx] @ a[idx]
+        g = yr[idx].transpose(1, 2) @ (ya * ya * ya)
+        u, s, vh = torch.linalg.svd(g)
+        a[idx] = u @ vh
+        d = s.sum(-1)
+        iters[idx] += 1
+        done = (d - d_old[idx]).abs() < tol * d.abs()
+        d_old[idx] = d
+        active[idx[done]] = False
+    score = ((yr @ a) ** 4).sum(dim=(1, 2)).reshape(nb, r)
+    best = score.argmax(dim=1)
+    ar = torch.arange(nb, device=dev)
+    return (a.reshape(nb, r, n, n)[ar, best], score.max(dim=1).values,
+            iters.reshape(nb, r)[ar, best])

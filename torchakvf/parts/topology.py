@@ -1,0 +1,40 @@
+"""Face adjacency and connected pieces of labelled faces (host-side, numpy/scipy)."""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ..mesh.batch import mesh_edges
+
+
+def face_adjacency(faces: np.ndarray) -> np.ndarray:
+    """[P, 2] pairs of faces sharing an edge."""
+    _, face_edges, _ = mesh_edges(faces)
+    flat = face_edges.reshape(-1)
+    order = np.argsort(flat, kind="stable")
+    e = flat[order]
+    same = np.flatnonzero(e[1:] == e[:-1])
+    return np.stack([order[same] // 3, order[same + 1] // 3], axis=1)
+
+
+def labelled_pieces(labels: np.ndarray, adjacency: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected pieces of faces with equal labels: (count, piece id per face [F])."""
+    a, b = adjacency[:, 0], adjacency[:, 1]
+    keep = labels[a] == labels[b]
+    n = len(labels)
+    graph = sp.coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(n, n))
+    return connected_components(graph, directed=False)
+
+
+def piece_neighbours(piece: np.ndarray, labels: np.ndarray, adjacency: np.ndarray
+                     ) -> dict[int, dict[int, int]]:
+    """For each piece, {neighbouring label: number of shared edges}."""
+    out: dict[int, dict[int, int]] = {}
+    a, b = adjacency[:, 0], adjacency[:, 1]
+    cross = piece[a] != piece[b]
+    for pa, lb in ((piece[a][cross], labels[b][cross]), (piece[b][cross], labels[a][cross])):
+        for p, lab in zip(pa.tolist(), lb.tolist()):
+            d = out.setdefault(p, {})
+            d[lab] = d.get(lab, 0) + 1
+    return out
