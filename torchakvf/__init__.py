@@ -9,6 +9,7 @@ from .io import load_mesh
 from .mesh import CleanMesh, Mesh, MeshBatch, clean_mesh
 from .fields import AKVFResult, UntangledFields, akvf, untangle
 from .parts import MeshSegmentation, Segmentation, segment
+from . import data
 
 __version__ = "0.1.0"
 

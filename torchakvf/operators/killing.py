@@ -11,6 +11,7 @@ closed meshes). Everything is computed on unit-area meshes, so eigenvalues are Î
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import torch
@@ -157,7 +158,10 @@ def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy:
                           torch.cat([v.reshape(-1) for v in d_vals]), (n_v, n_e))
     d_scaled = torch.sparse_coo_tensor(dmat.indices(), dmat.values() / a_v[dmat.indices()[0]],
                                        dmat.shape, check_invariants=False).coalesce()
-    ddd = torch.sparse.mm(dmat.t().coalesce(), d_scaled).coalesce()
+    with warnings.catch_warnings():
+        # torch routes sparse @ sparse through its (beta-flagged) CSR kernels.
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+        ddd = torch.sparse.mm(dmat.t().coalesce(), d_scaled).coalesce()
     parts.append((ddd.indices()[0], ddd.indices()[1], 2.0 * ddd.values()))
 
     if bnd is not None:

@@ -26,9 +26,35 @@ DEFAULT_REMEDY = "smooth"
 BOUNDARIES = ("isoline", "faces")
 
 
+#: Eigenvalues closer than this (relative) belong to one cluster, which N must not split.
+CLUSTER_GAP = 1e-2
+
+
 def default_n_fields(k: int) -> int:
     """The paper's N = 2k, clamped to [16, 32]."""
     return int(min(max(2 * k, 16), 32))
+
+
+def cluster_safe_n(eigenvalues, n: int, floor: int = 1) -> int:
+    """The field count nearest below ``n`` (at least ``floor``) that does not split a cluster of
+    near-equal eigenvalues; if none, the nearest above within the computed ones, else ``n``.
+
+    Only the span of a degenerate cluster is meaningful: cutting one leaves fields that no
+    rotation can localize (measured: two spheres, n = 16 splitting a 10-fold cluster -> 13%
+    leakage). eigenvalues : the ascending computed spectrum, length >= n.
+    """
+    lam = [float(x) for x in eigenvalues]
+
+    def splits(m: int) -> bool:
+        return m < len(lam) and lam[m] - lam[m - 1] <= CLUSTER_GAP * max(abs(lam[m - 1]), 1.0)
+
+    for m in range(n, floor - 1, -1):
+        if m >= 1 and not splits(m):
+            return m
+    for m in range(n + 1, len(lam) + 1):
+        if not splits(m):
+            return m
+    return n
 
 
 @dataclass
@@ -99,7 +125,8 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     eps : width of the connecting region in cosine-distance units (0 = plain segmentation);
         faces whose two closest parts differ by less than eps at the barycenter get label -1
     seed : seeds untangling restarts and k-means seeding (per mesh, batch-independent)
-    n_fields : fields untangled per mesh, default :func:`default_n_fields` (2k in [16, 32])
+    n_fields : fields untangled per mesh; default :func:`default_n_fields` (2k in [16, 32]),
+        moved to the nearest count that does not split a degenerate cluster (:func:`cluster_safe_n`)
     remedy : mesh-quality remedy of the Killing operator ("none" = the paper's)
     kmeans_restarts, untangle_restarts : random restarts (the best is kept)
     boundary : "isoline" (labels from the g_ij = 0 isolines of vertex-averaged features,
@@ -122,11 +149,16 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
         n_f = len(batch.meshes[b].faces)
         if kb > n_f:
             raise ParameterError(f"{batch.meshes[b].name}: k = {kb} is larger than its {n_f} faces")
-    ns = [default_n_fields(kb) for kb in ks] if n_fields is None else _per_mesh(n_fields, nb, "n_fields")
+    auto_n = n_fields is None
+    ns = [default_n_fields(kb) for kb in ks] if auto_n else _per_mesh(n_fields, nb, "n_fields")
     if fields is None:
-        fields = akvf(batch, n=max(ns), seed=seed, remedy=remedy)
+        # Compute a few more than needed so a cluster cut at N can be seen (and completed).
+        fields = akvf(batch, n=max(ns) + 4 if auto_n else max(ns), seed=seed, remedy=remedy)
     elif max(ns) > fields.n:
         raise ParameterError(f"n_fields up to {max(ns)} asked for, but the AKVFs given have n = {fields.n}")
+    if auto_n:
+        lam = fields.eigenvalues.detach().cpu()
+        ns = [cluster_safe_n(lam[b], ns[b], floor=max(ks[b], ns[b] // 2)) for b in range(nb)]
 
     unt = untangle(fields, n=ns, seed=seed, restarts=untangle_restarts)
     xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)

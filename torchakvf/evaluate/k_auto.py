@@ -1,0 +1,168 @@
+"""Choosing the number of parts k automatically (beyond the paper, which takes k as given).
+
+Rule (default ``"elbow"``): segment every mesh for each k in ``k_range`` from *one* AKVF
+solve and *one* field count (``n_fields = default_n_fields(k_max)`` for every k, so that the
+per-face features, and hence the k-means costs, are comparable across k), normalise the
+spherical k-means cost ``c(k)`` (sum over faces of 1 - cos to the centre) by ``c(k_min)`` and
+pick the k with the largest second difference ``c(k-1) - 2 c(k) + c(k+1)``: the "elbow" after
+which extra parts stop paying for themselves. Ties go to the smaller k. Only interior k's
+(``k_min < k < k_max``) can be chosen by this rule.
+
+Other rules, kept for comparison (see the measurements in the evaluation report):
+
+* ``"knee"`` - the "kneedle" point: after scaling k and c(k) to [0, 1], the k whose cost lies
+  furthest below the chord from (k_min, c(k_min)) to (k_max, c(k_max)).
+* ``"spectrum"`` - from the Killing spectrum alone (no clustering): with λ_i the eigenvalues
+  (λ·area) of the raw AKVFs, the largest relative gap ``λ_{i+1} / λ_i`` for i in
+  ``[2 k_min, 2 k_max]`` gives k = round(i / 2) (the paper's N = 2k fields per k parts).
+
+:func:`choose_k` returns one k per mesh; :func:`scan_k` also returns the costs and the
+segmentation for every k tried; :func:`segment_auto` is ``segment(..., k="auto")``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..fields.akvf import AKVFResult, akvf, as_batch
+from ..parts.segment import DEFAULT_REMEDY, Segmentation, default_n_fields, segment
+
+RULES = ("elbow", "knee", "spectrum")
+DEFAULT_K_RANGE = (2, 10)
+
+__all__ = ["RULES", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k"]
+
+
+@dataclass
+class KScan:
+    """Result of segmenting a batch for every k of a range.
+
+    ks : the k's tried (ascending)
+    costs : [B, len(ks)] spherical k-means cost of each mesh for each k
+    eigenvalues : [B, n] raw Killing eigenvalues (λ·area) of each mesh
+    chosen : [B] the k picked by ``rule``
+    rule : the rule used
+    n_fields : fields untangled for every k
+    segmentations : {k: Segmentation} (only when kept)
+    """
+
+    ks: list
+    costs: np.ndarray
+    eigenvalues: np.ndarray
+    chosen: list
+    rule: str
+    n_fields: int
+    segmentations: dict = field(default_factory=dict)
+
+    def segmentation(self) -> Segmentation:
+        """The chosen k's segmentation of every mesh (needs the segmentations kept)."""
+        if not self.segmentations:
+            raise ParameterError("this KScan kept no segmentations (keep=False)")
+        return Segmentation([self.segmentations[k].meshes[b] for b, k in enumerate(self.chosen)])
+
+
+def _check_range(k_range) -> tuple[int, int]:
+    try:
+        lo, hi = (int(v) for v in k_range)
+    except (TypeError, ValueError):
+        raise ParameterError(f"k_range must be two integers (k_min, k_max), got {k_range!r}") from None
+    if not 1 <= lo or hi - lo < 2:
+        raise ParameterError(f"k_range must have 1 <= k_min and k_max >= k_min + 2 (an elbow needs "
+                             f"a k on each side), got {k_range!r}")
+    return lo, hi
+
+
+def pick_k(ks, costs, rule: str = "elbow", eigenvalues=None) -> int:
+    """The k one rule picks from one mesh's cost curve ``costs[i] = c(ks[i])``."""
+    ks = np.asarray(ks, dtype=np.int64)
+    c = np.asarray(costs, dtype=np.float64)
+    if rule not in RULES:
+        raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
+    if rule == "spectrum":
+        if eigenvalues is None:
+            raise ParameterError("rule 'spectrum' needs the Killing eigenvalues")
+        lam = np.abs(np.asarray(eigenvalues, dtype=np.float64))
+        lo, hi = 2 * int(ks[0]), min(2 * int(ks[-1]), len(lam) - 1)
+        if hi <= lo:
+            return int(ks[0])
+        floor = max(lam.max() * 1e-12, 1e-300)
+        i = np.arange(lo, hi + 1)            # gap after the i-th eigenvalue (1-based count i)
+        ratio = lam[i] / np.maximum(lam[i - 1], floor)
+        best = int(i[int(np.argmax(ratio))])
+        return int(np.clip(round(best / 2), ks[0], ks[-1]))
+    if not np.all(np.isfinite(c)) or c[0] <= 0:
+        return int(ks[0])
+    cn = c / c[0]
+    if rule == "elbow":
+        d2 = cn[:-2] - 2 * cn[1:-1] + cn[2:]
+        return int(ks[1 + int(np.argmax(d2))])
+    # knee: furthest below the chord, both axes scaled to [0, 1]
+    x = (ks - ks[0]) / max(ks[-1] - ks[0], 1)
+    span = cn[0] - cn[-1]
+    if span <= 0:
+        return int(ks[0])
+    y = (cn - cn[-1]) / span
+    below = (1 - x) - y
+    return int(ks[int(np.argmax(below))])
+
+
+def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 0,
+           remedy: str = DEFAULT_REMEDY, n_fields: int | None = None, keep: bool = True,
+           **segment_kwargs) -> KScan:
+    """Segment every mesh for each k in ``k_range`` (inclusive) and pick one k per mesh.
+
+    Parameters
+    ----------
+    meshes : MeshBatch, Mesh, list of Mesh, or an :class:`AKVFResult` to reuse
+    k_range : (k_min, k_max), inclusive, k_max >= k_min + 2
+    rule : see the module notes (``"elbow"`` default)
+    n_fields : fields untangled for every k (default ``default_n_fields(k_max)``)
+    keep : keep every k's :class:`Segmentation` (memory: one label array per mesh per k)
+    segment_kwargs : passed to :func:`torchakvf.parts.segment` (eps, boundary, ...)
+    """
+    lo, hi = _check_range(k_range)
+    if rule not in RULES:
+        raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
+    n = default_n_fields(hi) if n_fields is None else int(n_fields)
+    if isinstance(meshes, AKVFResult):
+        fields = meshes
+        if fields.n < n:
+            raise ParameterError(f"the AKVFs given have n = {fields.n} < the {n} fields needed")
+    else:
+        fields = akvf(as_batch(meshes), n=max(n, 32), seed=seed, remedy=remedy)
+    for b, m in enumerate(fields.batch.meshes):
+        if len(m.faces) < hi:
+            raise ParameterError(f"{m.name}: k_max = {hi} is larger than its {len(m.faces)} faces")
+    ks = list(range(lo, hi + 1))
+    nb = len(fields.batch)
+    costs = np.zeros((nb, len(ks)))
+    segs = {}
+    for j, k in enumerate(ks):
+        seg = segment(fields, k=k, seed=seed, remedy=remedy, n_fields=n, **segment_kwargs)
+        costs[:, j] = [m.cost for m in seg.meshes]
+        if keep:
+            segs[k] = seg
+    eig = fields.eigenvalues.detach().cpu().numpy().astype(np.float64)
+    chosen = [pick_k(ks, costs[b], rule, eig[b]) for b in range(nb)]
+    return KScan(ks=ks, costs=costs, eigenvalues=eig, chosen=chosen, rule=rule, n_fields=n,
+                 segmentations=segs)
+
+
+def choose_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", **kwargs) -> list[int]:
+    """One automatically chosen k per mesh (see :func:`scan_k` for the parameters)."""
+    return scan_k(meshes, k_range, rule=rule, keep=False, **kwargs).chosen
+
+
+def segment_auto(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", **kwargs) -> Segmentation:
+    """``segment(meshes, k="auto")``: each mesh segmented with its automatically chosen k.
+
+    The returned :class:`MeshSegmentation` s carry ``params["k_auto"]`` (the rule, the k's
+    tried and their costs).
+    """
+    scan = scan_k(meshes, k_range, rule=rule, keep=True, **kwargs)
+    out = scan.segmentation()
+    for b, m in enumerate(out.meshes):
+        m.params = dict(m.params, k_auto=dict(rule=rule, ks=scan.ks, costs=scan.costs[b].tolist()))
+    return out

@@ -1,0 +1,164 @@
+"""``torchakvf segment`` and ``torchakvf features``: the corpus commands of the CLI.
+
+Each command function returns the exit code (0: every mesh ok, 1: some failed) and raises
+:class:`~torchakvf.errors.TorchAKVFError` for user errors, which the CLI prints as one line
+(exit 2). Numeric options are parsed here, not by argparse, so that a bad value is one line too.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from ..errors import TorchAKVFError
+
+log = logging.getLogger("torchakvf")
+
+
+# ---- argument checks (one-line errors) ----------------------------------------------------
+
+def _int(text, flag: str, minimum: int | None = None) -> int:
+    try:
+        value = int(str(text).strip())
+    except ValueError:
+        raise TorchAKVFError(f"{flag} must be an integer, got {text!r}") from None
+    if minimum is not None and value < minimum:
+        raise TorchAKVFError(f"{flag} must be an integer >= {minimum}, got {value}")
+    return value
+
+
+def _float(text, flag: str, minimum: float | None = None) -> float:
+    try:
+        value = float(str(text).strip())
+    except ValueError:
+        raise TorchAKVFError(f"{flag} must be a number, got {text!r}") from None
+    if value != value or (minimum is not None and value < minimum):
+        raise TorchAKVFError(f"{flag} must be a number >= {minimum}, got {text!r}")
+    return value
+
+
+def _device(text: str) -> str:
+    import torch
+
+    try:
+        dev = torch.device(text)
+    except (RuntimeError, ValueError):
+        raise TorchAKVFError(f"--device {text!r} is not a torch device (e.g. cpu, cuda, cuda:1)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise TorchAKVFError(f"--device {text}: CUDA is not available on this machine (use --device cpu)")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise TorchAKVFError(f"--device {text}: this machine has {torch.cuda.device_count()} CUDA devices")
+    if dev.type not in ("cpu", "cuda"):
+        raise TorchAKVFError(f"--device {text}: only cpu and cuda are supported")
+    return str(dev)
+
+
+def _remedy(text: str) -> str:
+    from ..operators.killing import REMEDIES
+
+    if text not in REMEDIES:
+        raise TorchAKVFError(f"--remedy must be one of {', '.join(REMEDIES)}, got {text!r}")
+    return text
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("inputs", nargs="+", metavar="DIR_OR_GLOB_OR_FILE",
+                   help="mesh files (.off .obj .ply .stl, optionally .gz), folders (recursive) or globs")
+    p.add_argument("--out", required=True, help="output folder (created; manifest.jsonl goes there)")
+    p.add_argument("--seed", default="0", help="random seed of solver starts, untangling and k-means (default 0)")
+    p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default cpu)")
+    p.add_argument("--batch-faces", default=None, metavar="N",
+                   help="face budget per batch (default 200000 on cpu, 1000000 on cuda)")
+    p.add_argument("--remedy", default=None, help="mesh-quality remedy of the Killing operator "
+                                                    "(default: the segmenter's, 'smooth')")
+    p.add_argument("--force", action="store_true",
+                   help="recompute every mesh, even those the manifest records as done")
+
+
+def _run(args, task, device: str) -> int:
+    from .runner import check_output_dir, default_batch_faces, discover_inputs, run_corpus
+
+    out = Path(args.out)
+    batch_faces = (_int(args.batch_faces, "--batch-faces", 1) if args.batch_faces is not None
+                   else default_batch_faces(device))
+    paths = discover_inputs(args.inputs, exclude=out)
+    check_output_dir(out)   # before any work: an unwritable --out is one line, not N failures
+    log.info("%s: %d meshes -> %s (device %s, batches of <= %d faces)", task.name, len(paths), out,
+             device, batch_faces)
+    summary = run_corpus(paths, out, task, batch_faces=batch_faces, device=device,
+                         seed=task.seed, resume=not args.force)
+    print(summary.line(task.name))
+    if summary.failed:
+        shown = summary.failures[:5]
+        for path, err in shown:
+            print(f"  failed: {err if path in err else f'{path}: {err}'}")
+        if summary.failed > len(shown):
+            print(f"  ... and {summary.failed - len(shown)} more (see {summary.manifest})")
+    return summary.exit_code
+
+
+# ---- segment ------------------------------------------------------------------------------
+
+def _add_segment(sub) -> None:
+    from ..io import OUTPUT_FORMATS
+
+    p = sub.add_parser("segment", help="segment meshes into k parts (writes <stem>.seg .npz .ply .png)",
+                       description="Segment every mesh into k parts; one .seg (PSB format: a label "
+                                   "per input face) and optional .npz/.ply/.png per mesh.")
+    _common(p)
+    p.add_argument("-k", required=True, help="parts per mesh (integer >= 1)")
+    p.add_argument("--eps", default="0", help="connecting-region width (0 = plain k-segmentation)")
+    p.add_argument("--n-fields", default=None, help="AKVFs untangled per mesh (default 2k clamped to [16, 32])")
+    p.add_argument("--formats", default=",".join(OUTPUT_FORMATS),
+                   help=f"outputs per mesh, comma separated (default {','.join(OUTPUT_FORMATS)}; "
+                        "png is the slowest on big meshes)")
+    p.set_defaults(func=run_segment)
+
+
+def run_segment(args) -> int:
+    from ..parts.segment import DEFAULT_REMEDY
+    from .segment_task import SegmentTask, parse_formats
+
+    k = _int(args.k, "-k", 1)
+    n_fields = _int(args.n_fields, "--n-fields", 1) if args.n_fields is not None else None
+    task = SegmentTask(k, eps=_float(args.eps, "--eps", 0.0), seed=_int(args.seed, "--seed", 0),
+                       n_fields=n_fields, remedy=_remedy(args.remedy or DEFAULT_REMEDY),
+                       formats=parse_formats(args.formats))
+    return _run(args, task, _device(args.device))
+
+
+# ---- features -----------------------------------------------------------------------------
+
+def _add_features(sub) -> None:
+    p = sub.add_parser("features", help="per-face AKVF features, one .npz per mesh",
+                       description="Compute the n AKVFs of every mesh and their untangled per-face "
+                                   "norms; one <stem>.npz per mesh (see torchakvf.data.FeatureDataset).")
+    _common(p)
+    p.add_argument("--n", default="32", help="AKVFs per mesh (default 32)")
+    p.add_argument("--face-vectors", action="store_true",
+                   help="also store the untangled face vectors [F, n, 3] (large)")
+    p.add_argument("--cache", default=None, metavar="DIR",
+                   help="content cache: a mesh seen before (same bytes, params, version) is copied, not recomputed")
+    p.set_defaults(func=run_features)
+
+
+def run_features(args) -> int:
+    from ..parts.segment import DEFAULT_REMEDY
+    from .features import FeaturesTask
+
+    task = FeaturesTask(_int(args.n, "--n", 1), seed=_int(args.seed, "--seed", 0),
+                        remedy=_remedy(args.remedy or DEFAULT_REMEDY), face_vectors=args.face_vectors,
+                        cache_dir=args.cache)
+    return _run(args, task, _device(args.device))
+
+
+# ---- registration -------------------------------------------------------------------------
+
+def add_corpus_commands(subparsers) -> None:
+    """Register ``segment`` and ``features`` (and, later, ``bench``) on the CLI's subparsers."""
+    _add_segment(subparsers)
+    _add_features(subparsers)
+    # ---- bench: reserved -----------------------------------------------------------------
+    # ``torchakvf bench`` is added by another module; register it here, e.g.
+    #     from .bench import add_bench_command; add_bench_command(subparsers)
+    # ---------------------------------------------------------------------------------------

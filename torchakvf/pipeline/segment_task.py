@@ -1,0 +1,98 @@
+"""The ``segment`` task: k parts per mesh, written as ``<stem>.seg`` (+ ``.npz``, ``.ply``, ``.png``).
+
+Stages per batch: ``akvf`` (the AKVFs, once), ``cluster`` (``segment`` on those AKVFs: its own
+untangling, spherical k-means, boundaries, generators) and ``untangle`` (only when a PNG is asked
+for: the untangled face vectors that draw the generator arrows, recomputed with segment's
+parameters; otherwise 0, segment's untangling being inside ``cluster``).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from ..errors import ParameterError, TorchAKVFError
+from ..io import OUTPUT_FORMATS, write_segmentation
+from ..parts.segment import DEFAULT_REMEDY, default_n_fields
+
+
+def parse_formats(text: str) -> tuple[str, ...]:
+    """``"seg,npz"`` -> ("seg", "npz"); raises TorchAKVFError naming an unknown format."""
+    fmts = tuple(dict.fromkeys(f.strip().lower() for f in str(text).split(",") if f.strip()))
+    if not fmts:
+        raise TorchAKVFError(f"--formats: name at least one of {','.join(OUTPUT_FORMATS)}")
+    bad = [f for f in fmts if f not in OUTPUT_FORMATS]
+    if bad:
+        raise TorchAKVFError(f"--formats: unknown format {bad[0]!r} (choose from {','.join(OUTPUT_FORMATS)})")
+    return fmts
+
+
+#: Extra AKVFs computed when the field count is automatic (as ``segment`` itself does).
+AUTO_EXTRA_FIELDS = 4
+
+
+class SegmentTask:
+    name = "segment"
+    stages = ("akvf", "untangle", "cluster")
+
+    def __init__(self, k: int, *, eps: float = 0.0, seed: int = 0, n_fields: int | None = None,
+                 remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = 8,
+                 kmeans_restarts: int = 20):
+        self.k, self.eps, self.seed = int(k), float(eps), int(seed)
+        # None: segment's own choice (2k in [16, 32], moved off degenerate eigenvalue clusters),
+        # from AKVFs computed with AUTO_EXTRA_FIELDS to spare so a cluster cut can be seen.
+        self.n_fields = int(n_fields) if n_fields is not None else None
+        self.n_akvf = self.n_fields if n_fields is not None else default_n_fields(self.k) + AUTO_EXTRA_FIELDS
+        self.remedy, self.formats = remedy, tuple(formats)
+        self.untangle_restarts, self.kmeans_restarts = int(untangle_restarts), int(kmeans_restarts)
+
+    @property
+    def params(self) -> dict:
+        n_fields = self.n_fields if self.n_fields is not None else "auto"
+        return {"k": self.k, "eps": self.eps, "seed": self.seed, "n_fields": n_fields,
+                "remedy": self.remedy, "formats": list(self.formats),
+                "untangle_restarts": self.untangle_restarts, "kmeans_restarts": self.kmeans_restarts}
+
+    def output_paths(self, out_dir, stem: str) -> list[Path]:
+        return [Path(out_dir) / f"{stem}.{fmt}" for fmt in self.formats]
+
+    def validate(self, item) -> None:
+        from ..mesh.batch import mesh_edges
+
+        n_faces = len(item.clean.faces)
+        if self.k > n_faces:
+            raise ParameterError(f"{item.path}: -k {self.k} is larger than the mesh's {n_faces} faces")
+        n_edges = len(mesh_edges(item.clean.faces)[0])
+        if self.n_akvf > n_edges:
+            raise ParameterError(f"{item.path}: {self.n_akvf} fields needed but the mesh has only "
+                                 f"{n_edges} edges")
+
+    def process(self, items, device):
+        from ..fields import akvf, untangle
+        from ..mesh import MeshBatch
+        from ..parts import segment
+
+        t0 = time.perf_counter()
+        batch = MeshBatch.from_meshes([it.clean for it in items], device=device)
+        fields = akvf(batch, n=self.n_akvf, seed=self.seed, remedy=self.remedy)
+        t1 = time.perf_counter()
+        seg = segment(fields, self.k, eps=self.eps, seed=self.seed, n_fields=self.n_fields,
+                      remedy=self.remedy, untangle_restarts=self.untangle_restarts,
+                      kmeans_restarts=self.kmeans_restarts, refine=False)
+        t2 = time.perf_counter()
+        vectors = [None] * len(items)
+        if "png" in self.formats:
+            # The fields segment untangled (same n, seed, restarts: the same rotation), for arrows.
+            ns = [int(ms.params.get("n_fields", fields.n)) for ms in seg.meshes]
+            unt = untangle(fields, n=ns, seed=self.seed, restarts=self.untangle_restarts)
+            for b, it in enumerate(items):
+                f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+                fv = unt.face_vectors[f0:f1, :ns[b]].detach().cpu().numpy()
+                vectors[b] = it.clean.to_input_faces(fv)
+        t3 = time.perf_counter()
+        return list(zip(seg.meshes, vectors)), {"akvf": t1 - t0, "cluster": t2 - t1, "untangle": t3 - t2}
+
+    def write(self, item, out, out_dir) -> list[Path]:
+        ms, vectors = out
+        written = write_segmentation(ms, item.mesh.vertices, item.mesh.faces, out_dir, item.stem,
+                                     formats=self.formats, face_vectors=vectors)
+        return list(written.values())
