@@ -21,8 +21,8 @@ Protocols (:data:`PROTOCOLS`)
 Meshes without human segmentations (held-back categories) are predicted with
 :data:`DEFAULT_K_NO_GT` parts (or the automatic k) and get status ``"no score"``.
 
-Batching: meshes are sorted by face count and grouped into batches of at most
-``batch_faces`` faces. Per batch the AKVFs are computed once (n = 32, or ``n_fields``) and
+Batching: meshes are sorted by (number of k's needed, face count) and grouped into batches of
+at most ``batch_faces`` faces. Per batch the AKVFs are computed once (n = 32, or ``n_fields``) and
 shared by every k. Meshes need different sets of k's, so the batch is segmented in *rounds*:
 round r segments every mesh with its r-th k (ascending). A mesh with fewer k's than the round
 count is padded with k = 1 (cheap: its clustering is trivial, but its untangling and
@@ -509,8 +509,12 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
             score_and_store(p, None)
 
     # ---- predict, batch by batch ---------------------------------------------------------------
-    batches = _make_batches(sorted(todo, key=lambda p: (faces_of[p.mesh_id], p.mesh_id)),
-                            faces_of, int(batch_faces))
+    # Sorted by (number of k's still missing, faces): a batch's meshes then need about the same
+    # number of segmentation rounds (little padding) and have similar sizes (little padding of
+    # the [B, F_max] tensors).
+    n_missing = {p.mesh_id: len(p.missing(auto)) for p in todo}
+    batches = _make_batches(sorted(todo, key=lambda p: (n_missing[p.mesh_id], faces_of[p.mesh_id],
+                                                        p.mesh_id)), faces_of, int(batch_faces))
     queue = collections.deque(batches)
     n_batch = 0
     while queue:

@@ -11,6 +11,7 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import KillingSystem, killing_operator
+from ..solvers.lanczos import shift_invert_lanczos
 from ..solvers.lobpcg import segmented_lobpcg
 from .whitney import whitney_face_vectors
 
@@ -60,8 +61,22 @@ def as_batch(meshes, device=None) -> MeshBatch:
     return MeshBatch.from_meshes(list(meshes), device=device or "cpu")
 
 
+SOLVERS = ("auto", "lobpcg", "lanczos")
+
+
+def solver_for(device: torch.device) -> str:
+    """The eigensolver "auto" picks: Lanczos on CPU, the batched LOBPCG elsewhere.
+
+    Both use the same CHOLMOD shift-invert factor. On CPU the block method's dense
+    Rayleigh-Ritz work (bases of 3·(n + guard) columns) costs more than Lanczos' single
+    right-hand-side solves (benchmarks/bench_eigensolver.py); on a GPU the block method's
+    batched dense work is what the device is good at, and ARPACK does not run there.
+    """
+    return "lanczos" if torch.device(device).type == "cpu" else "lobpcg"
+
+
 def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str = "none",
-         boundary_correction: bool = True, max_iter: int = 60) -> AKVFResult:
+         boundary_correction: bool = True, max_iter: int = 60, method: str = "auto") -> AKVFResult:
     """The n smallest approximate Killing vector fields of each mesh.
 
     Parameters
@@ -72,15 +87,24 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     seed : seed of the solver's random start (the same start for every mesh)
     remedy : mesh-quality remedy of the operator (:data:`torchakvf.operators.REMEDIES`)
     boundary_correction : use the open-mesh boundary terms (akvf-math.md)
+    method : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
+        shift-invert on the same factor, CPU, one mesh at a time), or "auto" (:func:`solver_for`)
 
     Work runs on the batch's device; the operator and solve are float64 whatever the
     coordinates' dtype, and results are returned in the batch's dtype.
     """
     if not isinstance(n, int) or n < 1:
         raise ParameterError(f"n must be a positive integer, got {n!r}")
+    if method not in SOLVERS:
+        raise ParameterError(f"method must be one of {SOLVERS}, got {method!r}")
     batch = as_batch(meshes)
     system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
-    eig = segmented_lobpcg(system, n, tol=tol, seed=seed, names=batch.names, max_iter=max_iter)
+    if method == "auto":
+        method = solver_for(batch.device)
+    if method == "lanczos":
+        eig = shift_invert_lanczos(system, n, tol=tol, seed=seed, names=batch.names)
+    else:
+        eig = segmented_lobpcg(system, n, tol=tol, seed=seed, names=batch.names, max_iter=max_iter)
     fv = whitney_face_vectors(batch, system.geometry, eig.vectors)
     out_dt = batch.dtype
     return AKVFResult(eigenvalues=eig.eigenvalues.to(out_dt), forms=eig.vectors.to(out_dt),

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .._threads import single_threaded
 from ..errors import ParameterError
 from ..mesh.batch import pad_packed
 from .akvf import AKVFResult
@@ -58,7 +59,8 @@ class UntangledFields:
 def random_rotations(count: int, n: int, generator: torch.Generator, dtype=torch.float64) -> torch.Tensor:
     """[count, n, n] Haar-random orthogonal matrices (QR of Gaussians, sign-fixed)."""
     g = torch.randn(count, n, n, generator=generator, dtype=dtype)
-    q, r = torch.linalg.qr(g)
+    with single_threaded():
+        q, r = torch.linalg.qr(g)
     return q * torch.sign(torch.diagonal(r, dim1=1, dim2=2))[:, None, :]
 
 
@@ -132,7 +134,8 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
             break
         ya = ypad @ side(a)                                           # [b, Emax, R·n]
         g = (ypad.transpose(1, 2) @ (ya * ya * ya)).reshape(nb, n, r, n).permute(0, 2, 1, 3)
-        u, sv, vh = torch.linalg.svd(g)
+        with single_threaded():
+            u, sv, vh = torch.linalg.svd(g)
         d = sv.sum(-1)
         # Converged restarts keep their rotation (and iteration count).
         a = torch.where(active[..., None, None], u @ vh, a)

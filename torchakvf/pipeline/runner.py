@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
-from ..errors import MeshError, TorchAKVFError
+from ..errors import TorchAKVFError
 from ..io import FORMATS, load_mesh, safe_stem
 from ..mesh import clean_mesh
 
@@ -365,6 +365,17 @@ class _Progress:
             log.info("%s: batch %d/%d (%d meshes, %d faces) in %.1f s; %d/%d done, %d failed",
                      self.name, batch_no, n_batches, batch_len, batch_faces, batch_s, done, self.total, failed)
 
+    def start(self) -> None:
+        if self.tty:
+            self.stream.write(f"\r{self.name} [{'-' * 30}] 0/{self.total} ")
+            self.stream.flush()
+
+    def clear(self) -> None:
+        """Before a log line: erase the bar so the message starts on a clean line."""
+        if self.tty:
+            self.stream.write("\r\033[K")
+            self.stream.flush()
+
     def close(self) -> None:
         if self.tty:
             self.stream.write("\n")
@@ -470,7 +481,10 @@ def prepare(paths: Sequence[Path], out_dir: Path, task, *, seed: int = 0, resume
     from .. import __version__
 
     previous = read_manifest(out_dir) if resume else {}
-    paths = [Path(p) for p in paths]
+    unique: dict[str, Path] = {}
+    for p in map(Path, paths):
+        unique.setdefault(str(p.resolve()), p)   # one input once, however often it is named
+    paths = list(unique.values())
     stems = assign_stems(paths, previous)
     todo, skipped = [], []
     for p, stem in zip(paths, stems):
@@ -545,6 +559,7 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
         bar.tty = progress
     writer = ManifestWriter(out_dir)
     done = 0
+    bar.start()
     try:
         with _TermAsInterrupt():
             for bno, batch in enumerate(batches, 1):
@@ -559,6 +574,7 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
                     else:
                         summary.failed += 1
                         summary.failures.append((rec["path"], rec["error"]))
+                        bar.clear()
                         log.warning("%s failed: %s", rec["path"], rec["error"])
                 done += len(batch)
                 bar.update(done, summary.ok, summary.failed, bno, len(batches), time.perf_counter() - t0,

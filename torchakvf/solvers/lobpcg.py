@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .._threads import single_threaded
 from ..errors import SolverError
 from ..operators.killing import KillingSystem
 from .factor import ShiftedFactor
@@ -172,13 +173,15 @@ def _rayleigh_ritz(z: torch.Tensor, rz: torch.Tensor, s: torch.Tensor, m: int):
     d = gram.diagonal(dim1=1, dim2=2)
     scale = torch.where(d > 0, d.clamp(min=1e-300).rsqrt(), torch.zeros_like(d))
     gram = gram * scale[:, :, None] * scale[:, None, :]
-    g, u = torch.linalg.eigh(gram)
+    with single_threaded():
+        g, u = torch.linalg.eigh(gram)
     ok = g > _DROP * g[:, -1:].clamp(min=1e-300)
     cmat = u * torch.where(ok, g.clamp(min=1e-300).rsqrt(), torch.zeros_like(g))[:, None, :]
     cmat = scale[:, :, None] * cmat
     h = cmat.transpose(1, 2) @ (z.transpose(1, 2) @ rz) @ cmat
     h = 0.5 * (h + h.transpose(1, 2))
     h = h + torch.diag_embed(torch.where(ok, torch.zeros_like(g), torch.full_like(g, _BIG)))
-    theta, v = torch.linalg.eigh(h)
+    with single_threaded():
+        theta, v = torch.linalg.eigh(h)
     c = cmat @ v[:, :, :m]
     return z @ c, rz @ c, theta[:, :m], c

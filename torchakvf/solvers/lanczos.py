@@ -1,0 +1,52 @@
+"""Alternative eigensolver: implicitly restarted Lanczos (ARPACK, via scipy ``eigsh``) in
+shift-invert mode on the same CHOLMOD factor the LOBPCG path uses. CPU only, one mesh at a time.
+
+Offered for comparison (``torchakvf.akvf(..., method="lanczos")``): it needs fewer solves per
+eigenpair, but each is a single right-hand side, and with a loose tolerance Lanczos can drop
+copies of repeated eigenvalues, which a block method does not. See benchmarks/bench_eigensolver.py.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+import torch
+
+from ..operators.killing import KillingSystem
+from .factor import ShiftedFactor
+from .lobpcg import EigenResult, relative_residuals
+
+
+def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed: int = 0,
+                         names: list[str] | None = None) -> EigenResult:
+    """The ``n`` smallest eigenpairs of each mesh by ARPACK shift-invert on a CHOLMOD factor.
+
+    ``tol`` is the residual reported as converged (ARPACK itself runs to machine precision,
+    since a loose ARPACK tolerance is what loses repeated eigenvalues).
+    """
+    nb = system.n_meshes
+    names = names or [f"mesh {b}" for b in range(nb)]
+    values, vectors, shifts = [], [], []
+    for b in range(nb):
+        r, c, v, size = system.block(b)
+        lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
+        mass = system.mass[lo:hi].cpu()
+        factor = ShiftedFactor(r.cpu(), c.cpu(), v.cpu(), mass, name=names[b])
+        stiff = sp.csr_matrix((v.cpu().numpy(), (r.cpu().numpy(), c.cpu().numpy())), shape=(size, size))
+        op_inv = sla.LinearOperator((size, size), dtype=np.float64,
+                                    matvec=lambda x, f=factor: f.solve(torch.from_numpy(x)).numpy())
+        v0 = np.random.default_rng(seed).standard_normal(size)
+        lam, vec = sla.eigsh(stiff, k=n, M=sp.diags(mass.numpy()), sigma=factor.sigma, which="LM",
+                             OPinv=op_inv, v0=v0)
+        order = np.argsort(lam)
+        values.append(torch.from_numpy(lam[order]))
+        vectors.append(torch.from_numpy(vec[:, order]))
+        shifts.append(factor.sigma)
+    dev = system.mass.device
+    vals = torch.stack(values).to(dev)
+    vecs = torch.cat(vectors).to(dev)
+    res = relative_residuals(system, vecs, vals)
+    return EigenResult(eigenvalues=vals, vectors=vecs, residuals=res,
+                       iterations=torch.zeros(nb, dtype=torch.long, device=dev),
+                       shifts=torch.tensor(shifts, dtype=torch.float64, device=dev),
+                       converged=(res <= tol).all(dim=1))
