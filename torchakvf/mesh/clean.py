@@ -65,26 +65,33 @@ class CleanMesh:
     def labels_to_input_faces(self, labels: np.ndarray) -> np.ndarray:
         """Per-face integer labels [F] onto the input's faces [n_input_faces].
 
-        A dropped face takes the most common label among kept faces sharing a vertex with it
-        (a degenerate sliver belongs to the part around it); -1 where it touches none.
+        A dropped face takes the most common label among the kept faces sharing a vertex with
+        it (a degenerate sliver belongs to the part around it; ties go to the smaller label);
+        clusters of dropped faces fill in from the outside over a few passes; -1 where no
+        labelled face is near.
         """
         out = self.to_input_faces(np.asarray(labels, dtype=np.int64), fill=-1)
         dropped = np.setdiff1d(np.arange(self.n_input_faces), self.face_index)
         if len(dropped) == 0:
             return out
-        n_in_vertices = int(self.input_faces.max()) + 1
-        # Vertex -> label of one kept face using it; several passes spread labels into
-        # clusters of dropped faces.
+        n_vertices = int(self.input_faces.max()) + 1
+        # Vertex-face incidence of the input; (incidence^T incidence) links faces sharing a vertex.
+        inc = sp.csr_matrix((np.ones(3 * self.n_input_faces), (self.input_faces.ravel(),
+                             np.repeat(np.arange(self.n_input_faces), 3))),
+                            shape=(n_vertices, self.n_input_faces))
+        near = (inc[:, dropped].T @ inc).tocsr()                      # [D, F_input]
         for _ in range(3):
-            vertex_label = np.full(n_in_vertices, -1, dtype=np.int64)
-            known = out >= 0
-            vertex_label[self.input_faces[known].ravel()] = np.repeat(out[known], 3)
-            for f in dropped:
-                if out[f] < 0:
-                    cand = vertex_label[self.input_faces[f]]
-                    cand = cand[cand >= 0]
-                    if len(cand):
-                        out[f] = np.bincount(cand).argmax()
+            todo = np.flatnonzero(out[dropped] < 0)
+            if len(todo) == 0:
+                break
+            filled = out.copy()
+            for row in todo:
+                nb = near.indices[near.indptr[row]:near.indptr[row + 1]]
+                lab = out[nb]
+                lab = lab[lab >= 0]
+                if len(lab):
+                    filled[dropped[row]] = np.bincount(lab).argmax()
+            out = filled
         return out
 
 
@@ -99,7 +106,8 @@ def clean_mesh(mesh: Mesh) -> CleanMesh:
     name = mesh.name
     report = {}
     # Merge exact duplicate vertices (STL and many exporters write one copy per face).
-    verts, inverse = np.unique(mesh.vertices, axis=0, return_inverse=True)
+    verts, first_input, inverse = np.unique(mesh.vertices, axis=0, return_index=True,
+                                            return_inverse=True)
     inverse = inverse.reshape(-1)
     report["merged_vertices"] = mesh.n_vertices - len(verts)
     faces = inverse[mesh.faces]
@@ -127,8 +135,8 @@ def clean_mesh(mesh: Mesh) -> CleanMesh:
     counts = np.bincount(edge_faces.inverse)
     if counts.max() > 2:
         e = int(np.argmax(counts))
-        i, j = edge_faces.unique[e]
-        raise MeshError(name, f"non-manifold edge ({int(i)}, {int(j)}) is shared by "
+        i, j = sorted(int(first_input[v]) for v in edge_faces.unique[e])   # the file's vertex numbers
+        raise MeshError(name, f"non-manifold edge ({i}, {j}) is shared by "
                               f"{int(counts[e])} faces ({int((counts > 2).sum())} such edges); "
                               "repair the mesh (e.g. split it into manifold pieces) first")
 

@@ -36,7 +36,7 @@ class KillingSystem:
     """The generalized eigenproblem ``R w = λ S1 w`` of a batch.
 
     stiffness : sparse COO [ΣE, ΣE], R (block-diagonal, symmetric, coalesced)
-    mass : [ΣE] positive diagonal of S1 as used in R
+    mass : [ΣE] positive diagonal S1 of the mass matrix (floored star1, see :func:`mass_star1`)
     edge_ptr : [B+1] offsets of each mesh's edges
     star1_raw : [ΣE] cotangent weights before any floor or remedy
     geometry : the unit-area :class:`BatchGeometry` the operator was built from
@@ -128,6 +128,9 @@ def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy:
     sign = batch.face_edge_sign.to(dtype)
     s1_raw = dec.star1(batch, geo)
     s1 = mass_star1(s1_raw, batch.edge_ptr, remedy)
+    # The paper's operator keeps the raw cotan weights inside R and floors only the mass
+    # matrix; the remedies use their floored weights throughout (that is what they change).
+    s1_op = s1_raw if remedy == "none" else s1
     a_v = dec.star0(batch, geo)
     theta = dec.angle_defect(batch, geo)
     rings = CURVATURE_RINGS.get(remedy, 0) if curvature_rings is None else curvature_rings
@@ -140,12 +143,12 @@ def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy:
     parts.append((fe[:, :, None].expand(-1, 3, 3), fe[:, None, :].expand(-1, 3, 3), vals))
     # -2 S1 diag(K_e).
     ar = torch.arange(n_e, device=dev)
-    parts.append((ar, ar, -2.0 * s1 * k_e))
+    parts.append((ar, ar, -2.0 * s1_op * k_e))
 
     # D = -d0^T S1 (+ boundary flux); D[i, e] = +S1_e, D[j, e] = -S1_e for e = (i -> j).
     d_rows = [batch.edges[:, 0], batch.edges[:, 1]]
     d_cols = [ar, ar]
-    d_vals = [s1, -s1]
+    d_vals = [s1_op, -s1_op]
     bnd = _boundary_functionals(batch, geo, sign) if boundary_correction else None
     if bnd is not None:
         flux = -(bnd.length / 2)[:, None] * bnd.nu_coef                   # [Q, 3]

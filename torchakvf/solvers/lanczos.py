@@ -12,6 +12,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 import torch
 
+from ..errors import SolverError
 from ..operators.killing import KillingSystem
 from .factor import ShiftedFactor
 from .lobpcg import EigenResult, relative_residuals
@@ -26,15 +27,25 @@ def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed:
     """
     nb = system.n_meshes
     names = names or [f"mesh {b}" for b in range(nb)]
-    values, vectors, shifts = [], [], []
+    sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
+    for b, e in enumerate(sizes):
+        if n >= e:
+            raise SolverError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges "
+                              "(Lanczos needs fewer fields than edges)")
+    values, vectors, shifts, solves = [], [], [], []
     for b in range(nb):
         r, c, v, size = system.block(b)
         lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
         mass = system.mass[lo:hi].cpu()
         factor = ShiftedFactor(r.cpu(), c.cpu(), v.cpu(), mass, name=names[b])
         stiff = sp.csr_matrix((v.cpu().numpy(), (r.cpu().numpy(), c.cpu().numpy())), shape=(size, size))
-        op_inv = sla.LinearOperator((size, size), dtype=np.float64,
-                                    matvec=lambda x, f=factor: f.solve(torch.from_numpy(x)).numpy())
+        count = [0]
+
+        def apply(x, f=factor, count=count):
+            count[0] += 1
+            return f.solve(torch.from_numpy(x)).numpy()
+
+        op_inv = sla.LinearOperator((size, size), dtype=np.float64, matvec=apply)
         v0 = np.random.default_rng(seed).standard_normal(size)
         lam, vec = sla.eigsh(stiff, k=n, M=sp.diags(mass.numpy()), sigma=factor.sigma, which="LM",
                              OPinv=op_inv, v0=v0)
@@ -42,11 +53,12 @@ def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed:
         values.append(torch.from_numpy(lam[order]))
         vectors.append(torch.from_numpy(vec[:, order]))
         shifts.append(factor.sigma)
+        solves.append(count[0])
     dev = system.mass.device
     vals = torch.stack(values).to(dev)
     vecs = torch.cat(vectors).to(dev)
     res = relative_residuals(system, vecs, vals)
     return EigenResult(eigenvalues=vals, vectors=vecs, residuals=res,
-                       iterations=torch.zeros(nb, dtype=torch.long, device=dev),
+                       iterations=torch.tensor(solves, dtype=torch.long, device=dev),
                        shifts=torch.tensor(shifts, dtype=torch.float64, device=dev),
                        converged=(res <= tol).all(dim=1))

@@ -26,7 +26,9 @@ log = logging.getLogger(__name__)
 
 #: Relative directions kept when orthonormalizing a basis: smaller ones are numerically
 #: dependent (converged columns make W nearly parallel to X).
-_DROP = 1e-11
+_DROP = 1e-9
+#: Squared fraction of a new direction's norm that must lie outside span(X) for it to be kept.
+_INSIDE = 1e-16
 _BIG = 1e30
 
 
@@ -37,7 +39,7 @@ class EigenResult:
     eigenvalues : [B, n] ascending, λ·area (the operator is built on unit-area meshes)
     vectors : packed [ΣE, n], S1-orthonormal per mesh
     residuals : [B, n] ||S1^{-1/2}(R w - λ S1 w)|| / max(|λ|, 1) for S1-normalized w
-    iterations : [B] LOBPCG iterations per mesh
+    iterations : [B] LOBPCG iterations per mesh (Lanczos: shift-invert solves)
     shifts : [B] the shift σ of each mesh's factor
     converged : [B] bool, every residual <= tol
     """
@@ -118,7 +120,7 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
         x0 = torch.randn(e, m, generator=gen, dtype=dt).to(dev)
         x[b, :e] = factors[b].solve(s[b, :e, None] * x0).to(dt)
     x, rx, lam, _ = _rayleigh_ritz(x, r_mul(x), s, m)
-    p = rp = None
+    p = None
     active = torch.ones(nb, dtype=torch.bool, device=dev)
     iters = torch.zeros(nb, dtype=torch.long, device=dev)
     rel = None
@@ -132,22 +134,22 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
         iters += active.long()
         w = precondition(res, (rel > tol) & active[:, None])
         # Orthogonalize the new directions against X (S-inner product) for a well-conditioned basis.
-        w = w - x @ (x.transpose(1, 2) @ (s[..., None] * w))
+        w = _orthogonalize(w, x, s)
         rw = r_mul(w)
         if p is None:
             z, rz = torch.cat([x, w], 2), torch.cat([rx, rw], 2)
         else:
-            coef = x.transpose(1, 2) @ (s[..., None] * p)
-            p, rp = p - x @ coef, rp - rx @ coef
+            # R P is recomputed, not updated by recurrence: the recurrence drifts from R·P and
+            # the drift shows up as spurious Ritz values far below the spectrum.
+            p = _orthogonalize(p, x, s)
+            rp = r_mul(p)
             z, rz = torch.cat([x, w, p], 2), torch.cat([rx, rw, rp], 2)
         xn, rxn, lamn, c = _rayleigh_ritz(z, rz, s, m)
         pn = z[:, :, m:] @ c[:, m:, :]
-        rpn = rz[:, :, m:] @ c[:, m:, :]
         keep = ~active[:, None, None]
         x, rx = torch.where(keep, x, xn), torch.where(keep, rx, rxn)
         lam = torch.where(keep[:, :, 0], lam, lamn)
         p = pn if p is None else torch.where(keep, p, pn)
-        rp = rpn if rp is None else torch.where(keep, rp, rpn)
 
     vectors = x[..., :n][mask]
     values = lam[:, :n].contiguous()
@@ -161,6 +163,19 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
                        shifts=shifts, converged=converged)
 
 
+def _orthogonalize(v: torch.Tensor, x: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """Remove from v [B, Emax, k] its components along the S-orthonormal x (twice: one pass
+    leaves O(eps·cond) components), and zero the columns that were (numerically) inside span(x):
+    rescaled to unit length they would be pure round-off, and round-off directions of this
+    indefinite R carry huge spurious Ritz values at tight tolerances."""
+    before = (v * v * s[..., None]).sum(1)
+    for _ in range(2):
+        v = v - x @ (x.transpose(1, 2) @ (s[..., None] * v))
+    after = (v * v * s[..., None]).sum(1)
+    keep = after > _INSIDE * before
+    return v * keep[:, None, :]
+
+
 def _rayleigh_ritz(z: torch.Tensor, rz: torch.Tensor, s: torch.Tensor, m: int):
     """Rayleigh-Ritz per mesh on the basis z [B, Emax, k] with rz = R z.
 
@@ -171,7 +186,8 @@ def _rayleigh_ritz(z: torch.Tensor, rz: torch.Tensor, s: torch.Tensor, m: int):
     gram = z.transpose(1, 2) @ (s[..., None] * z)
     gram = 0.5 * (gram + gram.transpose(1, 2))
     d = gram.diagonal(dim1=1, dim2=2)
-    scale = torch.where(d > 0, d.clamp(min=1e-300).rsqrt(), torch.zeros_like(d))
+    live = d > 1e-24 * d.amax(dim=1, keepdim=True)
+    scale = torch.where(live, d.clamp(min=1e-300).rsqrt(), torch.zeros_like(d))
     gram = gram * scale[:, :, None] * scale[:, None, :]
     with single_threaded():
         g, u = torch.linalg.eigh(gram)
