@@ -25,6 +25,7 @@ class AKVFResult:
     face_vectors : packed [ΣF, n, 3] Whitney vectors at face barycenters
     residuals : [B, n] relative residual of each eigenpair (see :class:`EigenResult`)
     iterations, shifts, converged : [B] eigensolver diagnostics
+    dropped : [B] spurious negative modes (λ·area < SPURIOUS_BELOW) skipped under a remedy
     batch : the :class:`MeshBatch`; ``system``: its :class:`KillingSystem`
     """
 
@@ -35,6 +36,7 @@ class AKVFResult:
     iterations: torch.Tensor
     shifts: torch.Tensor
     converged: torch.Tensor
+    dropped: torch.Tensor
     batch: MeshBatch
     system: KillingSystem
 
@@ -63,6 +65,13 @@ def as_batch(meshes, device=None) -> MeshBatch:
 
 SOLVERS = ("auto", "lobpcg", "lanczos")
 
+#: Under a mesh-quality remedy, eigenpairs below this (λ·area) are spurious: a Killing energy is
+#: >= 0, and good meshes give at worst small negatives (-0.06 on a hemisphere, akvf-math.md);
+#: badly shaped vertices give modes localized on a few edges far below zero.
+SPURIOUS_BELOW = -1.0
+#: Extra eigenpairs computed to make room for spurious ones.
+SPURIOUS_MARGIN = 8
+
 
 def solver_for(device: torch.device) -> str:
     """The eigensolver "auto" picks: Lanczos on CPU, the batched LOBPCG elsewhere.
@@ -85,7 +94,9 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     n : number of fields per mesh (each mesh needs at least n edges)
     tol : eigenpair residual at which a mesh counts as converged
     seed : seed of the solver's random start (the same start for every mesh)
-    remedy : mesh-quality remedy of the operator (:data:`torchakvf.operators.REMEDIES`)
+    remedy : mesh-quality remedy of the operator (:data:`torchakvf.operators.REMEDIES`); any
+        remedy but "none" also skips spurious eigenpairs below :data:`SPURIOUS_BELOW` (the n
+        returned are the n smallest of the rest; ``dropped`` counts the skipped ones)
     boundary_correction : use the open-mesh boundary terms (akvf-math.md)
     method : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
         shift-invert on the same factor, CPU, one mesh at a time), or "auto" (:func:`solver_for`)
@@ -101,12 +112,32 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
     if method == "auto":
         method = solver_for(batch.device)
-    if method == "lanczos":
-        eig = shift_invert_lanczos(system, n, tol=tol, seed=seed, names=batch.names)
-    else:
-        eig = segmented_lobpcg(system, n, tol=tol, seed=seed, names=batch.names, max_iter=max_iter)
-    fv = whitney_face_vectors(batch, system.geometry, eig.vectors)
+
+    def solve(count: int):
+        if method == "lanczos":
+            return shift_invert_lanczos(system, count, tol=tol, seed=seed, names=batch.names)
+        return segmented_lobpcg(system, count, tol=tol, seed=seed, names=batch.names, max_iter=max_iter)
+
+    drop = remedy != "none"
+    max_edges = int((batch.edge_ptr[1:] - batch.edge_ptr[:-1]).min())
+    extra = min(SPURIOUS_MARGIN, max(max_edges - n - 1, 0)) if drop else 0
+    eig = solve(n + extra)
+    dropped = (eig.eigenvalues < SPURIOUS_BELOW).sum(dim=1)
+    for _ in range(3):
+        # More spurious modes than the margin: solve again with room for all of them.
+        short = int(dropped.max()) - extra
+        if not drop or short <= 0 or n + extra + 1 >= max_edges:
+            break
+        extra = min(extra + short + SPURIOUS_MARGIN, max_edges - n - 1)
+        eig = solve(n + extra)
+        dropped = (eig.eigenvalues < SPURIOUS_BELOW).sum(dim=1)
+    # Per mesh, the first n eigenpairs that are not spurious (ascending order kept).
+    spurious = eig.eigenvalues < SPURIOUS_BELOW if drop else torch.zeros_like(eig.eigenvalues, dtype=torch.bool)
+    keep = torch.argsort(spurious.to(torch.int8), dim=1, stable=True)[:, :n]
+    forms = eig.vectors.gather(1, keep[batch.edge_to_mesh])
+    fv = whitney_face_vectors(batch, system.geometry, forms)
     out_dt = batch.dtype
-    return AKVFResult(eigenvalues=eig.eigenvalues.to(out_dt), forms=eig.vectors.to(out_dt),
-                      face_vectors=fv.to(out_dt), residuals=eig.residuals, iterations=eig.iterations,
-                      shifts=eig.shifts, converged=eig.converged, batch=batch, system=system)
+    return AKVFResult(eigenvalues=eig.eigenvalues.gather(1, keep).to(out_dt), forms=forms.to(out_dt),
+                      face_vectors=fv.to(out_dt), residuals=eig.residuals.gather(1, keep),
+                      iterations=eig.iterations, shifts=eig.shifts, converged=eig.converged,
+                      dropped=spurious.sum(dim=1), batch=batch, system=system)

@@ -9,6 +9,7 @@ Cholesky that works on torch tensors on CPU and CUDA) factors it.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import sys
 
@@ -54,7 +55,7 @@ class ShiftedFactor:
             return
         raise SolverError(f"{name}: the Killing operator has eigenvalues below {shifts[-1]} "
                           f"(λ·area); no shift made R - σS1 positive definite ({last}). The mesh "
-                          "is likely badly shaped: try remedy='clamp'")
+                          "is likely badly shaped: try remedy='smooth'")
 
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
         rhs = rhs.to(torch.float64).contiguous()
@@ -74,18 +75,30 @@ class ShiftedFactor:
 @contextlib.contextmanager
 def _quiet_stderr():
     """Silence CHOLMOD's C-level "not positive definite" warning during a trial factorization
-    (the failure is handled: the next shift is tried)."""
+    (the failure is handled: the next shift is tried). CHOLMOD prints through C stdio to
+    stdout, buffered, so both descriptors are redirected and C buffers flushed before restoring."""
     try:
-        fd = sys.stderr.fileno()
+        fds = [sys.stdout.fileno(), sys.stderr.fileno()]
     except (AttributeError, OSError, ValueError):
         yield
         return
+    sys.stdout.flush()
     sys.stderr.flush()
-    saved = os.dup(fd)
+    saved = [os.dup(fd) for fd in fds]
     try:
         with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), fd)
+            for fd in fds:
+                os.dup2(null.fileno(), fd)
             yield
+            _libc_flush()
     finally:
-        os.dup2(saved, fd)
-        os.close(saved)
+        for fd, old in zip(fds, saved):
+            os.dup2(old, fd)
+            os.close(old)
+
+
+def _libc_flush() -> None:
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
