@@ -57,6 +57,11 @@ from torchakvf.mesh import MeshBatch, clean_mesh
 from torchakvf.operators.killing import REMEDIES, killing_operator
 from torchakvf.solvers.lobpcg import segmented_lobpcg
 
+try:  # the ARPACK-on-CHOLMOD alternative (newer torchakvf)
+    from torchakvf.solvers.lanczos import shift_invert_lanczos
+except ImportError:  # pragma: no cover
+    shift_invert_lanczos = None
+
 REPO = Path(__file__).resolve().parents[1]
 
 #: The PSB categories in id order (category of mesh N = CATEGORIES[(N - 1) // 20]); Spring absent.
@@ -67,6 +72,7 @@ CATEGORIES = ["Human", "Cup", "Glasses", "Airplane", "Ant", "Chair", "Octopus", 
 FIRST_IDS = [20 * c + 1 for c in range(len(CATEGORIES)) if CATEGORIES[c] != "Spring"]
 
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
+              "OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "KMP_BLOCKTIME",
               "NUMEXPR_NUM_THREADS", "TORCHAKVF_PSB")
 
 
@@ -106,12 +112,21 @@ def residuals_np(r: sp.spmatrix, s1: np.ndarray, lam: np.ndarray, w: np.ndarray)
     return np.sqrt(np.einsum("en,e->n", res ** 2, 1.0 / s1)) / np.maximum(np.abs(lam), 1.0)
 
 
-def torchakvf_solve(batch, n: int, remedy: str, tol: float, max_iter: int):
+def eigensolve(system, n: int, tol: float, max_iter: int, names, method: str = "lobpcg"):
+    """torchakvf's eigensolve: ``segmented_lobpcg`` or ``shift_invert_lanczos``."""
+    if method == "lanczos":
+        if shift_invert_lanczos is None:
+            raise RuntimeError("this torchakvf has no solvers.lanczos")
+        return shift_invert_lanczos(system, n, tol=tol, names=names)
+    return segmented_lobpcg(system, n, tol=tol, names=names, max_iter=max_iter)
+
+
+def torchakvf_solve(batch, n: int, remedy: str, tol: float, max_iter: int, method: str = "lobpcg"):
     """(system, eig, t_assembly, t_solve): the timed torchakvf path."""
     t0 = time.perf_counter()
     system = killing_operator(batch, remedy=remedy)
     t1 = time.perf_counter()
-    eig = segmented_lobpcg(system, n, tol=tol, names=batch.names, max_iter=max_iter)
+    eig = eigensolve(system, n, tol, max_iter, batch.names, method)
     t2 = time.perf_counter()
     return system, eig, t1 - t0, t2 - t1
 
@@ -181,7 +196,8 @@ def bench_mesh(psb: Path, mesh_id: int, args) -> Row:
     system = eig = None
     try:
         for _ in range(args.repeat):
-            system, eig, ta, ts = torchakvf_solve(batch, n, args.remedy, tol, args.max_iter)
+            system, eig, ta, ts = torchakvf_solve(batch, n, args.remedy, tol, args.max_iter,
+                                                  args.method)
             row.t_ta_asm = min(row.t_ta_asm, ta) if math.isfinite(row.t_ta_asm) else ta
             row.t_ta_solve = min(row.t_ta_solve, ts) if math.isfinite(row.t_ta_solve) else ts
     except SolverError as exc:
@@ -242,7 +258,7 @@ def bench_mesh(psb: Path, mesh_id: int, args) -> Row:
     elif args.with_none:
         try:
             sys0 = killing_operator(batch, remedy="none")
-            e0 = segmented_lobpcg(sys0, n, tol=tol, names=batch.names, max_iter=args.max_iter)
+            e0 = eigensolve(sys0, n, tol, args.max_iter, batch.names, args.method)
             lam0 = e0.eigenvalues[0].cpu().numpy()
             txt = f"{int((lam0 < 0).sum())} (min {lam0.min():.3g}, σ {float(e0.shifts[0]):g})"
             if not bool(e0.converged[0]):
@@ -265,12 +281,17 @@ def _f(x, spec):
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
 
 
+SOLVER_LABEL = {"lobpcg": "segmented_lobpcg (cholespy/CHOLMOD shift-invert preconditioner)",
+                "lanczos": "shift_invert_lanczos (ARPACK on the CHOLMOD factor; iters = solves)"}
+
+
 def header(args, psb: Path) -> str:
     env = ", ".join(f"{k}={os.environ[k]}" for k in THREAD_ENV if k in os.environ) or "(none set)"
     lines = [
         "# torchakvf vs scipy eigsh: first mesh of every PSB category",
         "",
-        f"- n = {args.n}, tol = {args.tol:g}, remedy = {args.remedy}, repeat = {args.repeat} (best of), "
+        f"- n = {args.n}, tol = {args.tol:g}, remedy = {args.remedy}, torchakvf solver = {args.method}, "
+        f"repeat = {args.repeat} (best of), "
         f"scipy eigsh tol = {args.scipy_tol:g} (0 = machine precision)",
         f"- torchakvf {torchakvf.__version__}, torch {torch.__version__}, scipy {scipy.__version__}, "
         f"numpy {np.__version__}, python {platform.python_version()}",
@@ -279,7 +300,7 @@ def header(args, psb: Path) -> str:
         f"- machine: {platform.machine()} {platform.processor() or ''} {platform.system()} "
         f"{platform.release()}",
         f"- PSB: {psb}",
-        "- t_ta = killing_operator + segmented_lobpcg (cholespy/CHOLMOD shift-invert preconditioner); "
+        f"- t_ta = killing_operator + {SOLVER_LABEL[args.method]}; "
         "t_sp solve = CSC conversion + eigsh(sigma=σ of torchakvf, M=diags(S1), SuperLU); "
         "t_sp total = t_sp solve + torchakvf's assembly time",
         "- ratio = t_sp / t_ta (> 1: torchakvf faster); eig diff = max |λ_ta − λ_sp| / max(|λ_sp|, 1); "
@@ -291,7 +312,8 @@ def header(args, psb: Path) -> str:
 
 
 def table(rows: list[Row], remedy: str) -> str:
-    cols = ["id", "category", "faces", "edges", "#neg S1", f"#neg λ ({remedy})", "#neg λ (none)",
+    none_col = "#neg λ (none)" if remedy != "none" else "#neg λ (none, same run)"
+    cols = ["id", "category", "faces", "edges", "#neg S1", f"#neg λ ({remedy})", none_col,
             "min λ", "iters", "σ", "t_ta asm", "t_ta solve", "t_ta total", "t_sp solve", "t_sp total",
             "ratio solve", "ratio total", "res ta", "res sp", "eig diff", "notes"]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
@@ -347,6 +369,7 @@ PROFILE_KEYS = [
     ("killing_operator", "assembly (killing_operator)"),
     ("__init__", "factorization (ShiftedFactor.__init__, all shift trials)"),
     ("solve", "triangular solves (ShiftedFactor.solve)"),
+    ("eigsh", "ARPACK eigsh (Lanczos path; includes the solves)"),
     ("_rayleigh_ritz", "dense Rayleigh-Ritz (_rayleigh_ritz: Gram, eigh, products)"),
     ("r_mul", "sparse R products in the iteration (r_mul)"),
     ("relative_residuals", "final residual check (relative_residuals)"),
@@ -360,13 +383,13 @@ def profile_mesh(psb: Path, mesh_id: int, args) -> str:
     t0 = time.perf_counter()
     prof.enable()
     system = killing_operator(batch, remedy=args.remedy)
-    eig = segmented_lobpcg(system, args.n, tol=args.tol, names=batch.names, max_iter=args.max_iter)
+    eig = eigensolve(system, args.n, args.tol, args.max_iter, batch.names, args.method)
     prof.disable()
     wall = time.perf_counter() - t0
     st = pstats.Stats(prof)
     files = {"killing_operator": "killing.py", "__init__": "factor.py", "solve": "factor.py",
              "_rayleigh_ritz": "lobpcg.py", "r_mul": "lobpcg.py", "relative_residuals": "lobpcg.py",
-             "segmented_lobpcg": "lobpcg.py"}
+             "segmented_lobpcg": "lobpcg.py", "eigsh": "arpack.py"}
     cum = {}
     for (fname, _, func), (cc, nc, tt, ct, callers) in st.stats.items():
         if func in files and fname.endswith(files[func]):
@@ -410,12 +433,16 @@ def parse_args(argv=None):
     p.add_argument("--scipy-tol", type=float, default=0.0,
                    help="eigsh's own tol (default 0: machine precision, as a user would call it)")
     p.add_argument("--max-iter", type=int, default=60, help="segmented_lobpcg max_iter")
+    p.add_argument("--method", default="lobpcg", choices=("lobpcg", "lanczos"),
+                   help="torchakvf eigensolver timed (default lobpcg = segmented_lobpcg)")
     p.add_argument("--remedy", default="smooth", choices=REMEDIES, help="operator remedy (default smooth)")
     p.add_argument("--ids", type=int, nargs="+", default=FIRST_IDS,
                    help="PSB mesh ids (default: the first mesh of each of the 19 categories)")
     p.add_argument("--repeat", type=int, default=1, help="timing repeats per mesh, best kept (default 1)")
     p.add_argument("--with-none", action=argparse.BooleanOptionalAction, default=True,
                    help="also solve with remedy 'none' (untimed) to count its negative eigenvalues")
+    p.add_argument("--threads", type=int, default=None,
+                   help="torch.set_num_threads(N) before timing (default: leave torch's setting)")
     p.add_argument("--profile", type=int, default=None, metavar="ID",
                    help="after the table, cProfile torchakvf once on this mesh id")
     p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "eigensolver.md",
@@ -429,6 +456,8 @@ def main(argv=None) -> int:
         print(f"PSB not found at {args.psb} (expected {args.psb}/meshes/N.off.gz); set --psb or "
               "TORCHAKVF_PSB", file=sys.stderr)
         return 2
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
     head = header(args, args.psb)
     print(head, flush=True)
     warm_up(args.n)

@@ -239,7 +239,9 @@ def test_residuals_recomputed_with_scipy(ref_case):
     r = R @ w - S1[:, None] * w * lam
     mine = np.linalg.norm(r / np.sqrt(S1)[:, None], axis=0) / np.maximum(np.abs(lam), 1.0)
     reported = res.residuals[0].numpy()
-    np.testing.assert_allclose(reported, mine, rtol=1e-4, atol=1e-12)
+    # Residuals at round-off level (~1e-12) differ with the summation order of R @ w, so
+    # agreement is asked for relative to the tolerance they are judged against (1e-6).
+    np.testing.assert_allclose(reported, mine, rtol=1e-4, atol=1e-10)
     assert np.all(mine <= 1e-6) and bool(res.converged.all())
     assert res.iterations.shape == (1,) and int(res.iterations[0]) >= 1
 

@@ -22,8 +22,9 @@ Meshes without human segmentations (held-back categories) are predicted with
 :data:`DEFAULT_K_NO_GT` parts (or the automatic k) and get status ``"no score"``.
 
 Batching: meshes are sorted by (number of k's needed, face count) and grouped into batches of
-at most ``batch_faces`` faces. Per batch the AKVFs are computed once (n = 32, or ``n_fields``) and
-shared by every k. Meshes need different sets of k's, so the batch is segmented in *rounds*:
+at most ``batch_faces`` faces. Per batch the AKVFs are computed once (n = 36: segment's largest
+default, 32, plus its 4 spare fields; or ``n_fields``) and shared by every k. Meshes need
+different sets of k's, so the batch is segmented in *rounds*:
 round r segments every mesh with its r-th k (ascending). A mesh with fewer k's than the round
 count is padded with k = 1 (cheap: its clustering is trivial, but its untangling and
 boundary extraction still run - this wasted work is the price of ``segment`` wanting an
@@ -602,14 +603,15 @@ def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment
     share = faces / faces.sum()
     seconds = np.zeros(len(batch))
     # A fixed n per run (not the batch's largest need), so a mesh's fields do not depend on
-    # which meshes share its batch: 32 (the largest default) for given k's, the scan's n for auto.
+    # which meshes share its batch: the largest default n (32; the scan's n for auto) plus the
+    # 4 spare fields segment() itself computes to see degenerate clusters.
+    from ..parts.segment import default_n_fields
     if n_fields is not None:
         n_akvf = int(n_fields)
     elif auto:
-        from ..parts.segment import default_n_fields
-        n_akvf = default_n_fields(k_range[1])
+        n_akvf = default_n_fields(k_range[1]) + 4
     else:
-        n_akvf = 32
+        n_akvf = default_n_fields(10 ** 6) + 4
     fields = akvf(mb, n=n_akvf, seed=seed, remedy=remedy)
     t_akvf = time.perf_counter() - t0
     seconds += t_akvf * share

@@ -2,7 +2,8 @@
 
 Rule (default ``"elbow"``): segment every mesh for each k in ``k_range`` from *one* AKVF
 solve and *one* field count (``n_fields = default_n_fields(k_max)`` for every k, so that the
-per-face features, and hence the k-means costs, are comparable across k), normalise the
+per-face features, and hence the k-means costs, are comparable across k; moved, like
+``segment`` does, off a cluster of near-equal eigenvalues), normalise the
 spherical k-means cost ``c(k)`` (sum over faces of 1 - cos to the centre) by ``c(k_min)`` and
 pick the k with the largest second difference ``c(k-1) - 2 c(k) + c(k+1)``: the "elbow" after
 which extra parts stop paying for themselves. Ties go to the smaller k. Only interior k's
@@ -27,7 +28,8 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, akvf, as_batch
-from ..parts.segment import DEFAULT_REMEDY, Segmentation, default_n_fields, segment
+from ..parts.segment import (DEFAULT_REMEDY, Segmentation, cluster_safe_n, default_n_fields,
+                             segment)
 
 RULES = ("elbow", "knee", "spectrum")
 DEFAULT_K_RANGE = (2, 10)
@@ -44,7 +46,7 @@ class KScan:
     eigenvalues : [B, n] raw Killing eigenvalues (λ·area) of each mesh
     chosen : [B] the k picked by ``rule``
     rule : the rule used
-    n_fields : fields untangled for every k
+    n_fields : fields untangled for every k (an int, or one per mesh)
     segmentations : {k: Segmentation} (only when kept)
     """
 
@@ -118,7 +120,8 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
     meshes : MeshBatch, Mesh, list of Mesh, or an :class:`AKVFResult` to reuse
     k_range : (k_min, k_max), inclusive, k_max >= k_min + 2
     rule : see the module notes (``"elbow"`` default)
-    n_fields : fields untangled for every k (default ``default_n_fields(k_max)``)
+    n_fields : fields untangled for every k (default ``default_n_fields(k_max)`` per mesh, moved
+        by :func:`~torchakvf.parts.segment.cluster_safe_n` off a degenerate eigenvalue cluster)
     keep : keep every k's :class:`Segmentation` (memory: one label array per mesh per k)
     segment_kwargs : passed to :func:`torchakvf.parts.segment` (eps, boundary, ...)
     """
@@ -130,8 +133,13 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
         fields = meshes
         if fields.n < n:
             raise ParameterError(f"the AKVFs given have n = {fields.n} < the {n} fields needed")
+    else:  # a few spare fields, as segment() computes, so a degenerate cluster is not cut
+        fields = akvf(as_batch(meshes), n=n + 4 if n_fields is None else n, seed=seed, remedy=remedy)
+    if n_fields is None:  # one count per mesh for every k, moved off degenerate clusters
+        lam = fields.eigenvalues.detach().cpu()
+        ns = [cluster_safe_n(lam[b], n, floor=max(hi, n // 2)) for b in range(len(fields.batch))]
     else:
-        fields = akvf(as_batch(meshes), n=max(n, 32), seed=seed, remedy=remedy)
+        ns = n
     for b, m in enumerate(fields.batch.meshes):
         if len(m.faces) < hi:
             raise ParameterError(f"{m.name}: k_max = {hi} is larger than its {len(m.faces)} faces")
@@ -140,13 +148,13 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
     costs = np.zeros((nb, len(ks)))
     segs = {}
     for j, k in enumerate(ks):
-        seg = segment(fields, k=k, seed=seed, remedy=remedy, n_fields=n, **segment_kwargs)
+        seg = segment(fields, k=k, seed=seed, remedy=remedy, n_fields=ns, **segment_kwargs)
         costs[:, j] = [m.cost for m in seg.meshes]
         if keep:
             segs[k] = seg
     eig = fields.eigenvalues.detach().cpu().numpy().astype(np.float64)
     chosen = [pick_k(ks, costs[b], rule, eig[b]) for b in range(nb)]
-    return KScan(ks=ks, costs=costs, eigenvalues=eig, chosen=chosen, rule=rule, n_fields=n,
+    return KScan(ks=ks, costs=costs, eigenvalues=eig, chosen=chosen, rule=rule, n_fields=ns,
                  segmentations=segs)
 
 

@@ -68,7 +68,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", default="0", help="random seed of solver starts, untangling and k-means (default 0)")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default cpu)")
     p.add_argument("--batch-faces", default=None, metavar="N",
-                   help="face budget per batch (default 200000 on cpu, 1000000 on cuda)")
+                   help="face budget per batch, meshes sorted by size (default 20000 on cpu, 1000000 on cuda)")
     p.add_argument("--remedy", default=None, help="mesh-quality remedy of the Killing operator "
                                                     "(default: the segmenter's, 'smooth')")
     p.add_argument("--force", action="store_true",
@@ -91,7 +91,7 @@ def _run(args, task, device: str) -> int:
     if summary.failed:
         shown = summary.failures[:5]
         for path, err in shown:
-            print(f"  failed: {err if path in err else f'{path}: {err}'}")
+            print(f"  failed: {err if Path(path).name in err else f'{path}: {err}'}")
         if summary.failed > len(shown):
             print(f"  ... and {summary.failed - len(shown)} more (see {summary.manifest})")
     return summary.exit_code

@@ -39,7 +39,6 @@ import signal
 import sys
 import tempfile
 import time
-import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
@@ -52,10 +51,13 @@ log = logging.getLogger("torchakvf.pipeline")
 
 MANIFEST = "manifest.jsonl"
 
-#: Default face budget per batch. CPU: measured on PSB meshes (10-30k faces, n = 32) batching
-#: does not speed up the CPU solve (the sparse factorizations are per mesh anyway), so the budget
-#: only bounds memory: 200k faces stays around 3-4 GB. CUDA: batching amortizes kernel launches.
-DEFAULT_BATCH_FACES = {"cpu": 200_000, "cuda": 1_000_000}
+#: Default face budget per batch. CPU, measured with ``torchakvf features --n 32`` on PSB meshes
+#: 1-20 (5k-32k faces, 404k in all; 2 busy cores, OMP_NUM_THREADS=1): one mesh per batch ran
+#: 968 faces/s (1.35 GB peak RSS), a 50k budget 746 faces/s, a 200k budget 267 faces/s (~6 GB):
+#: on CPU the padded batched work (every mesh iterates until the batch's slowest converges)
+#: costs more than it saves, so the budget only groups small meshes (20k: a PSB-size mesh runs
+#: about alone). CUDA: batching amortizes kernel launches; 1M faces is a guess, unmeasured here.
+DEFAULT_BATCH_FACES = {"cpu": 20_000, "cuda": 1_000_000}
 
 _GLOB_CHARS = re.compile(r"[*?\[]")
 
@@ -432,22 +434,24 @@ def process_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> 
 
 
 def _compute_and_write(items: list[Item], task, out_dir: Path, device, seed: int, retry: bool) -> list[dict]:
+    error = None
     try:
         outputs, stage_s = task.process(items, device)
     except Exception as exc:  # noqa: BLE001
+        error = _error_text(exc)
+        log.debug("computing %s failed", [it.stem for it in items], exc_info=True)
+    if error is not None:
+        # Out of the except block: the failed batch's tensors (held by the traceback) are freed.
+        _free_device_memory(device)
         if retry:
-            log.warning("batch of %d meshes failed (%s); retrying them one by one",
-                        len(items), _error_text(exc))
+            log.warning("batch of %d meshes failed (%s); retrying them one by one", len(items), error)
             recs = []
             for it in items:
                 recs += _compute_and_write([it], task, out_dir, device, seed, retry=False)
             return recs
         it = items[0]
-        log.debug("%s failed", it.path, exc_info=True)
-        if not isinstance(exc, TorchAKVFError):
-            log.debug("%s", traceback.format_exc())
         rec = _base_record(it, task, seed)
-        rec.update(status="failed", error=_error_text(exc), seconds=dict(it.seconds))
+        rec.update(status="failed", error=error, seconds=dict(it.seconds))
         it.mesh = it.clean = None
         return [rec]
     total = sum(len(it.clean.faces) for it in items) or 1
@@ -473,6 +477,13 @@ def _compute_and_write(items: list[Item], task, out_dir: Path, device, seed: int
         recs.append(rec)
         it.mesh = it.clean = None
     return recs
+
+
+def _free_device_memory(device) -> None:
+    if str(device).startswith("cuda"):
+        import torch
+
+        torch.cuda.empty_cache()
 
 
 def prepare(paths: Sequence[Path], out_dir: Path, task, *, seed: int = 0, resume: bool = True

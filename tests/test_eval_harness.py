@@ -1,0 +1,231 @@
+"""The PSB evaluation harness: end to end on a tiny synthetic "PSB", protocols, resume, CLI."""
+from __future__ import annotations
+
+import argparse
+import csv
+import gzip
+import os
+
+import numpy as np
+import pytest
+
+from torchakvf import shapes
+from torchakvf.errors import TorchAKVFError
+from torchakvf.evaluate import metrics as M
+from torchakvf.evaluate.harness import (evaluate_psb, human_mode, parse_metrics,
+                                        score_segmentation)
+
+
+def _write_off(path, vertices, faces, gz=False):
+    lines = ["OFF", f"{len(vertices)} {len(faces)} 0"]
+    lines += [" ".join(f"{x:.9g}" for x in v) for v in vertices]
+    lines += [f"3 {a} {b} {c}" for a, b, c in faces]
+    data = ("\n".join(lines) + "\n").encode()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(gzip.compress(data) if gz else data)
+
+
+def _write_seg(path, labels):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(map(str, np.asarray(labels).tolist())) + "\n")
+
+
+#: cheap clustering for tests (the same in every call that shares an output folder)
+FAST = dict(kmeans_restarts=5, untangle_restarts=2, n_fields=16)
+
+
+@pytest.fixture(scope="module")
+def tiny_psb(tmp_path_factory):
+    """Mesh 1 (Human): a dumbbell, humans = its 2 parts, all-zeros, and a 3-part split.
+    Mesh 141 (Table, held back): three blobs, no ground truth."""
+    root = tmp_path_factory.mktemp("psb")
+    d = shapes.dumbbell(n_around=30)
+    _write_off(root / "meshes" / "1.off.gz", d.vertices, d.faces, gz=True)
+    z = d.vertices[d.faces].mean(axis=1)[:, 2]
+    three = np.digitize(z, [-1.0, 1.0])           # a human who cut the dumbbell into three
+    _write_seg(root / "gt" / "1" / "1_0.seg", d.part_labels)
+    _write_seg(root / "gt" / "1" / "1_1.seg", np.zeros(len(d.faces), dtype=int))
+    _write_seg(root / "gt" / "1" / "1_2.seg", three)
+    _write_seg(root / "gt" / "1" / "1_3.seg", d.part_labels)
+    t = shapes.three_blobs(n_around=30)
+    _write_off(root / "meshes" / "141.off", t.vertices, t.faces)
+    return root, d
+
+
+@pytest.fixture(scope="module")
+def run_by_seg(tiny_psb, tmp_path_factory):
+    root, _ = tiny_psb
+    out = tmp_path_factory.mktemp("eval")
+    lines = []
+    summary = evaluate_psb(root, out, progress=lines.append, **FAST)
+    return out, summary, lines
+
+
+def test_end_to_end_files_and_rows(tiny_psb, run_by_seg):
+    root, d = tiny_psb
+    out, summary, lines = run_by_seg
+    for name in ("scores.csv", "summary.md", "rand_index.png", "settings.json"):
+        assert (out / name).is_file(), name
+    # human counts of mesh 1: 2, 1, 3, 2 -> distinct k's 1, 2, 3
+    for k in (1, 2, 3):
+        assert (out / "pred" / "1" / f"1_k{k}.seg").is_file()
+    assert (out / "pred" / "141" / "141_k6.seg").is_file()     # no gt: the default k
+    rows = list(csv.DictReader((out / "scores.csv").open()))
+    assert [r["id"] for r in rows] == ["1", "141"]
+    r1, r141 = rows
+    assert r1["category"] == "Human" and r1["ks"] == "1;2;3" and r1["status"] == "ok"
+    assert int(r1["faces"]) == len(d.faces)
+    for col in ("rand_index_error", "hamming_distance", "hamming_missing_rate",
+                "hamming_false_alarm_rate", "gce", "lce", "cut_discrepancy", "seconds"):
+        assert r1[col] != "" and np.isfinite(float(r1[col])), col
+    assert r141["category"] == "Table" and r141["status"] == "no score"
+    assert r141["rand_index_error"] == ""
+    assert summary.row(141).status == "no score"
+    assert summary.counts["Table"] == {"scored": 0, "no score": 1, "failed": 0}
+    text = (out / "summary.md").read_text()
+    for ref in ("Human", "One segment", "Every face", "Table", "no score", "wall time"):
+        assert ref in text
+    assert any("batch" in ln for ln in lines)                   # progress was reported
+
+
+def test_dumbbell_two_part_human_is_matched(tiny_psb, run_by_seg):
+    root, d = tiny_psb
+    out, summary, _ = run_by_seg
+    pred2 = np.loadtxt(out / "pred" / "1" / "1_k2.seg", dtype=np.int64)
+    assert M.rand_index_error(pred2, d.part_labels) < 0.05
+    # by-segmentation: the mesh score is the mean over its 4 humans, each vs its own k
+    pred = {k: np.loadtxt(out / "pred" / "1" / f"1_k{k}.seg", dtype=np.int64) for k in (1, 2, 3)}
+    gts = [np.loadtxt(root / "gt" / "1" / f"1_{j}.seg", dtype=np.int64) for j in range(4)]
+    expect = np.mean([M.rand_index_error(pred[len(np.unique(g))], g) for g in gts])
+    assert summary.row(1).metrics["rand_index_error"] == pytest.approx(expect)
+
+
+def test_one_segment_reference_by_hand(tiny_psb, run_by_seg):
+    root, d = tiny_psb
+    _, summary, _ = run_by_seg
+    gts = [np.loadtxt(root / "gt" / "1" / f"1_{j}.seg", dtype=np.int64) for j in range(4)]
+    zeros = np.zeros(len(d.faces), dtype=np.int64)
+    by_hand = [M.evaluate_segmentation(d.vertices, d.faces, zeros, g) for g in gts]
+    one = summary.row(1).references["One segment"]
+    assert one["rand_index_error"] == pytest.approx(np.mean([m["rand_index_error"] for m in by_hand]))
+    assert one["hamming_distance"] == pytest.approx(np.mean([m["hamming_distance"] for m in by_hand]))
+    assert one["gce"] == pytest.approx(0.0, abs=1e-12)
+    every = summary.row(1).references["Every face"]["rand_index_error"]
+    assert one["rand_index_error"] + every == pytest.approx(1.0)
+    assert summary.references["One segment"]["Human"]["rand_index_error"] == \
+        pytest.approx(one["rand_index_error"])
+
+
+def test_resume_skips_recompute(tiny_psb, run_by_seg):
+    root, _ = tiny_psb
+    out, first, _ = run_by_seg
+    seg = out / "pred" / "1" / "1_k2.seg"
+    before = seg.stat().st_mtime_ns
+    lines = []
+    again = evaluate_psb(root, out, progress=lines.append, **FAST)
+    assert seg.stat().st_mtime_ns == before
+    assert not any("batch" in ln for ln in lines)               # nothing was solved
+    assert again.row(1).metrics == pytest.approx(first.row(1).metrics, nan_ok=True)
+    # other prediction settings in the same folder are refused
+    with pytest.raises(TorchAKVFError, match="other settings"):
+        evaluate_psb(root, out, seed=1, progress=False, **FAST)
+
+
+def test_by_model_uses_the_mode(tiny_psb, run_by_seg, tmp_path):
+    root, _ = tiny_psb
+    out, _, _ = run_by_seg
+    # humans' counts 2, 1, 3, 2 -> mode 2; predictions are shared with the by-seg run (resume)
+    s = evaluate_psb(root, out, protocol="by-model", progress=False, metrics="rand,gce", **FAST)
+    row = s.row(1)
+    assert row.ks == [2] and row.human_mode == 2
+    pred2 = np.loadtxt(out / "pred" / "1" / "1_k2.seg", dtype=np.int64)
+    gts = [np.loadtxt(root / "gt" / "1" / f"1_{j}.seg", dtype=np.int64) for j in range(4)]
+    assert row.metrics["rand_index_error"] == pytest.approx(
+        np.mean([M.rand_index_error(pred2, g) for g in gts]))
+    assert set(row.metrics) == {"rand_index_error", "gce"}
+    assert human_mode([3, 2, 3, 2, 5]) == 2
+
+
+def test_selection_errors(tiny_psb, tmp_path):
+    root, _ = tiny_psb
+    with pytest.raises(TorchAKVFError, match="unknown PSB category"):
+        evaluate_psb(root, tmp_path, categories="Humans", progress=False)
+    with pytest.raises(TorchAKVFError, match="no meshes"):
+        evaluate_psb(root, tmp_path, categories=["Spring"], progress=False)
+    with pytest.raises(TorchAKVFError, match="not found"):
+        evaluate_psb(root, tmp_path, ids=[2], progress=False)
+    with pytest.raises(TorchAKVFError, match="protocol"):
+        evaluate_psb(root, tmp_path, protocol="bySegmentation", progress=False)
+    with pytest.raises(TorchAKVFError, match="unknown metric"):
+        parse_metrics("rand,foo")
+    with pytest.raises(TorchAKVFError, match="remedy"):
+        evaluate_psb(root, tmp_path, remedy="magic", progress=False)
+    with pytest.raises(TorchAKVFError, match="does not exist"):
+        evaluate_psb(tmp_path / "nope", tmp_path, progress=False)
+
+
+def test_score_segmentation_protocols():
+    d = shapes.dumbbell(n_around=12)
+    lab = d.part_labels
+    gts = [lab, np.zeros_like(lab)]
+    preds = {2: lab, 1: np.zeros_like(lab)}
+    bs = score_segmentation(d.vertices, d.faces, preds, gts, "by-segmentation", metrics="rand")
+    assert bs == {"rand_index_error": 0.0}
+    bm = score_segmentation(d.vertices, d.faces, preds, gts, "by-model", metrics="rand", k=2)
+    assert bm["rand_index_error"] == pytest.approx(M.rand_index_error(lab, gts[1]) / 2)
+
+
+def test_k_auto_pick_rules():
+    from torchakvf.evaluate.k_auto import pick_k
+
+    ks = [2, 3, 4, 5, 6]
+    costs = [10.0, 6.0, 2.0, 1.8, 1.7]      # elbow at 4
+    assert pick_k(ks, costs, "elbow") == 4
+    assert pick_k(ks, costs, "knee") == 4
+    lam = np.array([0, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 5, 6, 7, 8, 9, 10], dtype=float)
+    assert pick_k(ks, costs, "spectrum", lam) == 4           # gap after 8 fields -> k = 4
+    with pytest.raises(TorchAKVFError):
+        pick_k(ks, costs, "best")
+
+
+def test_eval_command_parses_and_validates(tiny_psb, tmp_path):
+    from torchakvf.evaluate.commands import add_eval_command
+
+    root, _ = tiny_psb
+    parser = argparse.ArgumentParser()
+    add_eval_command(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["eval", "--psb", str(root), "--out", str(tmp_path / "e"),
+                              "--categories", "Human,Octopus", "--protocol", "by-model",
+                              "--metrics", "rand", "--ids", "1", "--quiet", "--n-fields", "16"])
+    assert args.protocol == "by-model" and args.k is None
+    assert args.func(args) == 0
+    assert (tmp_path / "e" / "pred" / "1" / "1_k2.seg").is_file()
+    bad = parser.parse_args(["eval", "--psb", str(root), "--categories", "Human,Robot"])
+    with pytest.raises(TorchAKVFError, match="Robot"):
+        bad.func(bad)
+    missing = parser.parse_args(["eval", "--psb", str(tmp_path / "nowhere")])
+    with pytest.raises(TorchAKVFError, match="no PSB data"):
+        missing.func(missing)
+
+
+def test_k_auto_end_to_end(tiny_psb, tmp_path):
+    root, d = tiny_psb
+    s = evaluate_psb(root, tmp_path, ids=[1], k_mode="auto", k_range=(1, 3), progress=False,
+                     metrics="rand", **FAST)
+    row = s.row(1)
+    assert row.k_auto["chosen"] in (2,)                      # the dumbbell's elbow is at 2
+    assert (tmp_path / "pred" / "1" / "1_k2.seg").is_file()
+    assert set(row.k_auto["rand_index_error_by_k"]) == {1, 2, 3}
+    assert "Automatic k" in (tmp_path / "summary.md").read_text()
+    assert s.k_auto["overall"]["hit_rate"] == 1.0            # human mode 2
+
+
+def test_real_psb_one_mesh(psb, tmp_path):
+    """A small labelled PSB mesh (Hand 200, 3,026 faces; its eigensolve converges quickly)."""
+    s = evaluate_psb(psb, tmp_path, ids=[200], protocol="by-model",
+                     progress=False, metrics="rand,hamming", **FAST)
+    row = s.rows[0]
+    assert row.status == "ok"
+    assert 0.0 <= row.metrics["rand_index_error"] < 0.5
+    assert row.references["One segment"]["rand_index_error"] > 0
+    assert (tmp_path / "rand_index.png").stat().st_size > 1000
