@@ -1,7 +1,7 @@
 """Batched spherical k-means (cosine distance) with k-means++ seeding and restarts.
 
 Every mesh of a batch, with its own k, and every restart run as one set of padded tensor ops:
-rows [B, N_max, d] with a mask, centers [B·R, k_max, d] with a mask for meshes whose k < k_max.
+rows [B, N_max, d] with a mask, centers [B, R, k_max, d] with a mask for meshes whose k < k_max.
 """
 from __future__ import annotations
 
@@ -50,67 +50,80 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     w = (mask.to(dt) if weights is None else weights.to(dt) * mask)
     kvec = torch.tensor(ks, device=dev)
     center_ok = torch.arange(k_max, device=dev)[None, :] < kvec[:, None]          # [B, k_max]
+    # The R restarts' centers sit side by side, [B, R·k_max, d], so one GEMM against the rows
+    # serves every restart and the rows are never copied R times (R x the features' memory).
+    absent = ~center_ok[:, None, None, :]                                          # [B, 1, 1, k_max]
 
     # Uniform draws for seeding, per mesh from its own generator.
     draws = torch.stack([torch.rand(r, k_max, generator=torch.Generator().manual_seed(seed), dtype=dt)
                          for _ in range(nb)]).to(dev)                             # [B, R, k_max]
-    xr = x[:, None].expand(nb, r, n_max, d).reshape(nb * r, n_max, d)
-    wr = w[:, None].expand(nb, r, n_max).reshape(nb * r, n_max)
-    ok_r = center_ok[:, None].expand(nb, r, k_max).reshape(nb * r, k_max)
-    centers = _kmeanspp(xr, wr, draws.reshape(nb * r, k_max), ok_r)
+    centers = _kmeanspp(x, w, draws, center_ok)                                    # [B, R, k_max, d]
 
-    labels = torch.full((nb * r, n_max), -1, dtype=torch.long, device=dev)
-    iters = torch.zeros(nb * r, dtype=torch.long, device=dev)
-    active = torch.ones(nb * r, dtype=torch.bool, device=dev)
+    def assign(xb, cb, absent_b):
+        """Labels [b, N, R] and cosine to the assigned center [b, N, R]."""
+        m = len(xb)
+        sim = (xb @ cb.reshape(m, r * k_max, d).transpose(1, 2)).reshape(m, n_max, r, k_max)
+        return sim.masked_fill_(absent_b, _NEG).max(-1)
+
+    labels = torch.full((nb, n_max, r), -1, dtype=torch.long, device=dev)
+    iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
+    active = torch.ones(nb, r, dtype=torch.bool, device=dev)
     for _ in range(max_iter):
-        idx = torch.nonzero(active).reshape(-1)
-        if len(idx) == 0:
+        # Meshes whose restarts have all settled drop out; a settled restart of a live mesh is
+        # at a fixed point (same labels, same centers), so riding along changes nothing.
+        live = torch.nonzero(active.any(dim=1)).reshape(-1)
+        if len(live) == 0:
             break
-        sim = xr[idx] @ centers[idx].transpose(1, 2)
-        sim = sim.masked_fill(~ok_r[idx, None, :], _NEG)
-        new = sim.argmax(-1)
-        changed = (new != labels[idx]).any(dim=1)
-        labels[idx] = new
-        iters[idx] += 1
-        onehot = torch.nn.functional.one_hot(new, k_max).to(dt) * wr[idx, :, None]
-        sums = onehot.transpose(1, 2) @ xr[idx]                                   # [n, k_max, d]
+        xl, wl = x[live], w[live]
+        new = assign(xl, centers[live], absent[live])[1]
+        changed = (new != labels[live]).any(dim=1)                                 # [m, R]
+        labels[live] = new
+        act = active[live]
+        iters[live] += act.long()
+        onehot = torch.nn.functional.one_hot(new, k_max).to(dt) * wl[:, :, None, None]
+        sums = (onehot.reshape(len(live), n_max, r * k_max).transpose(1, 2) @ xl
+                ).reshape(len(live), r, k_max, d)
         norm = sums.norm(dim=-1, keepdim=True)
         # An emptied cluster keeps its previous center rather than vanishing.
-        centers[idx] = torch.where(norm > 0, sums / norm.clamp(min=1e-300), centers[idx])
-        active[idx[~changed]] = False
+        centers[live] = torch.where(norm > 0, sums / norm.clamp(min=1e-300), centers[live])
+        active[live] = act & changed
 
-    sim = (xr @ centers.transpose(1, 2)).masked_fill(~ok_r[:, None, :], _NEG)
-    best_sim, labels = sim.max(-1)
-    cost = ((1 - best_sim) * wr).sum(-1).reshape(nb, r)
+    best_sim, labels = assign(x, centers, absent)                                 # [B, N, R]
+    cost = ((1 - best_sim) * w[:, :, None]).sum(1)                                  # [B, R]
     pick = cost.argmin(dim=1)
-    sel = torch.arange(nb, device=dev) * r + pick
-    labels = labels[sel].masked_fill(~mask, -1)
-    return KMeansResult(labels=labels, centers=centers[sel] * center_ok[..., None],
-                        cost=cost.min(dim=1).values, iterations=iters[sel])
+    ar = torch.arange(nb, device=dev)
+    labels = labels[ar, :, pick].masked_fill(~mask, -1)
+    return KMeansResult(labels=labels, centers=centers[ar, pick] * center_ok[..., None],
+                        cost=cost.min(dim=1).values, iterations=iters[ar, pick])
 
 
 def _kmeanspp(x: torch.Tensor, w: torch.Tensor, u: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
-    """k-means++ seeding by inverse-CDF sampling with the pre-drawn uniforms u [M, k_max].
+    """k-means++ seeding of every restart by inverse-CDF sampling with pre-drawn uniforms.
 
+    x : [B, N, d] unit rows; w : [B, N] weights; u : [B, R, k_max] uniforms; ok : [B, k_max].
     Rows are drawn with probability ∝ weight · (1 - cos to the nearest chosen center)^2.
+    Returns centers [B, R, k_max, d] (0 where ``ok`` is False).
     """
-    m, n_max, d = x.shape
-    k_max = u.shape[1]
-    centers = x.new_zeros(m, k_max, d)
-    prob = w.clone()
-    nearest = torch.full((m, n_max), 2.0, dtype=x.dtype, device=x.device)
-    ar = torch.arange(m, device=x.device)
+    nb, n_max, d = x.shape
+    r, k_max = u.shape[1], u.shape[2]
+    centers = x.new_zeros(nb, r, k_max, d)
+    prob = w[:, None, :].expand(nb, r, n_max).clone()                               # [B, R, N]
+    nearest = torch.full((nb, r, n_max), 2.0, dtype=x.dtype, device=x.device)
+    ar = torch.arange(nb, device=x.device)[:, None]
+    valid = None
     for j in range(k_max):
-        cdf = prob.cumsum(1)
-        total = cdf[:, -1:]
-        pick = torch.searchsorted(cdf, (u[:, j:j + 1] * total).contiguous()).clamp(max=n_max - 1)[:, 0]
+        cdf = prob.cumsum(2)
+        total = cdf[..., -1:]
+        pick = torch.searchsorted(cdf, (u[..., j:j + 1] * total).contiguous()).clamp(max=n_max - 1)[..., 0]
         # Fall back to uniform over valid rows where every remaining row has zero weight.
-        degenerate = total[:, 0] <= 0
+        degenerate = total[..., 0] <= 0                                             # [B, R]
         if degenerate.any():
-            valid = (w > 0).to(x.dtype).cumsum(1)
-            fb = torch.searchsorted(valid, (u[:, j:j + 1] * valid[:, -1:]).contiguous())[:, 0]
+            if valid is None:
+                valid = (w > 0).to(x.dtype).cumsum(1)[:, None, :].expand(nb, r, n_max).contiguous()
+            fb = torch.searchsorted(valid, (u[..., j:j + 1] * valid[..., -1:]).contiguous())[..., 0]
             pick = torch.where(degenerate, fb.clamp(max=n_max - 1), pick)
-        centers[:, j] = torch.where(ok[:, j:j + 1], x[ar, pick], centers[:, j])
-        nearest = torch.minimum(nearest, 1 - (x * centers[:, j:j + 1]).sum(-1))
-        prob = w * nearest.clamp(min=0) ** 2
+        chosen = x[ar, pick]                                                        # [B, R, d]
+        centers[:, :, j] = torch.where(ok[:, None, j:j + 1], chosen, centers[:, :, j])
+        nearest = torch.minimum(nearest, 1 - centers[:, :, j] @ x.transpose(1, 2))
+        prob = w[:, None, :] * nearest.clamp(min=0) ** 2
     return centers

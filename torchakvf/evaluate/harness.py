@@ -26,9 +26,12 @@ at most ``batch_faces`` faces. Per batch the AKVFs are computed once (n = 36: se
 default, 32, plus its 4 spare fields; or ``n_fields``) and shared by every k. Meshes need
 different sets of k's, so the batch is segmented in *rounds*:
 round r segments every mesh with its r-th k (ascending). A mesh with fewer k's than the round
-count is padded with k = 1 (cheap: its clustering is trivial, but its untangling and
-boundary extraction still run - this wasted work is the price of ``segment`` wanting an
-:class:`AKVFResult` of the whole batch).
+count is padded with k = 1 (cheap: its clustering is trivial, but its boundary extraction
+still runs - this wasted work is the price of ``segment`` wanting an :class:`AKVFResult` of
+the whole batch). Rounds whose field counts agree (every k <= 8 untangles N = 16) share one
+untangling. The default budget is the corpus runner's for the device
+(:data:`torchakvf.pipeline.runner.DEFAULT_BATCH_FACES`: on CPU about one PSB mesh a batch,
+which measured faster than larger batches).
 
 Resume: a prediction file is written atomically as soon as its round is done; a re-run skips
 every (mesh, k) whose file exists, so an interrupted run loses at most one round of one batch.
@@ -377,7 +380,7 @@ class _Progress:
 
 def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segmentation", ids=None,
                  per_category: int | None = None, seed: int = 0, remedy: str | None = None,
-                 n_fields: int | None = None, batch_faces: int = 150_000, k_mode: str | None = None,
+                 n_fields: int | None = None, batch_faces: int | None = None, k_mode: str | None = None,
                  progress=True, metrics=None, k_range=None, k_rule: str = "elbow",
                  default_k: int = DEFAULT_K_NO_GT, plot: bool = True,
                  **segment_kwargs) -> EvalSummary:
@@ -393,7 +396,8 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     per_category : keep only the first N meshes (by id) of each category (quick runs)
     seed, remedy, n_fields : as in :func:`torchakvf.parts.segment` (remedy default
         :data:`torchakvf.parts.DEFAULT_REMEDY`; n_fields default 2k in [16, 32])
-    batch_faces : face budget of one batch (meshes larger than it run alone)
+    batch_faces : face budget of one batch (meshes larger than it run alone; default the
+        corpus runner's CPU budget)
     k_mode : None (k from the protocol) or "auto" (:mod:`torchakvf.evaluate.k_auto`)
     progress : True (lines on stderr), False, or a callable taking one line
     metrics : metric groups, e.g. "rand,hamming" (default all: rand,hamming,gce,lce,cd)
@@ -417,6 +421,9 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     auto = k_mode == "auto"
     groups = parse_metrics(metrics)
     remedy = DEFAULT_REMEDY if remedy is None else remedy
+    if batch_faces is None:
+        from ..pipeline.runner import default_batch_faces
+        batch_faces = default_batch_faces("cpu")
     if int(batch_faces) < 1:
         raise TorchAKVFError(f"batch_faces must be positive, got {batch_faces}")
     if not isinstance(default_k, (int, np.integer)) or default_k < 1:
@@ -587,32 +594,43 @@ def _make_batches(plans, faces_of, budget):
 
 
 def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment_kwargs,
-                   faces_of, prog, n_batch, n_left):
+                   faces_of, prog, n_batch, n_left, *, device="cpu", timings=None):
     """AKVFs once for the batch, then every missing k; writes predictions and meta files.
+
+    device : torch device of the batch's computation (evaluate_psb: cpu).
+    timings : optional dict the stage seconds of this batch are added to (``torchakvf bench``):
+        "load", "pack" (clean + pack), "akvf", "segment" (with k auto: the scan) and, given k,
+        "segment_by_k" ({k: seconds}, each round charged to its meshes' k's by face share),
+        "write" (predictions + meta files). CUDA is synchronized before each reading when given.
 
     Returns {mesh_id: Mesh} (the loaded input meshes, for scoring)."""
     from ..fields.akvf import akvf
+    from ..fields.untangle import untangle
     from ..io import load_mesh
     from ..mesh import MeshBatch
     from ..parts import segment
+    from ..parts.segment import SPARE_FIELDS, UNTANGLE_RESTARTS, default_n_fields, field_counts
 
+    tick = _stage_clock(timings, device)
     t0 = time.perf_counter()
     meshes = {p.mesh_id: load_mesh(p.entry.mesh_path) for p in batch}
-    mb = MeshBatch.from_meshes([meshes[p.mesh_id] for p in batch])
+    tick("load")
+    mb = MeshBatch.from_meshes([meshes[p.mesh_id] for p in batch], device=device)
+    tick("pack")
     faces = np.array([len(m.faces) for m in mb.meshes], dtype=np.float64)
     share = faces / faces.sum()
     seconds = np.zeros(len(batch))
     # A fixed n per run (not the batch's largest need), so a mesh's fields do not depend on
     # which meshes share its batch: the largest default n (32; the scan's n for auto) plus the
-    # 4 spare fields segment() itself computes to see degenerate clusters.
-    from ..parts.segment import default_n_fields
+    # spare fields segment() itself computes to see degenerate clusters.
     if n_fields is not None:
         n_akvf = int(n_fields)
     elif auto:
-        n_akvf = default_n_fields(k_range[1]) + 4
+        n_akvf = default_n_fields(k_range[1]) + SPARE_FIELDS
     else:
-        n_akvf = default_n_fields(10 ** 6) + 4
+        n_akvf = default_n_fields(10 ** 6) + SPARE_FIELDS
     fields = akvf(mb, n=n_akvf, seed=seed, remedy=remedy)
+    tick("akvf")
     t_akvf = time.perf_counter() - t0
     seconds += t_akvf * share
     eig = fields.eigenvalues.detach().cpu().numpy().astype(float)
@@ -626,6 +644,7 @@ def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment
         scan = scan_k(fields, k_range, rule=k_rule, seed=seed, remedy=remedy, n_fields=n_fields,
                       keep=True, **segment_kwargs)
         seconds += (time.perf_counter() - t1) * share
+        tick("segment")
         for b, p in enumerate(batch):
             k = scan.chosen[b]
             write_seg(p.pred_path(k), scan.segmentations[k].meshes[b].labels)
@@ -642,15 +661,23 @@ def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment
         n_rounds = len(scan.ks)
     else:
         missing = [sorted(p.missing(False)) for p in batch]
+        untangled = {}
         n_rounds = max(len(m) for m in missing)
         for r in range(n_rounds):
             active = [b for b in range(len(batch)) if r < len(missing[b])]
             ks = [missing[b][r] if r < len(missing[b]) else _PAD_K for b in range(len(batch))]
             t1 = time.perf_counter()
-            seg = segment(fields, k=ks, seed=seed, remedy=remedy, n_fields=n_fields, **segment_kwargs)
+            ns = tuple(field_counts(fields, ks, n_fields))
+            if ns not in untangled:  # k's with the same field counts (2k <= 16) share one
+                untangled[ns] = untangle(fields, n=list(ns), seed=seed,
+                                         restarts=segment_kwargs.get("untangle_restarts", UNTANGLE_RESTARTS))
+            seg = segment(fields, k=ks, seed=seed, remedy=remedy, n_fields=n_fields,
+                          untangled=untangled[ns], **segment_kwargs)
+            tick("segment", [(ks[b], faces[b]) for b in active])
             for b in active:
                 write_seg(batch[b].pred_path(ks[b]), seg.meshes[b].labels)
                 costs[b][str(ks[b])] = float(seg.meshes[b].cost)
+            tick("write")
             dt = time.perf_counter() - t1
             act_faces = faces[active]
             seconds[active] += dt * act_faces / act_faces.sum()
@@ -662,10 +689,35 @@ def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment
         meta.setdefault("costs", {}).update(costs[b])
         meta.update(extra[b])
         atomic_write_bytes(p.meta_path, json.dumps(meta, indent=1).encode())
+    tick("write")
     prog.advance(int(sum(faces_of[p.mesh_id] for p in batch)),
                  f"batch {n_batch} ({n_left} left): {len(batch)} meshes, {int(faces.sum())} faces, "
                  f"akvf {t_akvf:.1f}s, {n_rounds} k-rounds {time.perf_counter() - t0 - t_akvf:.1f}s")
     return meshes
+
+
+def _stage_clock(timings, device):
+    """``tick(stage, by_k=None)``: adds the seconds since the previous tick to ``timings[stage]``
+    (and, with ``by_k`` = [(k, faces), ...], splits them over ``timings["segment_by_k"]`` by
+    face share); a no-op when ``timings`` is None."""
+    if timings is None:
+        return lambda stage, by_k=None: None
+    import torch
+
+    sync = torch.cuda.synchronize if str(device).startswith("cuda") else (lambda: None)
+    last = [time.perf_counter()]
+
+    def tick(stage, by_k=None):
+        sync()
+        now = time.perf_counter()
+        dt, last[0] = now - last[0], now
+        timings[stage] = timings.get(stage, 0.0) + dt
+        if by_k:
+            per = timings.setdefault("segment_by_k", {})
+            total = float(sum(f for _, f in by_k)) or 1.0
+            for k, f in by_k:
+                per[int(k)] = per.get(int(k), 0.0) + dt * float(f) / total
+    return tick
 
 
 def _score_mesh(plan: _Plan, mesh, protocol, groups, auto, failure) -> MeshScore:

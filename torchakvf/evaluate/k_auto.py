@@ -28,8 +28,9 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, akvf, as_batch
-from ..parts.segment import (DEFAULT_REMEDY, Segmentation, cluster_safe_n, default_n_fields,
-                             segment)
+from ..fields.untangle import untangle
+from ..parts.segment import (DEFAULT_REMEDY, SPARE_FIELDS, UNTANGLE_RESTARTS, Segmentation,
+                             cluster_safe_n, default_n_fields, segment)
 
 RULES = ("elbow", "knee", "spectrum")
 DEFAULT_K_RANGE = (2, 10)
@@ -134,7 +135,7 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
         if fields.n < n:
             raise ParameterError(f"the AKVFs given have n = {fields.n} < the {n} fields needed")
     else:  # a few spare fields, as segment() computes, so a degenerate cluster is not cut
-        fields = akvf(as_batch(meshes), n=n + 4 if n_fields is None else n, seed=seed, remedy=remedy)
+        fields = akvf(as_batch(meshes), n=n + SPARE_FIELDS if n_fields is None else n, seed=seed, remedy=remedy)
     if n_fields is None:  # one count per mesh for every k, moved off degenerate clusters
         lam = fields.eigenvalues.detach().cpu()
         ns = [cluster_safe_n(lam[b], n, floor=max(hi, n // 2)) for b in range(len(fields.batch))]
@@ -147,8 +148,11 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
     nb = len(fields.batch)
     costs = np.zeros((nb, len(ks)))
     segs = {}
+    # One field count for every k, so one untangling serves the whole scan.
+    unt = untangle(fields, n=[ns] * nb if isinstance(ns, int) else ns, seed=seed,
+                   restarts=segment_kwargs.get("untangle_restarts", UNTANGLE_RESTARTS))
     for j, k in enumerate(ks):
-        seg = segment(fields, k=k, seed=seed, remedy=remedy, n_fields=ns, **segment_kwargs)
+        seg = segment(fields, k=k, seed=seed, remedy=remedy, n_fields=ns, untangled=unt, **segment_kwargs)
         costs[:, j] = [m.cost for m in seg.meshes]
         if keep:
             segs[k] = seg

@@ -128,21 +128,37 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
     d_old = torch.full((nb, r), -1.0, dtype=torch.float64, device=dev)
     active = torch.ones(nb, r, dtype=torch.bool, device=dev)
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
-    side = lambda m: m.permute(0, 2, 1, 3).reshape(nb, n, r * n)      # noqa: E731  [b,R,n,n] -> [b,n,R·n]
+
+    def side(m):                                                      # [b,R,n,n] -> [b,n,R·n]
+        return m.permute(0, 2, 1, 3).reshape(len(m), n, r * n)
+
+    # Y A is [b, Emax, R·n], the largest array here: one buffer, cubed in place, because fresh
+    # allocations of that size cost more than the GEMMs (measured 2.2x per step at 30k edges).
+    buf = ypad.new_empty(nb, e_max, r * n)
+    live = torch.arange(nb, device=dev)
+    y_live = ypad
     for _ in range(max_iter):
-        if not active.any():
+        # Only meshes with a restart still running iterate (a finished mesh would otherwise
+        # wait, at full cost, for the slowest mesh of the batch); a converged restart of a live
+        # mesh rides along in the GEMMs and keeps its rotation.
+        still = torch.nonzero(active.any(dim=1)).reshape(-1)
+        if len(still) == 0:
             break
-        ya = ypad @ side(a)                                           # [b, Emax, R·n]
-        g = (ypad.transpose(1, 2) @ (ya * ya * ya)).reshape(nb, n, r, n).permute(0, 2, 1, 3)
+        if len(still) != len(live):
+            live, y_live = still, ypad[still]
+        m = len(live)
+        ya = torch.matmul(y_live, side(a[live]), out=buf[:m]).pow_(3)
+        g = (y_live.transpose(1, 2) @ ya).reshape(m, n, r, n).permute(0, 2, 1, 3)
         with single_threaded():
             u, sv, vh = torch.linalg.svd(g)
         d = sv.sum(-1)
-        # Converged restarts keep their rotation (and iteration count).
-        a = torch.where(active[..., None, None], u @ vh, a)
-        iters += active.long()
-        done = (d - d_old).abs() < tol * d.abs()
-        d_old = torch.where(active, d, d_old)
-        active = active & ~done
+        act = active[live]
+        a[live] = torch.where(act[..., None, None], u @ vh, a[live])
+        iters[live] += act.long()
+        done = (d - d_old[live]).abs() < tol * d.abs()
+        d_old[live] = torch.where(act, d, d_old[live])
+        active[live] = act & ~done
+    del buf
     score = ((ypad @ side(a)) ** 4).reshape(nb, e_max, r, n).sum(dim=(1, 3))
     best = score.argmax(dim=1)
     ar = torch.arange(nb, device=dev)

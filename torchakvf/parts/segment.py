@@ -12,7 +12,7 @@ import numpy as np
 from ..cluster import spherical_kmeans
 from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, akvf, as_batch
-from ..fields.untangle import untangle
+from ..fields.untangle import UntangledFields, untangle
 from ..mesh.batch import pad_packed
 from .boundaries import (RefinedMesh, face_margins, isoline_face_labels, refine_along_isolines,
                          vertex_distances)
@@ -24,6 +24,8 @@ from .topology import face_adjacency
 #: PSB measurements in the README.
 DEFAULT_REMEDY = "smooth"
 BOUNDARIES = ("isoline", "faces")
+#: Random orthogonal starts of Algorithm 1 besides the identity (the best is kept).
+UNTANGLE_RESTARTS = 8
 
 
 #: Eigenvalues closer than this (relative) belong to one cluster, which N must not split.
@@ -101,6 +103,33 @@ class Segmentation:
         return [m.generators for m in self.meshes]
 
 
+#: AKVFs computed beyond the default N when segment solves them itself, so that a degenerate
+#: eigenvalue cluster cut at N can be seen and completed (:func:`cluster_safe_n`).
+SPARE_FIELDS = 4
+
+
+def _default_or_given(ks: list[int], n_fields, nb: int) -> list[int]:
+    return [default_n_fields(kb) for kb in ks] if n_fields is None else _per_mesh(n_fields, nb, "n_fields")
+
+
+def field_counts(fields: AKVFResult, k, n_fields=None) -> list[int]:
+    """The number of fields :func:`segment` untangles per mesh for these k.
+
+    Default (``n_fields=None``): the paper's 2k clamped to [16, 32], moved by
+    :func:`cluster_safe_n` off a degenerate cluster of the mesh's computed eigenvalues;
+    otherwise ``n_fields`` (one int or one per mesh), which must not exceed ``fields.n``.
+    """
+    nb = len(fields.batch)
+    ks = _per_mesh(k, nb, "k")
+    ns = _default_or_given(ks, n_fields, nb)
+    if max(ns) > fields.n:
+        raise ParameterError(f"n_fields up to {max(ns)} asked for, but the AKVFs given have n = {fields.n}")
+    if n_fields is None:
+        lam = fields.eigenvalues.detach().cpu()
+        ns = [cluster_safe_n(lam[b], ns[b], floor=max(ks[b], ns[b] // 2)) for b in range(nb)]
+    return ns
+
+
 def _per_mesh(value, nb: int, what: str) -> list[int]:
     vals = [value] * nb if isinstance(value, (int, np.integer)) else list(value)
     if len(vals) != nb:
@@ -112,9 +141,9 @@ def _per_mesh(value, nb: int, what: str) -> list[int]:
 
 
 def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
-            remedy: str = DEFAULT_REMEDY, kmeans_restarts: int = 20, untangle_restarts: int = 8,
-            boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True
-            ) -> Segmentation:
+            remedy: str = DEFAULT_REMEDY, kmeans_restarts: int = 20, untangle_restarts: int = UNTANGLE_RESTARTS,
+            boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
+            untangled: UntangledFields | None = None) -> Segmentation:
     """Segment each mesh into k parts (ε = 0) or discover parts with a connecting region (ε > 0).
 
     Parameters
@@ -134,6 +163,9 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     min_part_fraction : connected pieces of a part below this fraction of the area are
         removed (merged into a neighbour for ε = 0, made connecting region for ε > 0)
     refine : also return the mesh cut along the part boundaries
+    untangled : the :class:`~torchakvf.fields.UntangledFields` of these AKVFs to reuse (from
+        :func:`~torchakvf.fields.untangle` with ``n=field_counts(fields, k)``, the same seed and
+        restarts): several k's with the same field counts then share one untangling
     """
     if boundary not in BOUNDARIES:
         raise ParameterError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
@@ -149,18 +181,17 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
         n_f = len(batch.meshes[b].faces)
         if kb > n_f:
             raise ParameterError(f"{batch.meshes[b].name}: k = {kb} is larger than its {n_f} faces")
-    auto_n = n_fields is None
-    ns = [default_n_fields(kb) for kb in ks] if auto_n else _per_mesh(n_fields, nb, "n_fields")
     if fields is None:
         # Compute a few more than needed so a cluster cut at N can be seen (and completed).
-        fields = akvf(batch, n=max(ns) + 4 if auto_n else max(ns), seed=seed, remedy=remedy)
-    elif max(ns) > fields.n:
-        raise ParameterError(f"n_fields up to {max(ns)} asked for, but the AKVFs given have n = {fields.n}")
-    if auto_n:
-        lam = fields.eigenvalues.detach().cpu()
-        ns = [cluster_safe_n(lam[b], ns[b], floor=max(ks[b], ns[b] // 2)) for b in range(nb)]
-
-    unt = untangle(fields, n=ns, seed=seed, restarts=untangle_restarts)
+        n_max = max(_default_or_given(ks, n_fields, nb))
+        fields = akvf(batch, n=n_max + SPARE_FIELDS if n_fields is None else n_max, seed=seed, remedy=remedy)
+    ns = field_counts(fields, ks, n_fields)
+    if untangled is None:
+        untangled = untangle(fields, n=ns, seed=seed, restarts=untangle_restarts)
+    elif untangled.source is not fields or list(untangled.n_fields) != ns:
+        raise ParameterError(f"the untangled fields given are for n = {list(untangled.n_fields)} of "
+                             f"other AKVFs; these k need n = {ns} of the AKVFs passed")
+    unt = untangled
     xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
     km = spherical_kmeans(xpad, mask, ks, restarts=kmeans_restarts, seed=seed)
 
@@ -198,4 +229,4 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
 
 
 __all__ = ["segment", "Segmentation", "MeshSegmentation", "SymmetryGenerator", "default_n_fields",
-           "DEFAULT_REMEDY"]
+           "field_counts", "DEFAULT_REMEDY"]

@@ -1,4 +1,4 @@
-"""``torchakvf segment`` and ``torchakvf features``: the corpus commands of the CLI.
+"""``torchakvf segment``, ``torchakvf features`` and ``torchakvf bench``: the corpus commands of the CLI.
 
 Each command function returns the exit code (0: every mesh ok, 1: some failed) and raises
 :class:`~torchakvf.errors.TorchAKVFError` for user errors, which the CLI prints as one line
@@ -152,13 +152,23 @@ def run_features(args) -> int:
     return _run(args, task, _device(args.device))
 
 
+# ---- bench --------------------------------------------------------------------------------
+
+def _add_bench(sub) -> None:
+    from .bench import add_bench_arguments, run_bench_command
+
+    p = sub.add_parser("bench", help="throughput on the PSB: batched vs one mesh at a time vs scipy",
+                       description="Segment PSB meshes at every protocol k and write report.md and "
+                                   "report.json to --out: meshes/s, faces/s, seconds per stage, peak "
+                                   "memory, and baseline/torchakvf time ratios measured in the same run.")
+    add_bench_arguments(p)
+    p.set_defaults(func=run_bench_command)
+
+
 # ---- registration -------------------------------------------------------------------------
 
 def add_corpus_commands(subparsers) -> None:
-    """Register ``segment`` and ``features`` (and, later, ``bench``) on the CLI's subparsers."""
+    """Register ``segment``, ``features`` and ``bench`` on the CLI's subparsers."""
     _add_segment(subparsers)
     _add_features(subparsers)
-    # ---- bench: reserved -----------------------------------------------------------------
-    # ``torchakvf bench`` is added by another module; register it here, e.g.
-    #     from .bench import add_bench_command; add_bench_command(subparsers)
-    # ---------------------------------------------------------------------------------------
+    _add_bench(subparsers)

@@ -1,9 +1,8 @@
 """The ``segment`` task: k parts per mesh, written as ``<stem>.seg`` (+ ``.npz``, ``.ply``, ``.png``).
 
-Stages per batch: ``akvf`` (the AKVFs, once), ``cluster`` (``segment`` on those AKVFs: its own
-untangling, spherical k-means, boundaries, generators) and ``untangle`` (only when a PNG is asked
-for: the untangled face vectors that draw the generator arrows, recomputed with segment's
-parameters; otherwise 0, segment's untangling being inside ``cluster``).
+Stages per batch: ``akvf`` (the AKVFs, once), ``untangle`` (Algorithm 1 on them; its face
+vectors also draw the PNG's generator arrows) and ``cluster`` (``segment`` on those untangled
+fields: spherical k-means, boundaries, generators).
 """
 from __future__ import annotations
 
@@ -12,7 +11,7 @@ from pathlib import Path
 
 from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
-from ..parts.segment import DEFAULT_REMEDY, default_n_fields
+from ..parts.segment import DEFAULT_REMEDY, SPARE_FIELDS, default_n_fields, field_counts
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -27,9 +26,6 @@ def parse_formats(text: str) -> tuple[str, ...]:
 
 
 #: Extra AKVFs computed when the field count is automatic (as ``segment`` itself does).
-AUTO_EXTRA_FIELDS = 4
-
-
 class SegmentTask:
     name = "segment"
     stages = ("akvf", "untangle", "cluster")
@@ -39,9 +35,9 @@ class SegmentTask:
                  kmeans_restarts: int = 20):
         self.k, self.eps, self.seed = int(k), float(eps), int(seed)
         # None: segment's own choice (2k in [16, 32], moved off degenerate eigenvalue clusters),
-        # from AKVFs computed with AUTO_EXTRA_FIELDS to spare so a cluster cut can be seen.
+        # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
         self.n_fields = int(n_fields) if n_fields is not None else None
-        self.n_akvf = self.n_fields if n_fields is not None else default_n_fields(self.k) + AUTO_EXTRA_FIELDS
+        self.n_akvf = self.n_fields if n_fields is not None else default_n_fields(self.k) + SPARE_FIELDS
         self.remedy, self.formats = remedy, tuple(formats)
         self.untangle_restarts, self.kmeans_restarts = int(untangle_restarts), int(kmeans_restarts)
 
@@ -75,21 +71,19 @@ class SegmentTask:
         batch = MeshBatch.from_meshes([it.clean for it in items], device=device)
         fields = akvf(batch, n=self.n_akvf, seed=self.seed, remedy=self.remedy)
         t1 = time.perf_counter()
+        ns = field_counts(fields, self.k, self.n_fields)
+        unt = untangle(fields, n=ns, seed=self.seed, restarts=self.untangle_restarts)
+        t2 = time.perf_counter()
         seg = segment(fields, self.k, eps=self.eps, seed=self.seed, n_fields=self.n_fields,
                       remedy=self.remedy, untangle_restarts=self.untangle_restarts,
-                      kmeans_restarts=self.kmeans_restarts, refine=False)
-        t2 = time.perf_counter()
+                      kmeans_restarts=self.kmeans_restarts, refine=False, untangled=unt)
+        t3 = time.perf_counter()
         vectors = [None] * len(items)
-        if "png" in self.formats:
-            # The fields segment untangled (same n, seed, restarts: the same rotation), for arrows.
-            ns = [int(ms.params.get("n_fields", fields.n)) for ms in seg.meshes]
-            unt = untangle(fields, n=ns, seed=self.seed, restarts=self.untangle_restarts)
+        if "png" in self.formats:  # the untangled fields draw the generator arrows
             for b, it in enumerate(items):
                 f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
-                fv = unt.face_vectors[f0:f1, :ns[b]].detach().cpu().numpy()
-                vectors[b] = it.clean.to_input_faces(fv)
-        t3 = time.perf_counter()
-        return list(zip(seg.meshes, vectors)), {"akvf": t1 - t0, "cluster": t2 - t1, "untangle": t3 - t2}
+                vectors[b] = it.clean.to_input_faces(unt.face_vectors[f0:f1, :ns[b]].detach().cpu().numpy())
+        return list(zip(seg.meshes, vectors)), {"akvf": t1 - t0, "untangle": t2 - t1, "cluster": t3 - t2}
 
     def write(self, item, out, out_dir) -> list[Path]:
         ms, vectors = out

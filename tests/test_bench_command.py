@@ -1,0 +1,145 @@
+"""``torchakvf bench``: one-line CLI errors, and a tiny end-to-end run on a fake PSB folder."""
+from __future__ import annotations
+
+import gzip
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from torchakvf import shapes
+from torchakvf.cli import main
+from torchakvf.pipeline import bench
+from torchakvf.pipeline.runner import default_batch_faces
+
+
+def _write_off(path, vertices, faces, gz=False):
+    lines = ["OFF", f"{len(vertices)} {len(faces)} 0"]
+    lines += [" ".join(f"{x:.9g}" for x in v) for v in vertices]
+    lines += [f"3 {a} {b} {c}" for a, b, c in faces]
+    data = ("\n".join(lines) + "\n").encode()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(gzip.compress(data) if gz else data)
+
+
+def _write_seg(path, labels):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(map(str, np.asarray(labels).tolist())) + "\n")
+
+
+@pytest.fixture()
+def fake_psb(tmp_path):
+    """Mesh 1 (Human): a small dumbbell with two human segmentations (2 and 3 parts: k's 2, 3).
+    Mesh 21 (Cup): three small blobs without ground truth (the harness's default k)."""
+    root = tmp_path / "psb"
+    d = shapes.dumbbell(n_around=12)
+    _write_off(root / "meshes" / "1.off.gz", d.vertices, d.faces, gz=True)
+    z = d.vertices[d.faces].mean(axis=1)[:, 2]
+    _write_seg(root / "gt" / "1" / "1_0.seg", d.part_labels)
+    _write_seg(root / "gt" / "1" / "1_1.seg", np.digitize(z, [-0.5, 0.5]))
+    t = shapes.three_blobs(n_around=12)
+    _write_off(root / "meshes" / "21.off", t.vertices, t.faces)
+    return root, len(d.faces) + len(t.faces)
+
+
+@pytest.fixture()
+def one_thread():
+    """Tiny meshes: threads only spin (and the test machine is shared)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("torchakvf: error: ")
+    return err[0]
+
+
+def test_missing_psb_folder_is_one_line(tmp_path, capsys):
+    assert main(["bench", "--psb", str(tmp_path / "nowhere"), "--out", str(tmp_path / "b")]) == 2
+    assert "no PSB data at" in _one_error_line(capsys)
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("flag,value,words", [
+    ("--limit", "0", "--limit must be an integer >= 1"),
+    ("--limit", "many", "--limit must be an integer"),
+    ("--baseline-every", "-1", "--baseline-every must be an integer >= 0"),
+    ("--batch-faces", "0", "--batch-faces must be an integer >= 1"),
+    ("--seed", "x", "--seed must be an integer"),
+    ("--device", "tpu9", "--device"),
+    ("--categories", "Robots", "unknown PSB category 'Robots'"),
+    ("--categories", "Spring", "has no meshes"),
+])
+def test_bad_options_are_one_line(fake_psb, tmp_path, capsys, flag, value, words):
+    root, _ = fake_psb
+    assert main(["bench", "--psb", str(root), "--out", str(tmp_path / "b"), flag, value]) == 2
+    assert words in _one_error_line(capsys)
+
+
+def test_out_that_is_a_file_is_one_line(fake_psb, tmp_path, capsys):
+    root, _ = fake_psb
+    (tmp_path / "f").write_text("")
+    assert main(["bench", "--psb", str(root), "--out", str(tmp_path / "f")]) == 2
+    assert "--out" in _one_error_line(capsys)
+
+
+def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
+    root, n_faces = fake_psb
+    out = tmp_path / "bench"
+    assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "1",
+                 "--seed", "0"]) == 0
+    stdout = capsys.readouterr().out
+    assert "torchakvf bench: 2/2 meshes" in stdout and "scipy" in stdout
+
+    # Only the two reports remain; the scratch predictions stayed inside --out and are gone.
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "report.md"]
+    r = json.loads((out / "report.json").read_text())
+    assert r["selection"]["mesh_ids"] == [1, 21]
+    assert r["selection"]["ks"] == {"1": [2, 3], "21": [6]}   # protocol k's; 6 = DEFAULT_K_NO_GT
+    assert r["selection"]["faces"] == n_faces and r["selection"]["predictions"] == 3
+    assert r["settings"]["batch_faces"] == default_batch_faces("cpu")
+    assert set(r["runs"]) == {"batched", "one_at_a_time", "scipy", "batched_subset"}
+    for name, run in r["runs"].items():
+        assert run["meshes_ok"] == 2 and not run["failed"], (name, run["failed"])
+        assert run["meshes_per_second"] > 0 and run["faces_per_second"] > 0
+        assert run["faces_ok"] == n_faces
+        assert set(run["stage_seconds"]) == set(bench.STAGES)
+        assert run["stage_seconds"]["akvf"] > 0 and run["stage_seconds"]["segment"] > 0
+        assert abs(sum(run["stage_seconds"].values()) - run["wall_seconds"]) < 1e-6 + 0.01 * run["wall_seconds"]
+        assert {k: v["predictions"] for k, v in run["segment_seconds_by_k"].items()} == \
+            {"2": 1, "3": 1, "6": 1}
+        assert run["ru_maxrss_mib"] > 0
+    assert r["runs"]["batched"]["batches"] == 1            # 564 faces: one batch at the default budget
+    assert r["runs"]["one_at_a_time"]["batches"] == 2 and r["runs"]["one_at_a_time"]["batch_faces"] == 1
+    c = r["comparison"]
+    assert c["mesh_ids"] == [1, 21] and not c["excluded"]
+    for name in ("one_at_a_time", "scipy"):
+        v = c["ratios"][name]
+        assert v["ratio"] > 0 and v["baseline_seconds"] > 0
+        assert v["torchakvf_seconds"] == r["runs"]["batched_subset"]["wall_seconds"]
+        assert abs(v["ratio"] - v["baseline_seconds"] / v["torchakvf_seconds"]) < 1e-9
+        assert v["stage_ratios"]["akvf"] > 0 and v["stage_ratios"]["segment"] > 0
+    assert r["peak_memory"]["ru_maxrss_mib"] > 0
+    md = (out / "report.md").read_text()
+    assert "meshes/s" in md and "one_at_a_time" in md and "scipy" in md and "## Runs" in md
+
+
+def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypatch, one_thread):
+    root, _ = fake_psb
+    # Installed without the source tree: the scipy baseline is skipped, with a note.
+    monkeypatch.setattr(bench, "scipy_reference_path", lambda: tmp_path / "absent" / "scipy_reference.py")
+    fast = dict(n_fields=16, segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
+    r = bench.run_bench(root, tmp_path / "b1", baseline_every=2, limit=2, **fast)
+    assert r["runs"]["scipy"]["skipped"].startswith("scipy baseline skipped")
+    assert r["comparison"]["mesh_ids"] == [1] and r["comparison"]["ratios"]["scipy"] is None
+    assert r["comparison"]["ratios"]["one_at_a_time"]["ratio"] > 0
+    assert any("scipy baseline skipped" in n for n in r["notes"])
+    assert "scipy baseline skipped" in (tmp_path / "b1" / "report.md").read_text()
+    r0 = bench.run_bench(root, tmp_path / "b0", baseline_every=0, categories="Cup", **fast)
+    assert set(r0["runs"]) == {"batched"} and r0["comparison"] is None
+    assert r0["selection"]["mesh_ids"] == [21]
