@@ -323,3 +323,19 @@ def test_weight_and_mesh_validation():
         cut_discrepancy(v, f + 10, np.zeros(6, int), np.zeros(6, int))
     with pytest.raises(ValueError, match=r"\[V, 3\]"):
         evaluate_segmentation(v[:, :2], f, np.zeros(6, int), np.zeros(6, int))
+
+
+def test_matched_agreement_hand_cases():
+    from torchakvf.evaluate.metrics import matched_agreement
+
+    truth = np.array([0, 0, 0, 1, 1, 2])
+    # Renamed labels are the same partition.
+    assert matched_agreement(np.array([5, 5, 5, 3, 3, 9]), truth) == 1.0
+    # One face of segment 0 put with segment 1: 5 of 6 faces match.
+    assert matched_agreement(np.array([0, 0, 1, 1, 1, 2]), truth) == pytest.approx(5 / 6)
+    # Two predicted segments against three true ones: the third true segment is unmatched.
+    assert matched_agreement(np.array([0, 0, 0, 1, 1, 1]), truth) == pytest.approx(5 / 6)
+    # Area weights: the face moved to segment 1 carries half the area, so the best matching
+    # pairs predicted segment 1 with true segment 0 (area 5) and leaves faces 0, 1, 3, 4 out.
+    area = np.array([1, 1, 5, 1, 1, 1], dtype=float)
+    assert matched_agreement(np.array([0, 0, 1, 1, 1, 2]), truth, area) == pytest.approx(6 / 10)

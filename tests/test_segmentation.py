@@ -130,6 +130,20 @@ def test_refined_mesh_is_a_watertight_subdivision(built, batch_seg):
     assert set(np.unique(ref.labels)) <= set(range(seg.k))
 
 
+def test_generator_fields_carry_the_part_they_name(built, batch_seg):
+    """``face_vectors(b)`` are the untangled fields behind the labels: each part's first
+    generator has most of its squared norm (area-weighted) on that part."""
+    for b, name in enumerate(COMPOSITES):
+        s, seg = built[name], batch_seg[b]
+        fv = batch_seg.face_vectors(b)
+        assert fv.shape == (len(s.faces), batch_seg.untangled.n_fields[b], 3)
+        density = (fv ** 2).sum(-1) * face_areas(s.vertices, s.faces)[:, None]
+        for part, gens in enumerate(seg.generators):
+            g = gens[0]
+            on_part = density[seg.labels == part, g.field].sum() / density[:, g.field].sum()
+            assert on_part == pytest.approx(g.share, abs=1e-6) and on_part >= 0.9, (name, part, on_part)
+
+
 def test_generators_report_share_and_energy(batch_seg):
     seg = batch_seg[1]  # three blobs
     fields = [g.field for gens in seg.generators for g in gens]

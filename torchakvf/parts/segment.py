@@ -84,9 +84,18 @@ class MeshSegmentation:
 
 @dataclass
 class Segmentation:
-    """Per-mesh results of :func:`segment`, in batch order."""
+    """Per-mesh results of :func:`segment`, in batch order, and the untangled fields behind them."""
 
     meshes: list
+    untangled: UntangledFields | None = None
+
+    def face_vectors(self, b: int) -> np.ndarray:
+        """[F_input, n_b, 3] untangled Whitney vectors of mesh b on the input's faces (0 on
+        dropped faces); ``generators[p][i].field`` indexes the second axis."""
+        unt = self.untangled
+        ptr = unt.batch.face_ptr
+        fv = unt.face_vectors[int(ptr[b]):int(ptr[b + 1]), :unt.n_fields[b]]
+        return unt.batch.meshes[b].to_input_faces(fv.detach().cpu().numpy())
 
     def __len__(self) -> int:
         return len(self.meshes)
@@ -225,7 +234,7 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             params=dict(k=ks[b], eps=eps, seed=seed, n_fields=ns[b], remedy=remedy, boundary=boundary,
                         kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
                         min_part_fraction=min_part_fraction)))
-    return Segmentation(out)
+    return Segmentation(out, untangled=unt)
 
 
 __all__ = ["segment", "Segmentation", "MeshSegmentation", "SymmetryGenerator", "default_n_fields",

@@ -73,20 +73,40 @@ def _common(p: argparse.ArgumentParser) -> None:
                                                     "(default: the segmenter's, 'smooth')")
     p.add_argument("--force", action="store_true",
                    help="recompute every mesh, even those the manifest records as done")
+    p.add_argument("--ray-workers", default="0", metavar="N",
+                   help="run the batches on N Ray actors (pip install 'torchakvf[ray]'; joins the "
+                        "cluster of RAY_ADDRESS or `ray start`, else a local one; with --device cuda "
+                        "one GPU each). Default 0: no Ray")
 
 
 def _run(args, task, device: str) -> int:
     from .runner import check_output_dir, default_batch_faces, discover_inputs, run_corpus
 
     out = Path(args.out)
+    ray_workers = _int(args.ray_workers, "--ray-workers", 0)
+    if ray_workers:
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            raise TorchAKVFError("--ray-workers needs ray: pip install 'torchakvf[ray]'")
     batch_faces = (_int(args.batch_faces, "--batch-faces", 1) if args.batch_faces is not None
                    else default_batch_faces(device))
     paths = discover_inputs(args.inputs, exclude=out)
     check_output_dir(out)   # before any work: an unwritable --out is one line, not N failures
     log.info("%s: %d meshes -> %s (device %s, batches of <= %d faces)", task.name, len(paths), out,
              device, batch_faces)
-    summary = run_corpus(paths, out, task, batch_faces=batch_faces, device=device,
-                         seed=task.seed, resume=not args.force)
+    if ray_workers:
+        from .ray_runner import run_corpus_ray
+
+        # Ray gives each actor its own GPU, visible there as "cuda".
+        cuda = device.startswith("cuda")
+        summary = run_corpus_ray(paths, out, task, batch_faces=batch_faces,
+                                 device="cuda" if cuda else device, seed=task.seed,
+                                 resume=not args.force, workers=ray_workers,
+                                 gpus_per_worker=1.0 if cuda else 0.0)
+    else:
+        summary = run_corpus(paths, out, task, batch_faces=batch_faces, device=device,
+                             seed=task.seed, resume=not args.force)
     print(summary.line(task.name))
     if summary.failed:
         shown = summary.failures[:5]

@@ -1,87 +1,125 @@
-"""Optional Ray executor for the corpus runner (``pip install torchakvf[ray]``).
+"""Optional Ray executor for the corpus runner (``pip install 'torchakvf[ray]'``).
 
 The driver does what :func:`~torchakvf.pipeline.run_corpus` does before and after the work
 (resume check, size peek, face-budget batches, the manifest); the batches themselves are mapped
-with ``ray.data`` over a pool of actors, one per slot (e.g. one per GPU), each running the same
-:func:`~torchakvf.pipeline.runner.process_batch` and writing the outputs atomically into
-``out_dir`` (a folder every worker can reach: local mode or a shared file system). Workers return
-the manifest records; the driver appends them as they stream in.
+with ``ray.data`` (``map_batches`` with a callable class on a fixed ``ActorPoolStrategy``) over
+``workers`` warm actors, one per slot (e.g. one per GPU). Each actor runs the same
+:func:`~torchakvf.pipeline.runner.process_batch` and writes the outputs atomically into
+``out_dir``, a folder every worker can reach (one machine, or a shared file system on a
+cluster). Workers return the manifest records; the driver alone appends them to
+``manifest.jsonl`` as they stream in, so the outputs, the manifest and resume are those of
+:func:`run_corpus` (only the order of the manifest lines may differ).
 
-Status: written against the ray.data API of ray >= 2.9 (``map_batches`` with a callable class and
-``concurrency``); ray is not installed where this was written, so it is exercised only by the
-``pytest.importorskip("ray")`` test in tests/test_pipeline.py.
+Tested with ray 2.60 in Ray's local mode by tests/test_ray_runner.py (features and segment
+against run_corpus, resume, the CLI's ``--ray-workers``) and tests/test_pipeline.py
+(``test_ray_runner_local``, a task class defined in a test module); both skip without ray.
 """
 from __future__ import annotations
 
 import json
+import sys
 import time
 from pathlib import Path
 
-from .runner import (ManifestWriter, RunSummary, check_output_dir, default_batch_faces, Item,
-                     log, peek_faces, plan_batches, prepare, process_batch)
+from ..errors import TorchAKVFError
+from .runner import (MANIFEST, Item, ManifestWriter, RunSummary, _TermAsInterrupt, check_output_dir,
+                     default_batch_faces, log, peek_faces, plan_batches, prepare, process_batch)
 
 
 class _BatchWorker:
-    """A ray.data actor: loads, computes and writes one batch of meshes per row."""
+    """A ray.data actor, warm for the whole run: one row = one batch of meshes (as JSON)."""
 
-    def __init__(self, task, out_dir: str, device: str, seed: int):
+    def __init__(self, task, out_dir: str, device: str, seed: int, threads: int):
+        if threads > 0:
+            import torch
+
+            torch.set_num_threads(threads)
         self.task, self.out_dir, self.device, self.seed = task, Path(out_dir), device, seed
 
     def __call__(self, rows: dict) -> dict:
         out = []
         for spec in rows["batch"]:
-            items = [Item(Path(p), k, s, f if f >= 0 else None) for p, k, s, f in json.loads(spec)]
+            items = [Item(Path(p), k, s, f if f >= 0 else None) for p, k, s, f in json.loads(str(spec))]
             out.append(json.dumps(process_batch(items, self.task, self.out_dir, self.device, self.seed)))
         return {"records": out}
 
 
+def _ship_task_class(task) -> None:
+    """Pickle a task class defined outside torchakvf (a script, a test module) by value, so
+    workers that cannot import its module can still run it."""
+    mod = type(task).__module__
+    if mod != "__main__" and mod.split(".")[0] != "torchakvf" and mod in sys.modules:
+        from ray import cloudpickle
+
+        cloudpickle.register_pickle_by_value(sys.modules[mod])
+
+
 def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, device: str = "cpu",
-                   seed: int = 0, resume: bool = True, workers: int = 1,
+                   seed: int = 0, resume: bool = True, workers: int = 1, cpus_per_worker: float = 1.0,
                    gpus_per_worker: float = 0.0) -> RunSummary:
     """:func:`run_corpus` with the batches spread over ``workers`` Ray actors.
 
-    ``ray.init()`` is called (local) unless Ray is already initialized; set
-    ``gpus_per_worker=1`` and ``device="cuda"`` for one actor per GPU.
+    ``ray.init()`` is called unless Ray is already initialized (it joins the cluster named by
+    ``RAY_ADDRESS`` or started on this machine with ``ray start``, else starts a local one). Each actor reserves ``cpus_per_worker`` CPUs
+    (and runs torch with that many threads) and ``gpus_per_worker`` GPUs: set
+    ``gpus_per_worker=1`` and ``device="cuda"`` for one actor per GPU (Ray gives each actor its
+    own GPU as ``cuda``). Largest batches are submitted first, so the workers finish together.
     """
     try:
         import ray
     except ImportError:
-        from ..errors import TorchAKVFError
-
         raise TorchAKVFError("the Ray runner needs ray: pip install 'torchakvf[ray]'") from None
     t0 = time.perf_counter()
+    workers = int(workers)
+    if workers < 1:
+        raise TorchAKVFError(f"Ray workers must be an integer >= 1, got {workers}")
     out_dir = check_output_dir(out_dir)
     batch_faces = int(batch_faces) if batch_faces is not None else default_batch_faces(device)
+    if batch_faces < 1:
+        raise TorchAKVFError(f"--batch-faces must be a positive integer, got {batch_faces}")
     todo, skipped = prepare(list(paths), out_dir, task, seed=seed, resume=resume)
+    summary = RunSummary(skipped=len(skipped), manifest=out_dir / MANIFEST)
+    if skipped:
+        log.info("%s: %d meshes already done in %s, skipping them", task.name, len(skipped), out_dir)
     for it in todo:
         it.faces = peek_faces(it.path)
-    batches = plan_batches(todo, batch_faces)
-    summary = RunSummary(skipped=len(skipped), manifest=out_dir / "manifest.jsonl")
+    batches = plan_batches(todo, batch_faces)[::-1]
     if not batches:
         summary.elapsed = time.perf_counter() - t0
         return summary
     if not ray.is_initialized():
         ray.init()
+    _ship_task_class(task)
     specs = [json.dumps([[str(it.path), it.key, it.stem, -1 if it.faces is None else it.faces]
                          for it in b]) for b in batches]
-    ds = ray.data.from_items([{"batch": s} for s in specs])
-    extra = {"num_gpus": gpus_per_worker} if gpus_per_worker else {}
-    ds = ds.map_batches(_BatchWorker, batch_size=1, concurrency=max(int(workers), 1),
-                        fn_constructor_kwargs=dict(task=task, out_dir=str(out_dir), device=device, seed=seed),
-                        **extra)
+    # One block per batch: a batch's records reach the manifest as soon as it is written.
+    ds = ray.data.from_items([{"batch": s} for s in specs], override_num_blocks=len(specs))
+    resources = {"num_cpus": cpus_per_worker}
+    if gpus_per_worker:
+        resources["num_gpus"] = gpus_per_worker
+    ds = ds.map_batches(
+        _BatchWorker, batch_size=1, batch_format="numpy",
+        compute=ray.data.ActorPoolStrategy(size=min(workers, len(specs))),
+        fn_constructor_kwargs=dict(task=task, out_dir=str(out_dir), device=device, seed=seed,
+                                   threads=max(int(cpus_per_worker), 1)),
+        **resources)
     writer = ManifestWriter(out_dir)
     try:
-        for row in ds.iter_rows():
-            for rec in json.loads(row["records"]):
-                writer.append(rec)
-                if rec["status"] == "ok":
-                    summary.ok += 1
-                    summary.cached += bool(rec.get("cached"))
-                    summary.faces += rec.get("faces") or 0
-                else:
-                    summary.failed += 1
-                    summary.failures.append((rec["path"], rec["error"]))
-                    log.warning("%s failed: %s", rec["path"], rec["error"])
+        with _TermAsInterrupt():
+            for row in ds.iter_rows():
+                for rec in json.loads(str(row["records"])):
+                    writer.append(rec)
+                    if rec["status"] == "ok":
+                        summary.ok += 1
+                        summary.cached += bool(rec.get("cached"))
+                        summary.faces += rec.get("faces") or 0
+                    else:
+                        summary.failed += 1
+                        summary.failures.append((rec["path"], rec["error"]))
+                        log.warning("%s failed: %s", rec["path"], rec["error"])
+    except KeyboardInterrupt:
+        summary.interrupted = True
+        raise
     finally:
         writer.close()
         summary.elapsed = time.perf_counter() - t0

@@ -78,11 +78,8 @@ class SegmentTask:
                       remedy=self.remedy, untangle_restarts=self.untangle_restarts,
                       kmeans_restarts=self.kmeans_restarts, refine=False, untangled=unt)
         t3 = time.perf_counter()
-        vectors = [None] * len(items)
-        if "png" in self.formats:  # the untangled fields draw the generator arrows
-            for b, it in enumerate(items):
-                f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
-                vectors[b] = it.clean.to_input_faces(unt.face_vectors[f0:f1, :ns[b]].detach().cpu().numpy())
+        # The untangled fields draw the PNG's generator arrows.
+        vectors = [seg.face_vectors(b) if "png" in self.formats else None for b in range(len(items))]
         return list(zip(seg.meshes, vectors)), {"akvf": t1 - t0, "untangle": t2 - t1, "cluster": t3 - t2}
 
     def write(self, item, out, out_dir) -> list[Path]:

@@ -1,0 +1,163 @@
+"""The optional Ray executor (torchakvf.pipeline.ray_runner) in Ray's local mode: the same
+outputs, manifest and resume as run_corpus. Skipped where ray is not installed."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+ray = pytest.importorskip("ray", reason="the Ray runner is optional: pip install 'torchakvf[ray]'")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from torchakvf import cli, shapes  # noqa: E402
+from torchakvf.pipeline.features import FeaturesTask  # noqa: E402
+from torchakvf.pipeline.ray_runner import run_corpus_ray  # noqa: E402
+from torchakvf.pipeline.runner import MANIFEST, discover_inputs, read_manifest, run_corpus  # noqa: E402
+
+N = 8
+BUDGET = 600  # faces per batch: each of the three meshes is a batch of its own
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)   # as the workers do (1 CPU each): same arithmetic, and no thrashing
+    yield
+    torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    """A local Ray instance with 2 CPUs (two workers), shut down after this module."""
+    if ray.is_initialized():
+        ray.shutdown()
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    ray.data.DataContext.get_current().enable_progress_bars = False
+    yield ray
+    ray.shutdown()
+
+
+def write_off(path: Path, vertices, faces) -> Path:
+    lines = ["OFF", f"{len(vertices)} {len(faces)} 0"]
+    lines += [" ".join(repr(float(c)) for c in v) for v in vertices]
+    lines += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory) -> Path:
+    """3 meshes of 320-492 faces (one in a subfolder) and one broken file."""
+    root = tmp_path_factory.mktemp("corpus")
+    ico = shapes.icosphere(2)
+    write_off(root / "ico.off", ico.vertices, ico.faces)
+    ell = shapes.ellipsoid(level=2)
+    write_off(root / "ell.off", ell.vertices, ell.faces)
+    dumb = shapes.dumbbell(n_around=18)
+    write_off(root / "sub" / "dumb.off", dumb.vertices, dumb.faces)
+    (root / "broken.off").write_bytes(b"\x00\x9f garbage \xff" * 20)
+    return root
+
+
+@pytest.fixture(scope="module")
+def reference(corpus, tmp_path_factory) -> Path:
+    """The plain run_corpus run the Ray runs must reproduce."""
+    out = tmp_path_factory.mktemp("ref")
+    summary = run_corpus(discover_inputs([str(corpus)]), out, FeaturesTask(N), batch_faces=BUDGET)
+    assert (summary.ok, summary.failed) == (3, 1)
+    return out
+
+
+def manifest_lines(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / MANIFEST).read_text().splitlines()]
+
+
+def assert_same_outputs(a: Path, b: Path) -> None:
+    """The same files (manifest aside), with numerically equal contents."""
+    names = sorted(p.name for p in a.iterdir() if p.name != MANIFEST)
+    assert names == sorted(p.name for p in b.iterdir() if p.name != MANIFEST)
+    for name in names:
+        if not name.endswith(".npz"):
+            assert (a / name).read_bytes() == (b / name).read_bytes(), name
+            continue
+        with np.load(a / name, allow_pickle=False) as za, np.load(b / name, allow_pickle=False) as zb:
+            assert sorted(za.files) == sorted(zb.files)
+            for key in za.files:
+                x, y = za[key], zb[key]
+                assert x.dtype == y.dtype and x.shape == y.shape, f"{name}:{key}"
+                if x.dtype.kind in "fc":
+                    np.testing.assert_allclose(x, y, rtol=1e-8, atol=1e-8, err_msg=f"{name}:{key}")
+                else:
+                    np.testing.assert_array_equal(x, y, err_msg=f"{name}:{key}")
+
+
+def assert_same_manifest(a: Path, b: Path) -> None:
+    """One line per mesh in each, with the same status, error and parameters per input."""
+    la, lb = manifest_lines(a), manifest_lines(b)
+    assert len(la) == len({r["path"] for r in la}) == len(lb) == len({r["path"] for r in lb})
+    ra, rb = {r["path"]: r for r in la}, {r["path"]: r for r in lb}
+    assert ra.keys() == rb.keys()
+    for path in ra:
+        x, y = ra[path], rb[path]
+        assert set(x) == set(y)
+        for key in ("stem", "faces", "status", "error", "seed", "version", "task", "params"):
+            assert x[key] == y[key], (path, key)
+        assert set(x["seconds"]) == set(y["seconds"])
+
+
+def test_features_on_ray_equal_run_corpus_and_resume(ray_local, corpus, reference, tmp_path):
+    paths = discover_inputs([str(corpus)])
+    out = tmp_path / "ray"
+    summary = run_corpus_ray(paths, out, FeaturesTask(N), batch_faces=BUDGET, workers=2)
+    assert (summary.ok, summary.failed, summary.skipped) == (3, 1, 0) and summary.exit_code == 1
+    assert_same_outputs(out, reference)
+    assert_same_manifest(out, reference)
+    recs = {r["stem"]: r for r in manifest_lines(out)}
+    assert {s for s, r in recs.items() if r["status"] == "ok"} == {"ico", "ell", "dumb"}
+    assert recs["broken"]["status"] == "failed" and "broken.off" in recs["broken"]["error"]
+    assert summary.failures == [(recs["broken"]["path"], recs["broken"]["error"])]
+    assert not (out / "broken.npz").exists() and not list(out.glob(".*.tmp"))
+
+    # Resume: everything ok is skipped and left untouched; only the broken file is tried again.
+    mtimes = {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")}
+    again = run_corpus_ray(paths, out, FeaturesTask(N), batch_faces=BUDGET, workers=2)
+    assert (again.skipped, again.ok, again.failed) == (3, 0, 1)
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")} == mtimes
+    lines = manifest_lines(out)
+    assert len(lines) == 5 and lines[-1]["stem"] == "broken" and lines[-1]["status"] == "failed"
+    # The manifest is run_corpus's: the plain runner resumes a Ray run too.
+    plain = run_corpus(paths, out, FeaturesTask(N), batch_faces=BUDGET)
+    assert (plain.skipped, plain.ok, plain.failed) == (3, 0, 1)
+    assert {r["stem"]: r["status"] for r in read_manifest(out).values()} == {
+        "ico": "ok", "ell": "ok", "dumb": "ok", "broken": "failed"}
+
+
+def test_segment_cli_ray_workers_equal_plain(ray_local, corpus, tmp_path, capsys):
+    argv = ["segment", str(corpus), "-k", "2", "--n-fields", "8", "--formats", "seg,npz",
+            "--batch-faces", str(BUDGET)]
+    assert cli.main(argv + ["--out", str(tmp_path / "plain")]) == 1
+    capsys.readouterr()
+    assert cli.main(argv + ["--out", str(tmp_path / "ray"), "--ray-workers", "2"]) == 1
+    stdout = capsys.readouterr().out
+    assert "3 ok, 1 failed, 0 skipped" in stdout and "broken.off" in stdout
+    assert_same_outputs(tmp_path / "ray", tmp_path / "plain")
+    assert_same_manifest(tmp_path / "ray", tmp_path / "plain")
+    labels = np.loadtxt(tmp_path / "ray" / "dumb.seg", dtype=int)
+    assert labels.shape == (len(shapes.dumbbell(n_around=18).faces),)
+
+
+@pytest.mark.parametrize("value, message", [("-1", "--ray-workers must be an integer >= 0"),
+                                            ("two", "--ray-workers must be an integer")])
+def test_ray_workers_flag_errors_are_one_line(tmp_path, capsys, value, message):
+    s = shapes.icosphere(1)
+    src = write_off(tmp_path / "m.off", s.vertices, s.faces)
+    rc = cli.main(["features", str(src), "--out", str(tmp_path / "o"), "--ray-workers", value])
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and lines[0].startswith("torchakvf: error: ")
+    assert message in lines[0] and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
