@@ -60,8 +60,8 @@ def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, devi
     """:func:`run_corpus` with the batches spread over ``workers`` Ray actors.
 
     ``ray.init()`` is called unless Ray is already initialized (it joins the cluster named by
-    ``RAY_ADDRESS`` or started on this machine with ``ray start``, else starts a local one). Each actor reserves ``cpus_per_worker`` CPUs
-    (and runs torch with that many threads) and ``gpus_per_worker`` GPUs: set
+    ``RAY_ADDRESS`` or started on this machine with ``ray start``, else starts a local one).
+    Each actor reserves ``cpus_per_worker`` CPUs (and runs torch with that many threads) and ``gpus_per_worker`` GPUs: set
     ``gpus_per_worker=1`` and ``device="cuda"`` for one actor per GPU (Ray gives each actor its
     own GPU as ``cuda``). Largest batches are submitted first, so the workers finish together.
     """
@@ -109,13 +109,7 @@ def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, devi
             for row in ds.iter_rows():
                 for rec in json.loads(str(row["records"])):
                     writer.append(rec)
-                    if rec["status"] == "ok":
-                        summary.ok += 1
-                        summary.cached += bool(rec.get("cached"))
-                        summary.faces += rec.get("faces") or 0
-                    else:
-                        summary.failed += 1
-                        summary.failures.append((rec["path"], rec["error"]))
+                    if not summary.add(rec):
                         log.warning("%s failed: %s", rec["path"], rec["error"])
     except KeyboardInterrupt:
         summary.interrupted = True

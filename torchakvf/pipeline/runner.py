@@ -338,6 +338,17 @@ class RunSummary:
     def exit_code(self) -> int:
         return 0 if self.failed == 0 else 1
 
+    def add(self, rec: dict) -> bool:
+        """Count one manifest record; True when the mesh is done ("ok")."""
+        if rec["status"] == "ok":
+            self.ok += 1
+            self.cached += bool(rec.get("cached"))
+            self.faces += rec.get("faces") or 0
+            return True
+        self.failed += 1
+        self.failures.append((rec["path"], rec["error"]))
+        return False
+
     def line(self, name: str) -> str:
         rate = f", {self.faces / self.elapsed:,.0f} faces/s" if self.elapsed > 0 and self.faces else ""
         cached = f" ({self.cached} from cache)" if self.cached else ""
@@ -578,13 +589,7 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
                 records = process_batch(batch, task, out_dir, device, seed)
                 for rec in records:
                     writer.append(rec)
-                    if rec["status"] == "ok":
-                        summary.ok += 1
-                        summary.cached += bool(rec.get("cached"))
-                        summary.faces += rec.get("faces") or 0
-                    else:
-                        summary.failed += 1
-                        summary.failures.append((rec["path"], rec["error"]))
+                    if not summary.add(rec):
                         bar.clear()
                         log.warning("%s failed: %s", rec["path"], rec["error"])
                 done += len(batch)
