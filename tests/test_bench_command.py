@@ -1,7 +1,6 @@
 """``torchakvf bench``: one-line CLI errors, and a tiny end-to-end run on a fake PSB folder."""
 from __future__ import annotations
 
-import gzip
 import json
 
 import numpy as np
@@ -12,20 +11,7 @@ from torchakvf import shapes
 from torchakvf.cli import main
 from torchakvf.pipeline import bench
 from torchakvf.pipeline.runner import default_batch_faces
-
-
-def _write_off(path, vertices, faces, gz=False):
-    lines = ["OFF", f"{len(vertices)} {len(faces)} 0"]
-    lines += [" ".join(f"{x:.9g}" for x in v) for v in vertices]
-    lines += [f"3 {a} {b} {c}" for a, b, c in faces]
-    data = ("\n".join(lines) + "\n").encode()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(gzip.compress(data) if gz else data)
-
-
-def _write_seg(path, labels):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(map(str, np.asarray(labels).tolist())) + "\n")
+from meshfiles import write_off, write_seg
 
 
 @pytest.fixture()
@@ -34,12 +20,12 @@ def fake_psb(tmp_path):
     Mesh 21 (Cup): three small blobs without ground truth (the harness's default k)."""
     root = tmp_path / "psb"
     d = shapes.dumbbell(n_around=12)
-    _write_off(root / "meshes" / "1.off.gz", d.vertices, d.faces, gz=True)
+    write_off(root / "meshes" / "1.off.gz", d.vertices, d.faces, gz=True)
     z = d.vertices[d.faces].mean(axis=1)[:, 2]
-    _write_seg(root / "gt" / "1" / "1_0.seg", d.part_labels)
-    _write_seg(root / "gt" / "1" / "1_1.seg", np.digitize(z, [-0.5, 0.5]))
+    write_seg(root / "gt" / "1" / "1_0.seg", d.part_labels)
+    write_seg(root / "gt" / "1" / "1_1.seg", np.digitize(z, [-0.5, 0.5]))
     t = shapes.three_blobs(n_around=12)
-    _write_off(root / "meshes" / "21.off", t.vertices, t.faces)
+    write_off(root / "meshes" / "21.off", t.vertices, t.faces)
     return root, len(d.faces) + len(t.faces)
 
 

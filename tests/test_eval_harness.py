@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import gzip
-import os
 
 import numpy as np
 import pytest
@@ -14,20 +12,7 @@ from torchakvf.errors import TorchAKVFError
 from torchakvf.evaluate import metrics as M
 from torchakvf.evaluate.harness import (evaluate_psb, human_mode, parse_metrics,
                                         score_segmentation)
-
-
-def _write_off(path, vertices, faces, gz=False):
-    lines = ["OFF", f"{len(vertices)} {len(faces)} 0"]
-    lines += [" ".join(f"{x:.9g}" for x in v) for v in vertices]
-    lines += [f"3 {a} {b} {c}" for a, b, c in faces]
-    data = ("\n".join(lines) + "\n").encode()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(gzip.compress(data) if gz else data)
-
-
-def _write_seg(path, labels):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(map(str, np.asarray(labels).tolist())) + "\n")
+from meshfiles import write_off, write_seg
 
 
 #: cheap clustering for tests (the same in every call that shares an output folder)
@@ -40,15 +25,15 @@ def tiny_psb(tmp_path_factory):
     Mesh 141 (Table, held back): three blobs, no ground truth."""
     root = tmp_path_factory.mktemp("psb")
     d = shapes.dumbbell(n_around=30)
-    _write_off(root / "meshes" / "1.off.gz", d.vertices, d.faces, gz=True)
+    write_off(root / "meshes" / "1.off.gz", d.vertices, d.faces, gz=True)
     z = d.vertices[d.faces].mean(axis=1)[:, 2]
     three = np.digitize(z, [-1.0, 1.0])           # a human who cut the dumbbell into three
-    _write_seg(root / "gt" / "1" / "1_0.seg", d.part_labels)
-    _write_seg(root / "gt" / "1" / "1_1.seg", np.zeros(len(d.faces), dtype=int))
-    _write_seg(root / "gt" / "1" / "1_2.seg", three)
-    _write_seg(root / "gt" / "1" / "1_3.seg", d.part_labels)
+    write_seg(root / "gt" / "1" / "1_0.seg", d.part_labels)
+    write_seg(root / "gt" / "1" / "1_1.seg", np.zeros(len(d.faces), dtype=int))
+    write_seg(root / "gt" / "1" / "1_2.seg", three)
+    write_seg(root / "gt" / "1" / "1_3.seg", d.part_labels)
     t = shapes.three_blobs(n_around=30)
-    _write_off(root / "meshes" / "141.off", t.vertices, t.faces)
+    write_off(root / "meshes" / "141.off", t.vertices, t.faces)
     return root, d
 
 

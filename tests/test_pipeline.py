@@ -22,6 +22,7 @@ from torchakvf.pipeline import runner
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.runner import (MANIFEST, assign_stems, discover_inputs, peek_faces,
                                        prepare, read_manifest, run_corpus)
+from meshfiles import write_off
 
 REPO = Path(__file__).resolve().parents[1]
 N = 8
@@ -39,15 +40,6 @@ def one_thread():
 
 
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
-
-
-def write_off(path: Path, vertices, faces) -> Path:
-    lines = ["OFF", f"{len(vertices)} {len(faces)} 0"]
-    lines += [" ".join(repr(float(c)) for c in v) for v in vertices]
-    lines += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,7 @@ from torchakvf import cli, shapes  # noqa: E402
 from torchakvf.pipeline.features import FeaturesTask  # noqa: E402
 from torchakvf.pipeline.ray_runner import run_corpus_ray  # noqa: E402
 from torchakvf.pipeline.runner import MANIFEST, discover_inputs, read_manifest, run_corpus  # noqa: E402
+from meshfiles import write_off  # noqa: E402
 
 N = 8
 BUDGET = 600  # faces per batch: each of the three meshes is a batch of its own
@@ -38,15 +39,6 @@ def ray_local():
     ray.data.DataContext.get_current().enable_progress_bars = False
     yield ray
     ray.shutdown()
-
-
-def write_off(path: Path, vertices, faces) -> Path:
-    lines = ["OFF", f"{len(vertices)} {len(faces)} 0"]
-    lines += [" ".join(repr(float(c)) for c in v) for v in vertices]
-    lines += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -51,7 +51,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -500,7 +500,6 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     score_seconds = 0.0
     t_pred = time.perf_counter()
     failed: dict[int, str] = {}
-    loaded: dict[int, object] = {}
 
     def score_and_store(plan, mesh):
         nonlocal score_seconds
