@@ -65,10 +65,11 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     ragged = bool((kvec != k_max).any())
 
     def assign(xb, cb, absent_b):
-        """Labels [b, N, R] and cosine to the assigned center [b, N, R]."""
-        m = len(xb)
-        sim = torch.matmul(xb, cb.reshape(m, r * k_max, d).transpose(1, 2), out=sim_buf[:m])
-        sim = sim.view(m, n_max, r, k_max)
+        """Labels [b, N, q] and cosine to the assigned center [b, N, q] for centers [b, q, k, d]."""
+        m, q = cb.shape[:2]
+        out = sim_buf.view(-1)[:m * n_max * q * k_max].view(m, n_max, q * k_max)
+        sim = torch.matmul(xb, cb.reshape(m, q * k_max, d).transpose(1, 2), out=out)
+        sim = sim.view(m, n_max, q, k_max)
         if ragged:
             sim.masked_fill_(absent_b, _NEG)
         return sim.max(-1)
@@ -77,29 +78,42 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
     active = torch.ones(nb, r, dtype=torch.bool, device=dev)
     for _ in range(max_iter):
-        # Meshes whose restarts have all settled drop out; a settled restart of a live mesh is
-        # at a fixed point (same labels, same centers), so riding along changes nothing.
+        # Only restarts still moving iterate: settled ones (and meshes whose restarts have all
+        # settled) drop out, so a slow restart does not make the others pay for its iterations.
+        # Each live mesh's q active restarts go first; shorter lists are padded with settled
+        # restarts, which are computed but not written back.
         live = torch.nonzero(active.any(dim=1)).reshape(-1)
         if len(live) == 0:
             break
         m = len(live)
-        new = assign(x[live], centers[live], absent[live])[1]                      # [m, N, R]
-        changed = (new != labels[live]).any(dim=1)                                 # [m, R]
-        labels[live] = new
-        act = active[live]
+        act = active[live]                                                          # [m, R]
+        q = int(act.sum(dim=1).max())
+        slot = torch.argsort((~act).to(torch.int8), dim=1, stable=True)[:, :q]      # [m, q]
+        valid = torch.gather(act, 1, slot)                                          # [m, q]
+        rows = torch.arange(m, device=dev)[:, None]
+        cl = centers[live][rows, slot]                                              # [m, q, k, d]
+        new = assign(x[live], cl, absent[live])[1]                                 # [m, N, q]
+        lab = labels[live]
+        idx = slot[:, None, :].expand(m, n_max, q)
+        old = torch.gather(lab, 2, idx)
+        changed = (new != old).any(dim=1) & valid                                  # [m, q]
+        labels[live] = lab.scatter(2, idx, torch.where(valid[:, None, :], new, old))
         iters[live] += act.long()
         # Weighted sums per (mesh, restart, cluster) by index_add, one restart at a time: a
-        # one-hot GEMM would build [m, N, R, k] (260 MB at k = 81 on a 20k-face mesh).
+        # one-hot GEMM would build [m, N, q, k] (260 MB at k = 81 on a 20k-face mesh).
         xw = (x[live] * w[live, :, None]).reshape(m * n_max, d)
-        base = (torch.arange(m, device=dev)[:, None] * (r * k_max)).expand(m, n_max).reshape(-1)
-        sums = x.new_zeros(m * r * k_max, d)
-        for j in range(r):
+        base = (torch.arange(m, device=dev)[:, None] * (q * k_max)).expand(m, n_max).reshape(-1)
+        sums = x.new_zeros(m * q * k_max, d)
+        for j in range(q):
             sums.index_add_(0, base + j * k_max + new[:, :, j].reshape(-1), xw)
-        sums = sums.reshape(m, r, k_max, d)
+        sums = sums.reshape(m, q, k_max, d)
         norm = sums.norm(dim=-1, keepdim=True)
         # An emptied cluster keeps its previous center rather than vanishing.
-        centers[live] = torch.where(norm > 0, sums / norm.clamp(min=1e-300), centers[live])
-        active[live] = act & changed
+        moved = torch.where(norm > 0, sums / norm.clamp(min=1e-300), cl)
+        cent = centers[live]
+        cent[rows.expand(m, q)[valid], slot[valid]] = moved[valid]
+        centers[live] = cent
+        active[live] = act.scatter(1, slot, changed)
 
     best_sim, labels = assign(x, centers, absent)                                 # [B, N, R]
     cost = ((1 - best_sim) * w[:, :, None]).sum(1)                                  # [B, R]

@@ -129,35 +129,47 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
     active = torch.ones(nb, r, dtype=torch.bool, device=dev)
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
 
-    def side(m):                                                      # [b,R,n,n] -> [b,n,R·n]
-        return m.permute(0, 2, 1, 3).reshape(len(m), n, r * n)
+    def side(m):                                                      # [b,q,n,n] -> [b,n,q·n]
+        return m.permute(0, 2, 1, 3).reshape(len(m), n, m.shape[1] * n)
 
     # Y A is [b, Emax, R·n], the largest array here: one buffer, cubed in place, because fresh
     # allocations of that size cost more than the GEMMs (measured 2.2x per step at 30k edges).
-    buf = ypad.new_empty(nb, e_max, r * n)
+    buf = ypad.new_empty(nb * e_max * r * n)
     live = torch.arange(nb, device=dev)
     y_live = ypad
     for _ in range(max_iter):
-        # Only meshes with a restart still running iterate (a finished mesh would otherwise
-        # wait, at full cost, for the slowest mesh of the batch); a converged restart of a live
-        # mesh rides along in the GEMMs and keeps its rotation.
+        # Only restarts still moving iterate: converged ones (and meshes whose restarts have all
+        # converged) drop out, so neither a slow mesh nor a slow restart makes the others pay.
+        # Each live mesh's q active restarts go first; shorter lists are padded with converged
+        # restarts, computed but not written back.
         still = torch.nonzero(active.any(dim=1)).reshape(-1)
         if len(still) == 0:
             break
         if len(still) != len(live):
             live, y_live = still, ypad[still]
         m = len(live)
-        ya = torch.matmul(y_live, side(a[live]), out=buf[:m]).pow_(3)
-        g = (y_live.transpose(1, 2) @ ya).reshape(m, n, r, n).permute(0, 2, 1, 3)
+        act = active[live]                                            # [m, R]
+        q = int(act.sum(dim=1).max())
+        slot = torch.argsort((~act).to(torch.int8), dim=1, stable=True)[:, :q]
+        valid = torch.gather(act, 1, slot)                            # [m, q]
+        rows = torch.arange(m, device=dev)[:, None]
+        al = a[live][rows, slot]                                      # [m, q, n, n]
+        out = buf[:m * e_max * q * n].view(m, e_max, q * n)
+        ya = torch.matmul(y_live, side(al), out=out).pow_(3)
+        g = (y_live.transpose(1, 2) @ ya).reshape(m, n, q, n).permute(0, 2, 1, 3)
         with single_threaded():
             u, sv, vh = torch.linalg.svd(g)
-        d = sv.sum(-1)
-        act = active[live]
-        a[live] = torch.where(act[..., None, None], u @ vh, a[live])
+        d = sv.sum(-1)                                                # [m, q]
+        sel = (rows.expand(m, q)[valid], slot[valid])
+        rot = a[live]
+        rot[sel] = (u @ vh)[valid]
+        a[live] = rot
         iters[live] += act.long()
-        done = (d - d_old[live]).abs() < tol * d.abs()
-        d_old[live] = torch.where(act, d, d_old[live])
-        active[live] = act & ~done
+        prev = d_old[live]
+        done = (d - torch.gather(prev, 1, slot)).abs() < tol * d.abs()
+        prev[sel] = d[valid]
+        d_old[live] = prev
+        active[live] = act.scatter(1, slot, valid & ~done)
     del buf
     score = ((ypad @ side(a)) ** 4).reshape(nb, e_max, r, n).sum(dim=(1, 3))
     best = score.argmax(dim=1)
