@@ -1,4 +1,5 @@
-"""Writers of small OFF meshes and .seg label files for the tests (independent of torchakvf)."""
+"""Writers of small OFF meshes, .seg label files and a tiny corpus for the tests (the writers do
+not use torchakvf; the corpus takes its shapes from ``torchakvf.shapes``)."""
 from __future__ import annotations
 
 import gzip
@@ -25,3 +26,23 @@ def write_seg(path: Path, labels) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(map(str, np.asarray(labels).tolist())) + "\n")
     return path
+
+
+def write_small_corpus(root: Path, degenerate_face: bool = False) -> Path:
+    """ico.off, ell.off, sub/dumb.off (320-492 faces) and broken.off (garbage bytes) under root.
+
+    degenerate_face : insert a repeated-index face as input face 100 of ell.off (dropped by
+    cleaning, so per-face outputs must still have the file's face count).
+    """
+    from torchakvf import shapes
+
+    root = Path(root)
+    ico = shapes.icosphere(2)
+    write_off(root / "ico.off", ico.vertices, ico.faces)
+    ell = shapes.ellipsoid(level=2)
+    faces = np.insert(ell.faces, 100, [[0, 0, 1]], axis=0) if degenerate_face else ell.faces
+    write_off(root / "ell.off", ell.vertices, faces)
+    dumb = shapes.dumbbell(n_around=18)
+    write_off(root / "sub" / "dumb.off", dumb.vertices, dumb.faces)
+    (root / "broken.off").write_bytes(b"\x00\x9f garbage \xff" * 20)
+    return root

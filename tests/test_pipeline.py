@@ -22,7 +22,7 @@ from torchakvf.pipeline import runner
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.runner import (MANIFEST, assign_stems, discover_inputs, peek_faces,
                                        prepare, read_manifest, run_corpus)
-from meshfiles import write_off
+from meshfiles import write_off, write_small_corpus
 
 REPO = Path(__file__).resolve().parents[1]
 N = 8
@@ -45,15 +45,7 @@ ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory) -> Path:
     """3 small meshes (one with a degenerate face in the middle, one in a subfolder) + garbage."""
-    root = tmp_path_factory.mktemp("corpus")
-    ico = shapes.icosphere(2)
-    write_off(root / "ico.off", ico.vertices, ico.faces)
-    ell = shapes.ellipsoid(level=2)
-    faces = np.insert(ell.faces, 100, [[0, 0, 1]], axis=0)   # input face 100 is dropped by cleaning
-    write_off(root / "ell.off", ell.vertices, faces)
-    dumb = shapes.dumbbell(n_around=18)
-    write_off(root / "sub" / "dumb.off", dumb.vertices, dumb.faces)
-    (root / "broken.off").write_bytes(b"\x00\x9f garbage \xff" * 20)
+    root = write_small_corpus(tmp_path_factory.mktemp("corpus"), degenerate_face=True)
     (root / "notes.txt").write_text("not a mesh")
     return root
 

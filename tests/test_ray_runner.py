@@ -16,7 +16,7 @@ from torchakvf import cli, shapes  # noqa: E402
 from torchakvf.pipeline.features import FeaturesTask  # noqa: E402
 from torchakvf.pipeline.ray_runner import run_corpus_ray  # noqa: E402
 from torchakvf.pipeline.runner import MANIFEST, discover_inputs, read_manifest, run_corpus  # noqa: E402
-from meshfiles import write_off  # noqa: E402
+from meshfiles import write_off, write_small_corpus  # noqa: E402
 
 N = 8
 BUDGET = 600  # faces per batch: each of the three meshes is a batch of its own
@@ -44,15 +44,7 @@ def ray_local():
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory) -> Path:
     """3 meshes of 320-492 faces (one in a subfolder) and one broken file."""
-    root = tmp_path_factory.mktemp("corpus")
-    ico = shapes.icosphere(2)
-    write_off(root / "ico.off", ico.vertices, ico.faces)
-    ell = shapes.ellipsoid(level=2)
-    write_off(root / "ell.off", ell.vertices, ell.faces)
-    dumb = shapes.dumbbell(n_around=18)
-    write_off(root / "sub" / "dumb.off", dumb.vertices, dumb.faces)
-    (root / "broken.off").write_bytes(b"\x00\x9f garbage \xff" * 20)
-    return root
+    return write_small_corpus(tmp_path_factory.mktemp("corpus"))
 
 
 @pytest.fixture(scope="module")
