@@ -135,7 +135,8 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
         if fields.n < n:
             raise ParameterError(f"the AKVFs given have n = {fields.n} < the {n} fields needed")
     else:  # a few spare fields, as segment() computes, so a degenerate cluster is not cut
-        fields = akvf(as_batch(meshes), n=n + SPARE_FIELDS if n_fields is None else n, seed=seed, remedy=remedy)
+        n_akvf = n + SPARE_FIELDS if n_fields is None else n
+        fields = akvf(as_batch(meshes), n=n_akvf, seed=seed, remedy=remedy)
     if n_fields is None:  # one count per mesh for every k, moved off degenerate clusters
         lam = fields.eigenvalues.detach().cpu()
         ns = [cluster_safe_n(lam[b], n, floor=max(hi, n // 2)) for b in range(len(fields.batch))]

@@ -25,7 +25,6 @@ def parse_formats(text: str) -> tuple[str, ...]:
     return fmts
 
 
-#: Extra AKVFs computed when the field count is automatic (as ``segment`` itself does).
 class SegmentTask:
     name = "segment"
     stages = ("akvf", "untangle", "cluster")
