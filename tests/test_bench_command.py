@@ -10,7 +10,9 @@ import torch
 from torchakvf import shapes
 from torchakvf.cli import main
 from torchakvf.pipeline import bench
-from torchakvf.pipeline.runner import default_batch_faces
+from torchakvf.evaluate.harness import default_eval_batch_faces
+from torchakvf.mesh.coarse import DEFAULT_COARSE_FACES
+from torchakvf.pipeline.parallel import default_workers
 from meshfiles import write_off, write_seg
 
 
@@ -88,7 +90,10 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
     assert r["selection"]["mesh_ids"] == [1, 21]
     assert r["selection"]["ks"] == {"1": [2, 3], "21": [6]}   # protocol k's; 6 = DEFAULT_K_NO_GT
     assert r["selection"]["faces"] == n_faces and r["selection"]["predictions"] == 3
-    assert r["settings"]["batch_faces"] == default_batch_faces("cpu")
+    # Decimation on by default: one decimated mesh a batch on CPU, one worker process a core.
+    assert r["settings"]["batch_faces"] == default_eval_batch_faces("cpu", DEFAULT_COARSE_FACES)
+    assert r["settings"]["segment_kwargs"]["coarse_faces"] == DEFAULT_COARSE_FACES
+    assert r["runs"]["batched"]["workers"] == default_workers("cpu")
     assert set(r["runs"]) == {"batched", "one_at_a_time", "scipy", "batched_subset"}
     for name, run in r["runs"].items():
         assert run["meshes_ok"] == 2 and not run["failed"], (name, run["failed"])
@@ -111,6 +116,9 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
         assert abs(v["ratio"] - v["baseline_seconds"] / v["torchakvf_seconds"]) < 1e-9
         assert v["stage_ratios"]["akvf"] > 0 and v["stage_ratios"]["segment"] > 0
     assert r["peak_memory"]["ru_maxrss_mib"] > 0
+    assert r["peak_memory"]["total_rss_bound_mib"] >= r["peak_memory"]["ru_maxrss_mib"]
+    if default_workers("cpu") > 1:
+        assert r["peak_memory"]["worker_maxrss_mib"] > 0
     md = (out / "report.md").read_text()
     assert "meshes/s" in md and "one_at_a_time" in md and "scipy" in md and "## Runs" in md
 

@@ -26,8 +26,8 @@ class KMeansResult:
 
 
 def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 20,
-                     max_iter: int = 100, seed: int = 0, weights: torch.Tensor | None = None
-                     ) -> KMeansResult:
+                     max_iter: int = 100, seed: int = 0, weights: torch.Tensor | None = None,
+                     iteration_dtype: torch.dtype = torch.float32) -> KMeansResult:
     """Cluster the rows of each mesh by cosine similarity.
 
     x : [B, N_max, d] padded feature rows (normalized here); mask : [B, N_max] bool
@@ -35,6 +35,9 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     restarts : independent k-means++ starts per mesh; the lowest cost is kept
     seed : each mesh's random draws come from ``torch.Generator().manual_seed(seed)`` alone
     weights : optional [B, N_max] row weights of the cost (e.g. face areas); default 1 per row
+    iteration_dtype : float type of the similarities [B, N, R·k] of the Lloyd iterations (the
+        largest products); seeding, cluster sums, the final assignment and the cost that picks
+        the restart are float64. tests/test_kmeans_precision.py checks float32 against float64.
     """
     nb, n_max, d = x.shape
     ks = [int(k)] * nb if isinstance(k, int) else [int(v) for v in k]
@@ -61,14 +64,16 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
 
     # The similarities [B, N, R·k] are the largest array (260 MB at k = 81 on a 20k-face mesh):
     # one buffer for every iteration, since allocating it afresh costs as much as the GEMM.
-    sim_buf = x.new_empty(nb, n_max, r * k_max)
+    x_it = x.to(iteration_dtype)
+    sim_buf = x_it.new_empty(nb, n_max, r * k_max)
     ragged = bool((kvec != k_max).any())
 
-    def assign(xb, cb, absent_b):
+    def assign(xb, cb, absent_b, out=None):
         """Labels [b, N, q] and cosine to the assigned center [b, N, q] for centers [b, q, k, d]."""
         m, q = cb.shape[:2]
-        out = sim_buf.view(-1)[:m * n_max * q * k_max].view(m, n_max, q * k_max)
-        sim = torch.matmul(xb, cb.reshape(m, q * k_max, d).transpose(1, 2), out=out)
+        if out is not None:
+            out = out.view(-1)[:m * n_max * q * k_max].view(m, n_max, q * k_max)
+        sim = torch.matmul(xb, cb.reshape(m, q * k_max, d).transpose(1, 2).to(xb.dtype), out=out)
         sim = sim.view(m, n_max, q, k_max)
         if ragged:
             sim.masked_fill_(absent_b, _NEG)
@@ -92,7 +97,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         valid = torch.gather(act, 1, slot)                                          # [m, q]
         rows = torch.arange(m, device=dev)[:, None]
         cl = centers[live][rows, slot]                                              # [m, q, k, d]
-        new = assign(x[live], cl, absent[live])[1]                                 # [m, N, q]
+        new = assign(x_it[live], cl, absent[live], sim_buf)[1]                     # [m, N, q]
         lab = labels[live]
         idx = slot[:, None, :].expand(m, n_max, q)
         old = torch.gather(lab, 2, idx)
@@ -115,6 +120,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         centers[live] = cent
         active[live] = act.scatter(1, slot, changed)
 
+    del sim_buf, x_it
     best_sim, labels = assign(x, centers, absent)                                 # [B, N, R]
     cost = ((1 - best_sim) * w[:, :, None]).sum(1)                                  # [B, R]
     pick = cost.argmin(dim=1)

@@ -344,9 +344,9 @@ def _settings_guard(out: Path, prediction_settings: dict) -> None:
             old = json.loads(path.read_text()).get("prediction")
         except ValueError:
             old = None
-        if old is not None and old != prediction_settings:
-            diff = sorted(k for k in set(old) | set(prediction_settings)
-                          if old.get(k) != prediction_settings.get(k))
+        diff = [] if old is None else sorted(k for k in set(old) | set(prediction_settings)
+                                             if old.get(k) != prediction_settings.get(k))
+        if diff:  # a setting added later, absent from an old file, reads as its default None
             raise TorchAKVFError(f"{out}: holds predictions made with other settings "
                                  f"({', '.join(diff)} differ); use another --out or delete it")
 
@@ -361,6 +361,7 @@ class _Progress:
         self.total = max(total_faces, 1)
         self.done = 0
         self.t0 = time.perf_counter()
+        self.last = ""
 
     @staticmethod
     def _print(msg: str) -> None:
@@ -371,6 +372,7 @@ class _Progress:
             self.fn(msg)
 
     def advance(self, faces: int, msg: str) -> None:
+        self.last = msg
         self.done += faces
         el = time.perf_counter() - self.t0
         eta = el / self.done * (self.total - self.done) if self.done else float("nan")
@@ -382,7 +384,7 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
                  per_category: int | None = None, seed: int = 0, remedy: str | None = None,
                  n_fields: int | None = None, batch_faces: int | None = None, k_mode: str | None = None,
                  progress=True, metrics=None, k_range=None, k_rule: str = "elbow",
-                 default_k: int = DEFAULT_K_NO_GT, plot: bool = True,
+                 default_k: int = DEFAULT_K_NO_GT, plot: bool = True, workers: int | None = None,
                  **segment_kwargs) -> EvalSummary:
     """Run the method on PSB meshes, score it against the human segmentations, write reports.
 
@@ -404,8 +406,12 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     k_range, k_rule : the k's tried and the rule with k_mode="auto" (default (2, 10), "elbow")
     default_k : parts for meshes without human segmentations (given-k protocols)
     plot : write rand_index.png
+    workers : processes predicting batches side by side, each on one thread (default 1:
+        this process; :func:`torchakvf.pipeline.parallel.default_workers` is one per core)
     segment_kwargs : passed on to :func:`torchakvf.parts.segment` (boundary,
-        min_part_fraction, kmeans_restarts, ...); ``refine`` defaults to False here
+        min_part_fraction, kmeans_restarts, ...); ``refine`` defaults to False here;
+        ``coarse_faces=N`` solves on meshes decimated to about N faces (the batch is built
+        with it, see :mod:`torchakvf.mesh.coarse`) and cuts the parts on the originals
 
     Returns
     -------
@@ -422,8 +428,7 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     groups = parse_metrics(metrics)
     remedy = DEFAULT_REMEDY if remedy is None else remedy
     if batch_faces is None:
-        from ..pipeline.runner import default_batch_faces
-        batch_faces = default_batch_faces("cpu")
+        batch_faces = default_eval_batch_faces("cpu", segment_kwargs.get("coarse_faces"))
     if int(batch_faces) < 1:
         raise TorchAKVFError(f"batch_faces must be positive, got {batch_faces}")
     if not isinstance(default_k, (int, np.integer)) or default_k < 1:
@@ -520,29 +525,29 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     # number of segmentation rounds (little padding) and have similar sizes (little padding of
     # the [B, F_max] tensors).
     n_missing = {p.mesh_id: len(p.missing(auto)) for p in todo}
+    solved = solved_face_counts(faces_of, segment_kwargs.get("coarse_faces"))
     batches = _make_batches(sorted(todo, key=lambda p: (n_missing[p.mesh_id], faces_of[p.mesh_id],
-                                                        p.mesh_id)), faces_of, int(batch_faces))
-    queue = collections.deque(batches)
+                                                        p.mesh_id)), solved, int(batch_faces))
+    from ..pipeline.parallel import map_batches
+
     n_batch = 0
-    while queue:
-        batch = queue.popleft()
+    n_workers = 1 if workers is None else int(workers)
+    args = (auto, seed, remedy, n_fields, k_range, k_rule, segment_kwargs, faces_of)
+    for res in map_batches(batches, _predict_in_worker, args, workers=n_workers):
+        batch = res.batch
+        if res.split:
+            prog(f"a batch failed ({res.error}); retrying its {len(batch)} meshes one by one")
+            continue
         n_batch += 1
-        try:
-            meshes = _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule,
-                                    segment_kwargs, faces_of, prog, n_batch, len(queue))
-        except KeyboardInterrupt:
-            raise
-        except Exception as exc:  # one bad mesh must not end a 300-mesh run
-            if len(batch) > 1:
-                prog(f"batch {n_batch} failed ({type(exc).__name__}: {exc}); retrying its "
-                     f"{len(batch)} meshes one by one")
-                queue.extendleft([[p] for p in reversed(batch)])
-                continue
+        if res.error is not None:
             p = batch[0]
-            failed[p.mesh_id] = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+            failed[p.mesh_id] = res.error
             prog(f"mesh {p.mesh_id} failed: {failed[p.mesh_id]}")
             meshes = {p.mesh_id: None}
             prog.advance(faces_of[p.mesh_id], f"mesh {p.mesh_id}: failed")
+        else:
+            meshes, msg, _ = res.result
+            prog.advance(int(sum(faces_of[p.mesh_id] for p in batch)), f"batch {n_batch}: {msg}")
         for p in batch:
             score_and_store(p, meshes.get(p.mesh_id))
         _write_reports(out, rows, plans, protocol, groups, auto, time.perf_counter() - t_start,
@@ -578,6 +583,27 @@ def _face_count(path: Path) -> int:
         return 1
 
 
+def default_eval_batch_faces(device, coarse_faces=None) -> int:
+    """The face budget of a batch by default: the corpus runner's for the device; on CPU with
+    decimation, one decimated mesh per batch (the cores are used by worker processes instead,
+    and a batch re-solves every mesh when one of them needs more eigenpairs)."""
+    from ..mesh.coarse import DECIMATE_ABOVE
+    from ..pipeline.runner import default_batch_faces
+
+    if coarse_faces and str(device).startswith("cpu"):
+        return int(DECIMATE_ABOVE * coarse_faces)
+    return default_batch_faces(device)
+
+
+def solved_face_counts(faces_of: dict, coarse_faces) -> dict:
+    """{mesh id: faces of the mesh the solver sees}: the input's, or about ``coarse_faces`` for
+    a mesh that will be decimated (the face budget of a batch counts what is solved)."""
+    if not coarse_faces:
+        return dict(faces_of)
+    from ..mesh.coarse import DECIMATE_ABOVE
+    return {i: (f if f <= DECIMATE_ABOVE * coarse_faces else int(coarse_faces)) for i, f in faces_of.items()}
+
+
 def _make_batches(plans, faces_of, budget):
     batches, cur, cur_faces = [], [], 0
     for p in plans:
@@ -592,6 +618,17 @@ def _make_batches(plans, faces_of, budget):
     return batches
 
 
+def _predict_in_worker(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment_kwargs,
+                       faces_of, device="cpu"):
+    """:func:`_predict_batch` without progress lines (it may run in a worker process);
+    returns (its loaded meshes, its one-line summary, its stage timings)."""
+    prog = _Progress(False, 1)
+    timings: dict = {}
+    meshes = _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment_kwargs,
+                            faces_of, prog, 0, 0, device=device, timings=timings)
+    return meshes, prog.last, timings
+
+
 def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment_kwargs,
                    faces_of, prog, n_batch, n_left, *, device="cpu", timings=None):
     """AKVFs once for the batch, then every missing k; writes predictions and meta files.
@@ -603,7 +640,7 @@ def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment
         "write" (predictions + meta files). CUDA is synchronized before each reading when given.
 
     Returns {mesh_id: Mesh} (the loaded input meshes, for scoring)."""
-    from ..fields.akvf import akvf
+    from ..fields.akvf import akvf_falling_back
     from ..fields.untangle import untangle
     from ..io import load_mesh
     from ..mesh import MeshBatch
@@ -612,9 +649,13 @@ def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment
 
     tick = _stage_clock(timings, device)
     t0 = time.perf_counter()
+    # The batch carries its decimation (coarse_faces), so segment() takes the rest as usual.
+    segment_kwargs = dict(segment_kwargs)
+    coarse_faces = segment_kwargs.pop("coarse_faces", None)
     meshes = {p.mesh_id: load_mesh(p.entry.mesh_path) for p in batch}
     tick("load")
-    mb = MeshBatch.from_meshes([meshes[p.mesh_id] for p in batch], device=device)
+    mb = MeshBatch.from_meshes([meshes[p.mesh_id] for p in batch], device=device,
+                               coarse_faces=coarse_faces)
     tick("pack")
     faces = np.array([len(m.faces) for m in mb.meshes], dtype=np.float64)
     share = faces / faces.sum()
@@ -628,7 +669,8 @@ def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment
         n_akvf = default_n_fields(k_range[1]) + SPARE_FIELDS
     else:
         n_akvf = default_n_fields(10 ** 6) + SPARE_FIELDS
-    fields = akvf(mb, n=n_akvf, seed=seed, remedy=remedy)
+    fields, fell_back = akvf_falling_back(mb, n=n_akvf, seed=seed, remedy=remedy)
+    mb = fields.batch
     tick("akvf")
     t_akvf = time.perf_counter() - t0
     seconds += t_akvf * share
@@ -687,10 +729,14 @@ def _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment
         meta["eigenvalues"] = eig[b].tolist()
         meta.setdefault("costs", {}).update(costs[b])
         meta.update(extra[b])
+        meta["coarse_faces"] = None if mb.coarse_of(b) is None else len(mb.coarse_of(b).coarse.faces)
+        fb = [why for i, why in fell_back if i == b]
+        if fb:
+            meta["full_resolution_because"] = fb[0]
         atomic_write_bytes(p.meta_path, json.dumps(meta, indent=1).encode())
     tick("write")
     prog.advance(int(sum(faces_of[p.mesh_id] for p in batch)),
-                 f"batch {n_batch} ({n_left} left): {len(batch)} meshes, {int(faces.sum())} faces, "
+                 f"{len(batch)} meshes, {int(faces.sum())} faces, "
                  f"akvf {t_akvf:.1f}s, {n_rounds} k-rounds {time.perf_counter() - t0 - t_akvf:.1f}s")
     return meshes
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..errors import ParameterError
+from ..errors import ParameterError, SolverError
 from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
@@ -141,3 +141,31 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
                       face_vectors=fv.to(out_dt), residuals=eig.residuals.gather(1, keep),
                       iterations=eig.iterations, shifts=eig.shifts, converged=eig.converged,
                       dropped=spurious.sum(dim=1), batch=batch, system=system)
+
+
+def akvf_falling_back(batch: MeshBatch, n: int = 32, **kwargs) -> tuple[AKVFResult, list]:
+    """:func:`akvf` on a batch of decimated meshes (``MeshBatch.from_meshes(coarse_faces=)``),
+    solving at full resolution the meshes whose decimated version cannot be solved.
+
+    A decimated surface can be worse than its original (holes that could not be closed, whose
+    boundary terms make R - σS1 indefinite at every shift): on a :class:`SolverError` each
+    decimated mesh is solved alone to find the ones that fail, and the batch is solved again
+    with those at full resolution. Returns (the result, [(mesh index, error text)] of the
+    meshes that fell back). A batch without decimated meshes raises as :func:`akvf` does.
+    """
+    try:
+        return akvf(batch, n=n, **kwargs), []
+    except SolverError as exc:
+        decimated = [b for b in range(len(batch)) if batch.coarse_of(b) is not None]
+        if not decimated:
+            raise
+        first = exc
+    failed = []
+    for b in decimated:
+        try:
+            akvf(MeshBatch.from_meshes([batch.meshes[b]], device=batch.device, dtype=batch.dtype), n=n, **kwargs)
+        except SolverError as exc:
+            failed.append((b, str(exc)))
+    if not failed:   # no decimated mesh is to blame
+        raise first
+    return akvf(batch.at_full_resolution([b for b, _ in failed]), n=n, **kwargs), failed

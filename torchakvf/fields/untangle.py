@@ -65,7 +65,8 @@ def random_rotations(count: int, n: int, generator: torch.Generator, dtype=torch
 
 
 def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: int = 8,
-             seed: int = 0, tol: float = 1e-5, max_iter: int = 500) -> UntangledFields:
+             seed: int = 0, tol: float = 1e-5, max_iter: int = 500,
+             iteration_dtype: torch.dtype = torch.float32) -> UntangledFields:
     """Algorithm 1 on the first ``n`` fields of every mesh (default: all of them).
 
     n : one count for all meshes, or one per mesh; arrays are padded to the largest n
@@ -76,6 +77,10 @@ def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: 
     seed : each mesh's starts come from ``torch.Generator().manual_seed(seed)``, so a mesh
         gets the same result in any batch.
     tol : stop when the relative change of trace(D) is below tol (per restart); at most max_iter.
+    iteration_dtype : float type of the two large products of each iteration (Y A and
+        Yᵀ (Y A)^3); the rotations, SVDs and the final choice of restart stay float64.
+        torch.float32 halves their cost; tests/test_untangle_precision.py checks it against
+        float64.
     """
     batch = fields.batch
     nb = len(batch)
@@ -93,7 +98,7 @@ def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: 
     for group_n in sorted(set(ns)):
         # Meshes sharing n run together; fields beyond a mesh's n are not part of its problem.
         sel = torch.tensor([b for b in range(nb) if ns[b] == group_n], device=dev)
-        ag, sg, ig = _orthomax(ypad[sel][..., :group_n], restarts, seed, tol, max_iter)
+        ag, sg, ig = _orthomax(ypad[sel][..., :group_n], restarts, seed, tol, max_iter, iteration_dtype)
         a[sel, :group_n, :group_n], score[sel], iters[sel] = ag, sg, ig
 
     owner_e, owner_f = batch.edge_to_mesh, batch.face_to_mesh
@@ -109,7 +114,8 @@ def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: 
                            n_fields=ns, source=fields)
 
 
-def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter: int):
+def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter: int,
+              iteration_dtype: torch.dtype = torch.float64):
     """Horst's iteration for [b, Emax, n] scaled forms, all restarts at once.
 
     The R rotations of a mesh sit side by side, A = [A_1 | ... | A_R] [n, R·n], so each step is
@@ -134,9 +140,10 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
 
     # Y A is [b, Emax, R·n], the largest array here: one buffer, cubed in place, because fresh
     # allocations of that size cost more than the GEMMs (measured 2.2x per step at 30k edges).
-    buf = ypad.new_empty(nb * e_max * r * n)
+    yit = ypad.to(iteration_dtype)
+    buf = yit.new_empty(nb * e_max * r * n)
     live = torch.arange(nb, device=dev)
-    y_live = ypad
+    y_live = yit
     for _ in range(max_iter):
         # Only restarts still moving iterate: converged ones (and meshes whose restarts have all
         # converged) drop out, so neither a slow mesh nor a slow restart makes the others pay.
@@ -146,7 +153,7 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
         if len(still) == 0:
             break
         if len(still) != len(live):
-            live, y_live = still, ypad[still]
+            live, y_live = still, yit[still]
         m = len(live)
         act = active[live]                                            # [m, R]
         q = int(act.sum(dim=1).max())
@@ -155,8 +162,8 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
         rows = torch.arange(m, device=dev)[:, None]
         al = a[live][rows, slot]                                      # [m, q, n, n]
         out = buf[:m * e_max * q * n].view(m, e_max, q * n)
-        ya = torch.matmul(y_live, side(al), out=out).pow_(3)
-        g = (y_live.transpose(1, 2) @ ya).reshape(m, n, q, n).permute(0, 2, 1, 3)
+        ya = torch.matmul(y_live, side(al).to(iteration_dtype), out=out).pow_(3)
+        g = (y_live.transpose(1, 2) @ ya).reshape(m, n, q, n).permute(0, 2, 1, 3).double()
         with single_threaded():
             u, sv, vh = torch.linalg.svd(g)
         d = sv.sum(-1)                                                # [m, q]
@@ -170,7 +177,7 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
         prev[sel] = d[valid]
         d_old[live] = prev
         active[live] = act.scatter(1, slot, valid & ~done)
-    del buf
+    del buf, yit
     score = ((ypad @ side(a)) ** 4).reshape(nb, e_max, r, n).sum(dim=(1, 3))
     best = score.argmax(dim=1)
     ar = torch.arange(nb, device=dev)

@@ -8,15 +8,19 @@ views from :func:`pad_packed`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 import torch
 
-from ..errors import ParameterError
+from ..errors import MeshError, ParameterError
 from .clean import CleanMesh, clean_mesh
+from .coarse import CoarseMesh, coarse_mesh
 from .mesh import Mesh
+
+log = logging.getLogger("torchakvf.mesh")
 
 
 def mesh_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -51,7 +55,11 @@ class MeshBatch:
     face_edges : [ΣF, 3] int64, global edge index of edge v_k -> v_{k+1} of each face
     face_edge_sign : [ΣF, 3] float, +1/-1: that half-edge's direction relative to its edge
     vert_ptr, face_ptr, edge_ptr : [B+1] int64 offsets
-    meshes : list of the B :class:`CleanMesh` (host-side maps back to the input faces)
+    meshes : list of the B :class:`CleanMesh` that were packed (host-side maps back to the
+        input faces)
+    coarse : list of B entries, the :class:`~torchakvf.mesh.coarse.CoarseMesh` mesh b was
+        decimated from (its results belong to ``coarse[b].fine``) or None where mesh b is the
+        input at full resolution; empty when the batch was built without ``coarse_faces``
     """
 
     verts: torch.Tensor
@@ -63,17 +71,29 @@ class MeshBatch:
     face_ptr: torch.Tensor
     edge_ptr: torch.Tensor
     meshes: list
+    coarse: list = field(default_factory=list)
 
     @classmethod
     def from_meshes(cls, meshes: Sequence[Mesh | CleanMesh] | Mesh | CleanMesh,
                     device: str | torch.device = "cpu",
-                    dtype: torch.dtype = torch.float64) -> "MeshBatch":
-        """Clean (if needed) and pack meshes. ``dtype`` is the coordinates' float type."""
+                    dtype: torch.dtype = torch.float64,
+                    coarse_faces: int | None = None) -> "MeshBatch":
+        """Clean (if needed) and pack meshes. ``dtype`` is the coordinates' float type.
+
+        coarse_faces : if given, each mesh with more than 1.25x this many faces is decimated to
+            about this many (:func:`~torchakvf.mesh.coarse.coarse_mesh`) and the coarse mesh is
+            packed; :func:`~torchakvf.parts.segment` then reports its results on the original
+            faces. A mesh whose decimation fails is packed at full resolution (logged).
+        """
         if isinstance(meshes, (Mesh, CleanMesh)):
             meshes = [meshes]
         meshes = [m if isinstance(m, CleanMesh) else clean_mesh(m) for m in meshes]
         if not meshes:
             raise ParameterError("MeshBatch.from_meshes needs at least one mesh")
+        coarse = []
+        if coarse_faces is not None:
+            coarse = [_coarse_or_none(m, coarse_faces) for m in meshes]
+            meshes = [m if c is None else c.coarse for m, c in zip(meshes, coarse)]
         if dtype not in (torch.float32, torch.float64):
             raise ParameterError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         verts, faces, edges, fe, fs = [], [], [], [], []
@@ -93,7 +113,7 @@ class MeshBatch:
         return cls(verts=t(verts, dtype), faces=t(faces, torch.int64), edges=t(edges, torch.int64),
                    face_edges=t(fe, torch.int64), face_edge_sign=t(fs, dtype),
                    vert_ptr=torch.tensor(vptr, device=dev), face_ptr=torch.tensor(fptr, device=dev),
-                   edge_ptr=torch.tensor(eptr, device=dev), meshes=list(meshes))
+                   edge_ptr=torch.tensor(eptr, device=dev), meshes=list(meshes), coarse=coarse)
 
     # ---- sizes and index maps ------------------------------------------------------------
     def __len__(self) -> int:
@@ -134,12 +154,41 @@ class MeshBatch:
         """The same batch on another device."""
         mv = {k: getattr(self, k).to(device) for k in
               ("verts", "faces", "edges", "face_edges", "face_edge_sign", "vert_ptr", "face_ptr", "edge_ptr")}
-        return MeshBatch(meshes=self.meshes, **mv)
+        return MeshBatch(meshes=self.meshes, coarse=self.coarse, **mv)
+
+    def coarse_of(self, b: int) -> CoarseMesh | None:
+        """The :class:`CoarseMesh` behind mesh b, or None when mesh b is at full resolution."""
+        return self.coarse[b] if self.coarse else None
+
+    def at_full_resolution(self, indices) -> "MeshBatch":
+        """The same batch with meshes ``indices`` packed at full resolution instead of decimated."""
+        full = set(int(i) for i in indices)
+        meshes = [self.input_mesh(b) if b in full else m for b, m in enumerate(self.meshes)]
+        out = MeshBatch.from_meshes(meshes, device=self.device, dtype=self.dtype)
+        out.coarse = [None if b in full else c for b, c in enumerate(self.coarse)] if self.coarse else []
+        return out
+
+    def input_mesh(self, b: int) -> CleanMesh:
+        """The cleaned mesh whose input faces mesh b's results are reported on (the
+        full-resolution mesh when b was decimated)."""
+        c = self.coarse_of(b)
+        return self.meshes[b] if c is None else c.fine
 
     def split(self, packed: torch.Tensor, ptr: torch.Tensor) -> list[torch.Tensor]:
         """Split a packed tensor into per-mesh pieces along dim 0 using offsets ``ptr``."""
         sizes = (ptr[1:] - ptr[:-1]).tolist()
         return list(torch.split(packed, sizes, dim=0))
+
+
+def _coarse_or_none(mesh: CleanMesh, faces: int) -> CoarseMesh | None:
+    try:
+        return coarse_mesh(mesh, faces)
+    except MeshError as exc:
+        # The decimated surface is unusable (e.g. collapses made it non-orientable): the full
+        # mesh is still a correct input, only slower.
+        log.warning("%s: solving at full resolution, decimation to %d faces failed: %s",
+                    mesh.name, faces, exc.problem)
+        return None
 
 
 def pad_packed(x: torch.Tensor, ptr: torch.Tensor, fill: float = 0.0

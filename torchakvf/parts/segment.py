@@ -11,9 +11,11 @@ import numpy as np
 
 from ..cluster import spherical_kmeans
 from ..errors import ParameterError
-from ..fields.akvf import AKVFResult, akvf, as_batch
+from ..fields.akvf import AKVFResult, akvf_falling_back, as_batch
 from ..fields.untangle import UntangledFields, untangle
+from ..mesh import CleanMesh, Mesh, MeshBatch
 from ..mesh.batch import pad_packed
+from ..mesh.coarse import fine_face_areas
 from .boundaries import (RefinedMesh, face_margins, isoline_face_labels, refine_along_isolines,
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
@@ -64,10 +66,12 @@ class MeshSegmentation:
     """The segmentation of one mesh.
 
     labels : [F_input] int, part per face of the input (file order); -1 = connecting region
-    features : [F_input, n] per-face untangled AKVF norms (0 on faces dropped as degenerate)
+    features : [F_input, n] per-face untangled AKVF norms (0 on faces dropped as degenerate;
+        on a decimated mesh, those of the coarse face under each input face)
     eigenvalues : [n] Killing eigenvalues (λ·area) of the raw AKVFs used
     generators : per part, the :class:`SymmetryGenerator` s localized on it
-    refined : the mesh cut along the part boundaries (cleaned-mesh vertices), or None
+    refined : the mesh cut along the part boundaries (cleaned-mesh vertices, full resolution),
+        or None
     cost : spherical k-means cost Σ(1 - cos) of the clustering kept
     """
 
@@ -91,11 +95,15 @@ class Segmentation:
 
     def face_vectors(self, b: int) -> np.ndarray:
         """[F_input, n_b, 3] untangled Whitney vectors of mesh b on the input's faces (0 on
-        dropped faces); ``generators[p][i].field`` indexes the second axis."""
+        dropped faces; on a decimated mesh, those of the coarse face under each input face);
+        ``generators[p][i].field`` indexes the second axis."""
         unt = self.untangled
         ptr = unt.batch.face_ptr
-        fv = unt.face_vectors[int(ptr[b]):int(ptr[b + 1]), :unt.n_fields[b]]
-        return unt.batch.meshes[b].to_input_faces(fv.detach().cpu().numpy())
+        fv = unt.face_vectors[int(ptr[b]):int(ptr[b + 1]), :unt.n_fields[b]].detach().cpu().numpy()
+        coarse = unt.batch.coarse_of(b)
+        if coarse is not None:  # the coarse face under each fine barycenter
+            fv = coarse.face_values(fv)
+        return unt.batch.input_mesh(b).to_input_faces(fv)
 
     def __len__(self) -> int:
         return len(self.meshes)
@@ -152,7 +160,7 @@ def _per_mesh(value, nb: int, what: str) -> list[int]:
 def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             remedy: str = DEFAULT_REMEDY, kmeans_restarts: int = 20, untangle_restarts: int = UNTANGLE_RESTARTS,
             boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
-            untangled: UntangledFields | None = None) -> Segmentation:
+            untangled: UntangledFields | None = None, coarse_faces: int | None = None) -> Segmentation:
     """Segment each mesh into k parts (ε = 0) or discover parts with a connecting region (ε > 0).
 
     Parameters
@@ -175,13 +183,22 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     untangled : the :class:`~torchakvf.fields.UntangledFields` of these AKVFs to reuse (from
         :func:`~torchakvf.fields.untangle` with ``n=field_counts(fields, k)``, the same seed and
         restarts): several k's with the same field counts then share one untangling
+    coarse_faces : solve on meshes decimated to about this many faces and report on the
+        given ones (see :mod:`torchakvf.mesh.coarse`); only with Mesh inputs (a batch built with
+        ``MeshBatch.from_meshes(..., coarse_faces=...)`` carries its own)
     """
     if boundary not in BOUNDARIES:
         raise ParameterError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
     if not (eps >= 0):
         raise ParameterError(f"eps must be >= 0, got {eps!r}")
+    if coarse_faces is not None and isinstance(meshes, (AKVFResult, MeshBatch)):
+        raise ParameterError("coarse_faces applies to Mesh inputs; build the batch with "
+                             "MeshBatch.from_meshes(meshes, coarse_faces=...) instead")
     if isinstance(meshes, AKVFResult):
         fields, batch = meshes, meshes.batch
+    elif coarse_faces is not None:
+        fields, batch = None, MeshBatch.from_meshes(
+            [meshes] if isinstance(meshes, (Mesh, CleanMesh)) else list(meshes), coarse_faces=coarse_faces)
     else:
         fields, batch = None, as_batch(meshes)
     nb = len(batch)
@@ -193,7 +210,9 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     if fields is None:
         # Compute a few more than needed so a cluster cut at N can be seen (and completed).
         n_max = max(_default_or_given(ks, n_fields, nb))
-        fields = akvf(batch, n=n_max + SPARE_FIELDS if n_fields is None else n_max, seed=seed, remedy=remedy)
+        fields, _ = akvf_falling_back(batch, n=n_max + SPARE_FIELDS if n_fields is None else n_max,
+                                      seed=seed, remedy=remedy)
+        batch = fields.batch   # a decimated mesh that could not be solved is now at full resolution
     ns = field_counts(fields, ks, n_fields)
     if untangled is None:
         untangled = untangle(fields, n=ns, seed=seed, restarts=untangle_restarts)
@@ -214,6 +233,13 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
         centers = km.centers[b, :ks[b], :ns[b]].detach().cpu().numpy()
         labels = km.labels[b, :f1 - f0].detach().cpu().numpy()
         vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
+        coarse = batch.coarse_of(b)
+        if coarse is not None:
+            # Solved on a decimated mesh: the distance fields are interpolated at the fine
+            # vertices, so boundaries (isolines) and everything after are cut on the fine mesh.
+            clean, vdist = coarse.fine, coarse.vertex_field(vdist)
+            feats, labels = coarse.face_values(feats), coarse.face_values(labels)
+            area = fine_face_areas(coarse)
         if boundary == "isoline":
             labels = isoline_face_labels(clean.faces, vdist)
         adjacency = face_adjacency(clean.faces)
@@ -233,7 +259,8 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             cost=float(km.cost[b]),
             params=dict(k=ks[b], eps=eps, seed=seed, n_fields=ns[b], remedy=remedy, boundary=boundary,
                         kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
-                        min_part_fraction=min_part_fraction)))
+                        min_part_fraction=min_part_fraction,
+                        coarse_faces=0 if coarse is None else len(coarse.coarse.faces))))
     return Segmentation(out, untangled=unt)
 
 

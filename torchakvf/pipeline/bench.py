@@ -58,6 +58,8 @@ import warnings
 from pathlib import Path
 
 from ..errors import TorchAKVFError
+from ..mesh.coarse import DEFAULT_COARSE_FACES
+from .parallel import default_workers, map_batches
 from .runner import default_batch_faces
 
 log = logging.getLogger("torchakvf.bench")
@@ -144,13 +146,14 @@ def _plan(entries, default_k: int) -> list:
 
 # ---- measurements -------------------------------------------------------------------------
 
-def _rss_mib() -> float | None:
-    """Peak resident memory of this process so far (ru_maxrss), MiB; None where unavailable."""
+def _rss_mib(children: bool = False) -> float | None:
+    """Peak resident memory so far (ru_maxrss), MiB, of this process or (``children``) of the
+    largest of its finished child processes (the worker processes); None where unavailable."""
     try:
         import resource
     except ImportError:  # not on Windows
         return None
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN if children else resource.RUSAGE_SELF).ru_maxrss
     return peak / _MIB if sys.platform == "darwin" else peak * 1024 / _MIB  # bytes vs KiB
 
 
@@ -191,12 +194,17 @@ def _finish_run(run: dict, meshes, wall: float, stages: dict, by_k: dict, device
                                             "predictions": int(counts.get(k, 0))}
                                    for k in sorted(set(by_k) | set(counts))}
     run["ru_maxrss_mib"] = _rss_mib()
+    if run.get("workers", 1) > 1:
+        # The work ran in the workers: each is at most the largest child's peak, and the run's
+        # resident total at most this process's peak plus workers x that.
+        run["worker_maxrss_mib"] = _rss_mib(children=True)
+        run["total_rss_bound_mib"] = run["ru_maxrss_mib"] + run["workers"] * run["worker_maxrss_mib"]
     run["cuda_max_memory_allocated_mib"] = _cuda_peak_mib(device)
     return run
 
 
 def _run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: str, seed: int,
-                   remedy: str, n_fields, segment_kwargs: dict) -> dict:
+                   remedy: str, n_fields, segment_kwargs: dict, workers: int = 1) -> dict:
     """Segment ``meshes`` at every k through the harness's batching and prediction helpers.
 
     As ``evaluate_psb`` does: sorted by (number of k's, faces, id), cut by ``_make_batches``;
@@ -206,6 +214,7 @@ def _run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: s
     from ..evaluate import harness as H
 
     run = {"name": name, "kind": "torchakvf", "device": device, "batch_faces": int(batch_faces),
+           "workers": int(workers),
            "meshes": len(meshes), "faces": sum(m.faces for m in meshes),
            "mesh_ids": [m.mesh_id for m in meshes], "failed": {}, "batches": 0, "per_mesh": {}}
     pred_root = work / name
@@ -220,37 +229,29 @@ def _run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: s
              run["faces"], batch_faces, device)
     t_start = time.perf_counter()
     order = sorted(plans, key=lambda p: (n_k[p.mesh_id], faces_of[p.mesh_id], p.mesh_id))
-    queue = collections.deque(H._make_batches(order, faces_of, int(batch_faces)))
-    while queue:
-        batch = queue.popleft()
+    solved = H.solved_face_counts(faces_of, segment_kwargs.get("coarse_faces"))
+    args = (False, seed, remedy, n_fields, None, None, segment_kwargs, faces_of, device)
+    for res in map_batches(H._make_batches(order, solved, int(batch_faces)), H._predict_in_worker,
+                           args, workers=workers):
+        batch = res.batch
+        if res.split:
+            log.warning("bench %s: batch of %d meshes failed (%s); retrying them one by one",
+                        name, len(batch), res.error)
+            continue
         run["batches"] += 1
-        timings: dict = {}
-        t0 = time.perf_counter()
-        error = None
-        try:
-            H._predict_batch(batch, False, seed, remedy, n_fields, None, None, segment_kwargs,
-                             faces_of, prog, run["batches"], len(queue), device=device,
-                             timings=timings)
-        except KeyboardInterrupt:
-            raise
-        except Exception as exc:  # noqa: BLE001 - one bad mesh must not end the run
-            error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
-        dt = time.perf_counter() - t0
+        if res.error is not None:
+            run["failed"][batch[0].mesh_id] = res.error
+            log.warning("bench %s: mesh %d failed: %s", name, batch[0].mesh_id, res.error)
+            continue
+        _, msg, timings = res.result
+        prog.advance(int(sum(faces_of[p.mesh_id] for p in batch)), msg)
         for key, val in timings.items():
             if key == "segment_by_k":
                 for k, s in val.items():
                     by_k[k] = by_k.get(k, 0.0) + s
             else:
                 stages[key] = stages.get(key, 0.0) + val
-        if error is not None:
-            if len(batch) > 1:
-                log.warning("bench %s: batch of %d meshes failed (%s); retrying them one by one",
-                            name, len(batch), error)
-                queue.extendleft([[p] for p in reversed(batch)])
-                continue
-            run["failed"][batch[0].mesh_id] = error
-            log.warning("bench %s: mesh %d failed: %s", name, batch[0].mesh_id, error)
-            continue
+        dt = res.seconds
         total = sum(faces_of[p.mesh_id] for p in batch) or 1
         for p in batch:
             run["per_mesh"][p.mesh_id] = {"seconds": dt * faces_of[p.mesh_id] / total,
@@ -386,7 +387,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
               baseline_every: int = DEFAULT_BASELINE_EVERY, device: str = "cpu", seed: int = 0,
               categories=None, batch_faces: int | None = None, remedy: str | None = None,
               n_fields: int | None = None, segment_kwargs: dict | None = None,
-              options: dict | None = None) -> dict:
+              options: dict | None = None, workers: int | None = None) -> dict:
     """Run the bench (see the module notes) and write ``<out>/report.json`` and ``report.md``.
 
     psb_root : folder with ``meshes/N.off[.gz]`` and ``gt/N/N_k.seg[.gz]``
@@ -395,8 +396,11 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     baseline_every : baselines (b), (c) and run (a') on every M-th selected mesh (0: none)
     device, seed : torch device of runs (a), (b), (a'); seed of every random choice
     categories : PSB category names (list or comma string; None: all)
-    batch_faces : face budget of runs (a) and (a') (None: the corpus runner's default for the device)
-    remedy, n_fields, segment_kwargs : as in ``evaluate_psb`` (None: its defaults, refine=False)
+    batch_faces : face budget of runs (a) and (a') (None: :func:`~torchakvf.evaluate.harness.default_eval_batch_faces`)
+    remedy, n_fields, segment_kwargs : as in ``evaluate_psb`` (None: its defaults, refine=False;
+        ``segment_kwargs["coarse_faces"]`` decimates as ``torchakvf eval --coarse-faces`` does)
+    workers : processes of the torchakvf runs (a), (b), (a'), one thread each (None: one per
+        CPU core on CPU, 1 on a GPU); the scipy baseline runs in this process
     options : the command-line options as given, recorded in the report
 
     Returns the report as a dict (what ``report.json`` holds).
@@ -411,11 +415,14 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
         raise TorchAKVFError(f"--limit must be an integer >= 1, got {limit}")
     if int(baseline_every) < 0:
         raise TorchAKVFError(f"--baseline-every must be an integer >= 0, got {baseline_every}")
-    batch_faces = default_batch_faces(device) if batch_faces is None else int(batch_faces)
+    segment_kwargs = dict(segment_kwargs or {})
+    workers = default_workers(device) if workers is None else int(workers)
+    if batch_faces is None:
+        batch_faces = H.default_eval_batch_faces(device, segment_kwargs.get("coarse_faces"))
+    batch_faces = int(batch_faces)
     if batch_faces < 1:
         raise TorchAKVFError(f"--batch-faces must be an integer >= 1, got {batch_faces}")
     remedy = DEFAULT_REMEDY if remedy is None else remedy
-    segment_kwargs = dict(segment_kwargs or {})
     segment_kwargs.setdefault("refine", False)
     # The harness's AKVF count: the largest default field count plus segment's 4 spares.
     n_akvf = int(n_fields) if n_fields is not None else default_n_fields(10 ** 6) + SPARE_FIELDS
@@ -445,7 +452,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     try:
         report["warm_up_seconds"] = _warm_up(device, seed, remedy, n_akvf)
         common = dict(device=device, seed=seed, remedy=remedy, n_fields=n_fields,
-                      segment_kwargs=segment_kwargs)
+                      segment_kwargs=segment_kwargs, workers=workers)
         runs = report["runs"]
         runs["batched"] = _run_torchakvf("batched", meshes, work, batch_faces=batch_faces, **common)
         report["comparison"] = None
@@ -490,7 +497,10 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
             report["comparison"] = comp
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    bounds = [r["total_rss_bound_mib"] for r in report["runs"].values() if r.get("total_rss_bound_mib")]
     report["peak_memory"] = {"ru_maxrss_mib": _rss_mib(),
+                             "worker_maxrss_mib": _rss_mib(children=True) if bounds else None,
+                             "total_rss_bound_mib": max(bounds) if bounds else _rss_mib(),
                              "cuda_max_memory_allocated_mib": max(
                                  [r["cuda_max_memory_allocated_mib"] for r in report["runs"].values()
                                   if r.get("cuda_max_memory_allocated_mib") is not None],
@@ -564,22 +574,25 @@ def _markdown(r: dict) -> str:
     L.append(f"- wall time {_f(r['wall_seconds'], 1)} s (plan {_f(sel['plan_seconds'], 1)} s, "
              f"warm-up {_f(r.get('warm_up_seconds'), 1)} s, neither part of a run); peak RSS "
              f"{_f(r['peak_memory']['ru_maxrss_mib'], 0)} MiB"
+             + (f" in this process, {_f(r['peak_memory']['worker_maxrss_mib'], 0)} MiB in the "
+                f"largest worker, at most {_f(r['peak_memory']['total_rss_bound_mib'], 0)} MiB in "
+                f"all" if r["peak_memory"].get("worker_maxrss_mib") else "")
              + (f", CUDA peak allocated {_f(r['peak_memory']['cuda_max_memory_allocated_mib'], 0)} MiB"
                 if r["peak_memory"]["cuda_max_memory_allocated_mib"] is not None else ""))
     L.append("\n## Runs\n")
     L.append("| run | meshes ok | faces | wall s | meshes/s | faces/s | load s | pack s | akvf s | "
-             "segment s | write s | other s | peak RSS MiB | CUDA peak MiB |")
-    L.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+             "segment s | write s | other s | workers | peak RSS MiB | CUDA peak MiB |")
+    L.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for name, run in r["runs"].items():
         if "skipped" in run:
-            L.append(f"| {name} | skipped | | | | | | | | | | | | |")
+            L.append(f"| {name} | skipped | | | | | | | | | | | | | |")
             continue
         st = run["stage_seconds"]
         L.append(f"| {name} | {run['meshes_ok']}/{run['meshes']} | {run['faces_ok']:,} | "
                  f"{_f(run['wall_seconds'])} | {_f(run['meshes_per_second'], 3)} | "
                  f"{_f(run['faces_per_second'], 0)} | "
                  + " | ".join(_f(st[x]) for x in STAGES)
-                 + f" | {_f(run['ru_maxrss_mib'], 0)} | {_f(run['cuda_max_memory_allocated_mib'], 0)} |")
+                 + f" | {run.get('workers', 1)} | {_rss_cell(run)} | {_f(run['cuda_max_memory_allocated_mib'], 0)} |")
     L.append("")
     for name, run in r["runs"].items():
         if "skipped" in run:
@@ -590,8 +603,10 @@ def _markdown(r: dict) -> str:
     L.append("\nStages: load = reading files; pack = clean-up, packing, transfer to the device; "
              "akvf = operator + eigensolve (once per batch, shared by every k); segment = "
              "untangling + spherical k-means + boundaries; write = prediction files; other = the "
-             "rest of the wall time. Peak RSS is ru_maxrss after the run: the process's peak so "
-             "far, which never goes down.")
+             "rest of the wall time. Stage seconds add up over the workers (with W workers they "
+             "can sum to W x the wall time). Peak RSS is ru_maxrss after the run: the process's "
+             "peak so far, which never goes down; with workers, 'main + W x worker' where worker "
+             "is the largest worker's peak so far: a bound on the run's resident total.")
     L.append("\n## Untangle + cluster seconds by k\n")
     names = [n for n, run in r["runs"].items() if "skipped" not in run]
     ks = sorted({int(k) for n in names for k in r["runs"][n]["segment_seconds_by_k"]})
@@ -656,6 +671,13 @@ def _jsonable(obj):
     return obj
 
 
+def _rss_cell(run: dict) -> str:
+    if run.get("worker_maxrss_mib") is None:
+        return _f(run.get("ru_maxrss_mib"), 0)
+    return (f"{_f(run['ru_maxrss_mib'], 0)} + {run['workers']} x {_f(run['worker_maxrss_mib'], 0)}"
+            f" <= {_f(run['total_rss_bound_mib'], 0)}")
+
+
 def _write_reports(out: Path, report: dict) -> None:
     from ..io.outputs import atomic_write_bytes
 
@@ -670,8 +692,8 @@ def summary_lines(report: dict, out: Path) -> list:
     L = [f"torchakvf bench: {a['meshes_ok']}/{a['meshes']} meshes, {a['faces_ok']:,} faces, "
          f"{report['selection']['predictions']} predictions in {_f(a['wall_seconds'], 1)} s: "
          f"{_f(a['meshes_per_second'], 3)} meshes/s, {_f(a['faces_per_second'], 0)} faces/s "
-         f"(batches of <= {a['batch_faces']} faces, {a['device']}); peak RSS "
-         f"{_f(report['peak_memory']['ru_maxrss_mib'], 0)} MiB"]
+         f"(batches of <= {a['batch_faces']} faces, {a['device']}, {a.get('workers', 1)} "
+         f"worker(s)); peak RSS {_f(report['peak_memory']['total_rss_bound_mib'], 0)} MiB at most"]
     c = report.get("comparison")
     if c is not None:
         parts = []
@@ -705,6 +727,12 @@ def add_bench_arguments(p) -> None:
     p.add_argument("--batch-faces", default=None, metavar="N",
                    help="face budget per batch of the batched runs (default: the harness's, "
                         "as torchakvf eval)")
+    p.add_argument("--coarse-faces", default=None, metavar="N",
+                   help=f"solve on meshes decimated to about N faces, as torchakvf eval does "
+                        f"(default {DEFAULT_COARSE_FACES}; 0: full resolution)")
+    p.add_argument("--workers", default=None, metavar="W",
+                   help="processes of the torchakvf runs, one thread each (default: one per CPU "
+                        "core on CPU, at most 8; 1 on a GPU)")
 
 
 def run_bench_command(args) -> int:
@@ -716,6 +744,8 @@ def run_bench_command(args) -> int:
     every = _int(args.baseline_every, "--baseline-every", 0)
     seed = _int(args.seed, "--seed", 0)
     batch_faces = _int(args.batch_faces, "--batch-faces", 1) if args.batch_faces is not None else None
+    coarse = DEFAULT_COARSE_FACES if args.coarse_faces is None else _int(args.coarse_faces, "--coarse-faces", 0)
+    workers = _int(args.workers, "--workers", 1) if args.workers is not None else None
     categories = None
     if args.categories is not None:
         categories = [c.strip() for c in args.categories.split(",") if c.strip()]
@@ -725,6 +755,7 @@ def run_bench_command(args) -> int:
     out = Path(args.out)
     report = run_bench(Path(args.psb or default_psb_arg()), out, limit=limit, baseline_every=every,
                        device=device, seed=seed, categories=categories, batch_faces=batch_faces,
+                       segment_kwargs={"coarse_faces": coarse} if coarse else None, workers=workers,
                        options={k: v for k, v in vars(args).items() if k not in ("func", "command")})
     for line in summary_lines(report, out):
         print(line)

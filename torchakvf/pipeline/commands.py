@@ -121,6 +121,7 @@ def _run(args, task, device: str) -> int:
 
 def _add_segment(sub) -> None:
     from ..io import OUTPUT_FORMATS
+    from ..mesh.coarse import DEFAULT_COARSE_FACES
 
     p = sub.add_parser("segment", help="segment meshes into k parts (writes <stem>.seg .npz .ply .png)",
                        description="Segment every mesh into k parts; one .seg (PSB format: a label "
@@ -132,18 +133,25 @@ def _add_segment(sub) -> None:
     p.add_argument("--formats", default=",".join(OUTPUT_FORMATS),
                    help=f"outputs per mesh, comma separated (default {','.join(OUTPUT_FORMATS)}; "
                         "png is the slowest on big meshes)")
+    p.add_argument("--coarse-faces", default=None, metavar="N",
+                   help=f"solve on meshes decimated to about N faces and cut the parts on the "
+                        f"originals (default {DEFAULT_COARSE_FACES}, measured on the PSB; 0: full "
+                        "resolution)")
     p.set_defaults(func=run_segment)
 
 
 def run_segment(args) -> int:
+    from ..mesh.coarse import DEFAULT_COARSE_FACES
     from ..parts.segment import DEFAULT_REMEDY
     from .segment_task import SegmentTask, parse_formats
 
     k = _int(args.k, "-k", 1)
     n_fields = _int(args.n_fields, "--n-fields", 1) if args.n_fields is not None else None
+    coarse = (DEFAULT_COARSE_FACES if args.coarse_faces is None
+              else _int(args.coarse_faces, "--coarse-faces", 0))
     task = SegmentTask(k, eps=_float(args.eps, "--eps", 0.0), seed=_int(args.seed, "--seed", 0),
                        n_fields=n_fields, remedy=_remedy(args.remedy or DEFAULT_REMEDY),
-                       formats=parse_formats(args.formats))
+                       formats=parse_formats(args.formats), coarse_faces=coarse or None)
     return _run(args, task, _device(args.device))
 
 

@@ -31,7 +31,7 @@ class SegmentTask:
 
     def __init__(self, k: int, *, eps: float = 0.0, seed: int = 0, n_fields: int | None = None,
                  remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = 8,
-                 kmeans_restarts: int = 20):
+                 kmeans_restarts: int = 20, coarse_faces: int | None = None):
         self.k, self.eps, self.seed = int(k), float(eps), int(seed)
         # None: segment's own choice (2k in [16, 32], moved off degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
@@ -39,13 +39,17 @@ class SegmentTask:
         self.n_akvf = self.n_fields if n_fields is not None else default_n_fields(self.k) + SPARE_FIELDS
         self.remedy, self.formats = remedy, tuple(formats)
         self.untangle_restarts, self.kmeans_restarts = int(untangle_restarts), int(kmeans_restarts)
+        # Solve on meshes decimated to about this many faces (None: full resolution); the
+        # labels are cut on the input's faces either way (torchakvf.mesh.coarse).
+        self.coarse_faces = int(coarse_faces) if coarse_faces else None
 
     @property
     def params(self) -> dict:
         n_fields = self.n_fields if self.n_fields is not None else "auto"
         return {"k": self.k, "eps": self.eps, "seed": self.seed, "n_fields": n_fields,
                 "remedy": self.remedy, "formats": list(self.formats),
-                "untangle_restarts": self.untangle_restarts, "kmeans_restarts": self.kmeans_restarts}
+                "untangle_restarts": self.untangle_restarts, "kmeans_restarts": self.kmeans_restarts,
+                "coarse_faces": self.coarse_faces}
 
     def output_paths(self, out_dir, stem: str) -> list[Path]:
         return [Path(out_dir) / f"{stem}.{fmt}" for fmt in self.formats]
@@ -62,13 +66,15 @@ class SegmentTask:
                                  f"{n_edges} edges")
 
     def process(self, items, device):
-        from ..fields import akvf, untangle
+        from ..fields import untangle
+        from ..fields.akvf import akvf_falling_back
         from ..mesh import MeshBatch
         from ..parts import segment
 
         t0 = time.perf_counter()
-        batch = MeshBatch.from_meshes([it.clean for it in items], device=device)
-        fields = akvf(batch, n=self.n_akvf, seed=self.seed, remedy=self.remedy)
+        batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
+                                      coarse_faces=self.coarse_faces)
+        fields, _ = akvf_falling_back(batch, n=self.n_akvf, seed=self.seed, remedy=self.remedy)
         t1 = time.perf_counter()
         ns = field_counts(fields, self.k, self.n_fields)
         unt = untangle(fields, n=ns, seed=self.seed, restarts=self.untangle_restarts)

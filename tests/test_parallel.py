@@ -1,0 +1,48 @@
+"""map_batches: worker processes give what the inline loop gives; failures are isolated."""
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from torchakvf.pipeline.parallel import default_workers, map_batches
+
+
+def square_or_fail(batch, offset):
+    """Module-level (pickled by name to spawned workers). Fails on any item < 0."""
+    if any(x < 0 for x in batch):
+        raise ValueError(f"negative item in {batch}")
+    return [x * x + offset for x in batch], os.getpid()
+
+
+def _collect(outcomes):
+    done, split, failed = {}, [], {}
+    for o in outcomes:
+        if o.split:
+            split.append(tuple(o.batch))
+        elif o.error is not None:
+            failed[tuple(o.batch)] = o.error
+        else:
+            done[tuple(o.batch)] = o.result[0]
+    return done, split, failed
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_results_failures_and_retries(workers):
+    batches = [[1, 2], [3, -4, 5], [6]]
+    done, split, failed = _collect(map_batches(batches, square_or_fail, (10,), workers=workers))
+    assert done == {(1, 2): [11, 14], (3,): [19], (5,): [35], (6,): [46]}
+    assert split == [(3, -4, 5)]
+    assert list(failed) == [(-4,)] and "ValueError: negative item" in failed[(-4,)]
+
+
+def test_workers_are_other_processes_and_the_environment_is_restored():
+    before = {v: os.environ.get(v) for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    pids = {o.result[1] for o in map_batches([[1], [2], [3], [4]], square_or_fail, (0,), workers=2)}
+    assert os.getpid() not in pids and 1 <= len(pids) <= 2
+    assert {v: os.environ.get(v) for v in before} == before
+
+
+def test_default_workers():
+    assert default_workers("cuda") == 1
+    assert 1 <= default_workers("cpu") <= 8

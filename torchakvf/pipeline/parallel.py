@@ -1,0 +1,139 @@
+"""Batches over worker processes: one single-threaded process per CPU core.
+
+On a CPU the per-mesh work (a sparse factorization, ARPACK, small SVDs, GEMMs of a few
+thousand rows) gains little from intra-op threads, and two OpenMP threads on a busy 2-core
+machine spin-wait on each other; one process per core, each on one thread, keeps every core
+busy with useful work. :func:`map_batches` runs a queue of batches either inline
+(``workers=1``) or on a spawned process pool, retries a failing multi-mesh batch one mesh at a
+time, and reports every outcome to the caller as it finishes, so results are written (by the
+function itself, atomically) and counted as they come and an interrupt loses nothing finished.
+"""
+from __future__ import annotations
+
+import collections
+import multiprocessing
+import os
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any, Callable
+
+#: Thread-count variables of the BLAS/OpenMP runtimes a worker may load (set before its imports).
+_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+def default_workers(device: str = "cpu") -> int:
+    """Worker processes by default: one per usable CPU core (at most 8) on CPU, 1 elsewhere
+    (one process owns a GPU)."""
+    if not str(device).startswith("cpu"):
+        return 1
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, 8))
+
+
+@dataclass
+class BatchOutcome:
+    """One finished batch: its items, what ``fn`` returned (None on failure), the error text
+    (None on success), its wall seconds, and ``split``: the batch failed as a whole and is
+    being retried one item at a time (then neither result nor a final error is given)."""
+
+    batch: list
+    result: Any
+    error: str | None
+    seconds: float
+    split: bool = False
+
+
+def _init_worker(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def _timed(fn, batch, args):
+    t0 = time.perf_counter()
+    return fn(batch, *args), time.perf_counter() - t0
+
+
+def _error_text(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+
+
+def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int = 1):
+    """Run ``fn(batch, *args)`` for each batch; yield a :class:`BatchOutcome` as each finishes.
+
+    fn must be a module-level function (pickled to the workers) that writes its own outputs;
+    its return value comes back to this process. With ``workers`` > 1 the batches run on a
+    pool of spawned processes, each on one thread. A batch of several items that raises is
+    split and its items retried alone; a single item that raises is reported with its error.
+    A worker that dies (killed, out of memory) fails its batch the same way, and the pool is
+    started again for the rest.
+    """
+    queue = collections.deque(list(b) for b in batches)
+    if workers <= 1:
+        while queue:
+            batch = queue.popleft()
+            t0 = time.perf_counter()
+            try:
+                result, error = fn(batch, *args), None
+            except KeyboardInterrupt:
+                raise
+            except Exception as exc:  # noqa: BLE001 - one bad mesh must not end the run
+                result, error = None, _error_text(exc)
+            yield from _outcome(queue, batch, result, error, time.perf_counter() - t0)
+        return
+
+    saved = {v: os.environ.get(v) for v in _THREAD_VARS}
+    os.environ.update({v: "1" for v in _THREAD_VARS})   # inherited by the spawned workers
+    ctx = multiprocessing.get_context("spawn")          # no fork of a process holding threads
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                               initargs=(1,))
+    running: dict = {}
+    try:
+        while queue or running:
+            while queue and len(running) < workers:
+                batch = queue.popleft()
+                running[pool.submit(_timed, fn, batch, args)] = (batch, time.perf_counter())
+            done, _ = wait(list(running), return_when=FIRST_COMPLETED)
+            broken = False
+            for fut in done:
+                batch, t0 = running.pop(fut)
+                try:
+                    result, seconds = fut.result()
+                    error = None
+                except BrokenProcessPool as exc:
+                    result, seconds, broken = None, time.perf_counter() - t0, True
+                    error = f"worker process died ({exc})"
+                except Exception as exc:  # noqa: BLE001
+                    result, seconds, error = None, time.perf_counter() - t0, _error_text(exc)
+                yield from _outcome(queue, batch, result, error, seconds)
+            if broken:
+                # Every batch still on the dead pool is lost with it: run them again.
+                for fut, (batch, _) in running.items():
+                    queue.appendleft(batch)
+                running.clear()
+                pool.shutdown(wait=False, cancel_futures=True)
+                pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                                           initializer=_init_worker, initargs=(1,))
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        for v, old in saved.items():
+            if old is None:
+                os.environ.pop(v, None)
+            else:
+                os.environ[v] = old
+
+
+def _outcome(queue, batch, result, error, seconds):
+    if error is not None and len(batch) > 1:
+        queue.extendleft([[item] for item in reversed(batch)])
+        yield BatchOutcome(batch, None, error, seconds, split=True)
+    else:
+        yield BatchOutcome(batch, result, error, seconds)
+
+
+__all__ = ["map_batches", "BatchOutcome", "default_workers"]
