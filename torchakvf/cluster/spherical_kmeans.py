@@ -121,8 +121,12 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         active[live] = act.scatter(1, slot, changed)
 
     del sim_buf, x_it
-    best_sim, labels = assign(x, centers, absent)                                 # [B, N, R]
-    cost = ((1 - best_sim) * w[:, :, None]).sum(1)                                  # [B, R]
+    # The final assignment, in float64, one restart at a time ([B, N, k], not [B, N, R·k]).
+    labels = torch.empty(nb, n_max, r, dtype=torch.long, device=dev)
+    cost = x.new_empty(nb, r)
+    for j in range(r):
+        best_sim, labels[:, :, j] = (t[..., 0] for t in assign(x, centers[:, j:j + 1], absent))
+        cost[:, j] = ((1 - best_sim) * w).sum(1)                                    # [B]
     pick = cost.argmin(dim=1)
     ar = torch.arange(nb, device=dev)
     labels = labels[ar, :, pick].masked_fill(~mask, -1)

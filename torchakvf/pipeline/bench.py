@@ -366,8 +366,16 @@ def _warm_up(device: str, seed: int, remedy: str, n_akvf: int) -> float:
 # ---- comparison ---------------------------------------------------------------------------
 
 def _compare(base: dict, ours: dict, ids: list) -> dict:
-    """Baseline seconds / torchakvf seconds over ``ids`` (totals and per stage)."""
-    sec = sum(base["per_mesh"][i]["seconds"] for i in ids)
+    """Baseline seconds / torchakvf seconds over ``ids`` (totals and per stage).
+
+    A baseline run on several workers overlaps its meshes' seconds: its wall time is split over
+    its meshes in proportion to their seconds. Stage ratios compare summed stage seconds
+    (CPU-seconds across workers), i.e. the work per core."""
+    per = base["per_mesh"]
+    sec = sum(per[i]["seconds"] for i in ids)
+    if base.get("workers", 1) > 1:
+        total = sum(v["seconds"] for v in per.values())
+        sec = base["wall_seconds"] * sec / total if total > 0 else sec
     out = {"baseline_seconds": sec, "torchakvf_seconds": ours["wall_seconds"],
            "ratio": sec / ours["wall_seconds"] if ours["wall_seconds"] > 0 else None,
            "stage_ratios": {}}
