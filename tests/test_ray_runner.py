@@ -79,6 +79,30 @@ def assert_same_outputs(a: Path, b: Path) -> None:
                     np.testing.assert_array_equal(x, y, err_msg=f"{name}:{key}")
 
 
+def assert_same_segmentations(a: Path, b: Path) -> None:
+    """The same files; the same eigenvalues; the same parts up to renaming on >= 99% of faces.
+
+    All three test shapes are exactly symmetric (a sphere, a dumbbell of revolution): which of
+    two equivalent splits k-means lands on can turn on the last bits of a BLAS product, which
+    differ between processes (memory alignment picks the kernel), so labels are compared as
+    partitions and the basis-dependent per-face features not at all.
+    """
+    from torchakvf.evaluate.metrics import matched_agreement
+
+    names = sorted(p.name for p in a.iterdir() if p.name != MANIFEST)
+    assert names == sorted(p.name for p in b.iterdir() if p.name != MANIFEST)
+    for name in names:
+        if name.endswith(".seg"):
+            la, lb = np.loadtxt(a / name, dtype=int), np.loadtxt(b / name, dtype=int)
+            assert la.shape == lb.shape and matched_agreement(la, lb) >= 0.99, name
+        elif name.endswith(".npz"):
+            with np.load(a / name, allow_pickle=False) as za, np.load(b / name, allow_pickle=False) as zb:
+                assert sorted(za.files) == sorted(zb.files)
+                for key in za.files:
+                    assert za[key].shape == zb[key].shape and za[key].dtype == zb[key].dtype, (name, key)
+                np.testing.assert_allclose(za["eigenvalues"], zb["eigenvalues"], rtol=1e-6, atol=1e-8)
+
+
 def assert_same_manifest(a: Path, b: Path) -> None:
     """One line per mesh in each, with the same status, error and parameters per input."""
     la, lb = manifest_lines(a), manifest_lines(b)
@@ -128,7 +152,7 @@ def test_segment_cli_ray_workers_equal_plain(ray_local, corpus, tmp_path, capsys
     assert cli.main(argv + ["--out", str(tmp_path / "ray"), "--ray-workers", "2"]) == 1
     stdout = capsys.readouterr().out
     assert "3 ok, 1 failed, 0 skipped" in stdout and "broken.off" in stdout
-    assert_same_outputs(tmp_path / "ray", tmp_path / "plain")
+    assert_same_segmentations(tmp_path / "ray", tmp_path / "plain")
     assert_same_manifest(tmp_path / "ray", tmp_path / "plain")
     labels = np.loadtxt(tmp_path / "ray" / "dumb.seg", dtype=int)
     assert labels.shape == (len(shapes.dumbbell(n_around=18).faces),)

@@ -626,6 +626,11 @@ def _predict_in_worker(batch, auto, seed, remedy, n_fields, k_range, k_rule, seg
     timings: dict = {}
     meshes = _predict_batch(batch, auto, seed, remedy, n_fields, k_range, k_rule, segment_kwargs,
                             faces_of, prog, 0, 0, device=device, timings=timings)
+    try:  # the process's peak so far (MiB): where it jumps, this batch set a new peak
+        import resource
+        timings["process_maxrss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    except ImportError:  # pragma: no cover - not on Windows
+        pass
     return meshes, prog.last, timings
 
 

@@ -245,6 +245,7 @@ def _run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: s
             continue
         _, msg, timings = res.result
         prog.advance(int(sum(faces_of[p.mesh_id] for p in batch)), msg)
+        maxrss = timings.pop("process_maxrss_mib", None)
         for key, val in timings.items():
             if key == "segment_by_k":
                 for k, s in val.items():
@@ -254,8 +255,10 @@ def _run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: s
         dt = res.seconds
         total = sum(faces_of[p.mesh_id] for p in batch) or 1
         for p in batch:
+            # process_maxrss_mib: the peak of the process that ran the batch, after it (a new
+            # peak shows which batch set it).
             run["per_mesh"][p.mesh_id] = {"seconds": dt * faces_of[p.mesh_id] / total,
-                                          "exact": len(batch) == 1}
+                                          "exact": len(batch) == 1, "process_maxrss_mib": maxrss}
         if len(batch) == 1:   # a batch alone: its stages are this mesh's
             run["per_mesh"][batch[0].mesh_id]["stages"] = {
                 k: v for k, v in timings.items() if k != "segment_by_k"}
