@@ -13,12 +13,17 @@ from __future__ import annotations
 import collections
 import multiprocessing
 import os
+import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, Callable
 
+#: Batches a worker runs before it is replaced by a fresh process (Python >= 3.11). A
+#: long-lived worker's resident memory grows with what it has served: on the whole PSB corpus a
+#: worker reached 2.4 GB on a mesh that peaks at 1.3 GB in a fresh process.
+RECYCLE_AFTER = 25
 #: Thread-count variables of the BLAS/OpenMP runtimes a worker may load (set before its imports).
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
@@ -90,8 +95,10 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
     saved = {v: os.environ.get(v) for v in _THREAD_VARS}
     os.environ.update({v: "1" for v in _THREAD_VARS})   # inherited by the spawned workers
     ctx = multiprocessing.get_context("spawn")          # no fork of a process holding threads
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                               initargs=(1,))
+    pool_args = dict(max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(1,))
+    if sys.version_info >= (3, 11):
+        pool_args["max_tasks_per_child"] = RECYCLE_AFTER
+    pool = ProcessPoolExecutor(**pool_args)
     running: dict = {}
     try:
         while queue or running:
@@ -117,8 +124,7 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
                     queue.appendleft(batch)
                 running.clear()
                 pool.shutdown(wait=False, cancel_futures=True)
-                pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                                           initializer=_init_worker, initargs=(1,))
+                pool = ProcessPoolExecutor(**pool_args)
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
         for v, old in saved.items():
