@@ -2,7 +2,6 @@
 float32 for the large products only; every choice between results is made in float64)."""
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 

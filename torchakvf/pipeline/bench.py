@@ -32,8 +32,12 @@ faces = the face count of the input file; memory in MiB = 2**20 bytes):
   peak so far: it never goes down, so a run shows its own peak only where that is a new one) and,
   on CUDA, ``torch.cuda.max_memory_allocated`` (reset before each run).
 * **Ratios:** baseline seconds / torchakvf seconds on the same meshes in this run (> 1: torchakvf
-  is faster): the baseline's per-mesh seconds summed over the compared meshes, divided by the wall
-  seconds of run (a'); also per stage ("akvf", "segment").
+  is faster): the baseline's per-mesh seconds summed over the compared meshes (for a baseline
+  on several workers, its wall time split over its meshes by their seconds), divided by the wall
+  seconds of run (a'); also per stage ("akvf", "segment": summed stage seconds, i.e. per core).
+* **Workers.** Runs (a), (b), (a') predict on ``--workers`` processes (one thread each; default
+  one per CPU core on CPU); the scipy baseline is one process. Decimation (``--coarse-faces``,
+  default 4000) is on for every torchakvf run, as in ``torchakvf eval``.
 
 A warm-up (untimed: one small built-in shape through AKVFs + segmentation on the device) comes
 first, so that lazy imports and CUDA start-up are charged to no run. Prediction files are written
@@ -60,7 +64,6 @@ from pathlib import Path
 from ..errors import TorchAKVFError
 from ..mesh.coarse import DEFAULT_COARSE_FACES
 from .parallel import default_workers, map_batches
-from .runner import default_batch_faces
 
 log = logging.getLogger("torchakvf.bench")
 
