@@ -37,7 +37,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     weights : optional [B, N_max] row weights of the cost (e.g. face areas); default 1 per row
     iteration_dtype : float type of the similarities [B, N, R·k] of the Lloyd iterations (the
         largest products); seeding, cluster sums, the final assignment and the cost that picks
-        the restart are float64. tests/test_kmeans_precision.py checks float32 against float64.
+        the restart are float64. tests/test_precision.py checks float32 against float64.
     """
     nb, n_max, d = x.shape
     ks = [int(k)] * nb if isinstance(k, int) else [int(v) for v in k]

@@ -54,13 +54,14 @@ class AKVFResult:
         return self.batch.meshes[b].to_input_faces(fv.detach().cpu().numpy())
 
 
-def as_batch(meshes, device=None) -> MeshBatch:
-    """A :class:`MeshBatch` from a batch, a mesh or a list of meshes."""
+def as_batch(meshes, device=None, coarse_faces: int | None = None) -> MeshBatch:
+    """A :class:`MeshBatch` from a batch, a mesh or a list of meshes (``coarse_faces``: as in
+    :meth:`MeshBatch.from_meshes`; a batch given keeps its own)."""
     if isinstance(meshes, MeshBatch):
         return meshes if device is None else meshes.to(device)
     if isinstance(meshes, (Mesh, CleanMesh)):
         meshes = [meshes]
-    return MeshBatch.from_meshes(list(meshes), device=device or "cpu")
+    return MeshBatch.from_meshes(list(meshes), device=device or "cpu", coarse_faces=coarse_faces)
 
 
 SOLVERS = ("auto", "lobpcg", "lanczos")

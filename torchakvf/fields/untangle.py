@@ -79,7 +79,7 @@ def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: 
     tol : stop when the relative change of trace(D) is below tol (per restart); at most max_iter.
     iteration_dtype : float type of the two large products of each iteration (Y A and
         Yᵀ (Y A)^3); the rotations, SVDs and the final choice of restart stay float64.
-        torch.float32 halves their cost; tests/test_untangle_precision.py checks it against
+        torch.float32 halves their cost; tests/test_precision.py checks it against
         float64.
     """
     batch = fields.batch

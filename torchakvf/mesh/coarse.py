@@ -9,20 +9,21 @@ results (vertex fields, per-face values) can be carried back to the source's fac
 
 Decimation is quadric edge collapse (Garland-Heckbert) by ``fast_simplification``, the backend
 of ``trimesh.Trimesh.simplify_quadric_decimation``. It can leave a few edges shared by three
-faces; the faces on such edges are removed (a hole of a few faces, which the open-mesh
-boundary terms handle), as are the tiny components that removal can cut off.
+faces and doubled faces; those faces are removed, as are the tiny components that removal can
+cut off, the holes it opens are closed again, and a few steps of tangential relaxation even out
+the triangles (see :func:`decimate`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..errors import MeshError, ParameterError
-from .clean import CleanMesh, clean_mesh, face_areas
+from .clean import CleanMesh, _undirected_edges, _vertex_adjacency, clean_mesh, face_areas
 from .mesh import Mesh
 
 #: Face count the CLI commands that segment decimate to by default (see README: measured on
@@ -67,6 +68,10 @@ class SurfacePoints:
         w = self.bary.reshape(self.bary.shape + (1,) * (corners.ndim - 2))
         return (corners * w).sum(axis=1)
 
+    def on(self, surface: CleanMesh) -> np.ndarray:
+        """[P, 3] the located points themselves, on the mesh they were located on."""
+        return self.interpolate(surface.faces, surface.vertices)
+
 
 @dataclass(frozen=True)
 class CoarseMesh:
@@ -91,6 +96,12 @@ class CoarseMesh:
     def vertex_field(self, coarse_vertex_values: np.ndarray) -> np.ndarray:
         """[V_fine, ...] a per-coarse-vertex field, linearly interpolated at the fine vertices."""
         return self.vertices_on_coarse.interpolate(self.coarse.faces, coarse_vertex_values)
+
+    @cached_property
+    def fine_area(self) -> np.ndarray:
+        """[F_fine] face areas of the fine mesh scaled to unit total area."""
+        a = face_areas(self.fine.vertices, self.fine.faces)
+        return a / a.sum()
 
     def face_values(self, coarse_face_values: np.ndarray) -> np.ndarray:
         """[F_fine, ...] per-coarse-face values at the fine faces (the coarse face under each
@@ -164,8 +175,7 @@ def _fill_holes(v: np.ndarray, f: np.ndarray, surface: CleanMesh, max_edges: int
     if not loops:
         return v, f
     centers = np.array([v[loop].mean(axis=0) for loop in loops])
-    loc = locate_on_surface(surface.vertices, surface.faces, centers)
-    centers = np.einsum("pc,pcx->px", loc.bary, surface.vertices[surface.faces[loc.face]])
+    centers = locate_on_surface(surface.vertices, surface.faces, centers).on(surface)
     new = []
     for i, loop in enumerate(loops):
         c = n + i
@@ -179,9 +189,7 @@ def _relax_on_surface(v: np.ndarray, f: np.ndarray, surface: CleanMesh, steps: i
     the mesh stays on the original surface."""
     if steps <= 0:
         return v
-    n = len(v)
-    i, j = f.ravel(), np.roll(f, -1, axis=1).ravel()
-    adj = sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    adj = _vertex_adjacency(f, len(v))
     adj = ((adj + adj.T) > 0).astype(np.float64).tocsr()
     degree = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1.0)[:, None]
     tree = cKDTree(surface.vertices[surface.faces].mean(axis=1))
@@ -192,8 +200,7 @@ def _relax_on_surface(v: np.ndarray, f: np.ndarray, surface: CleanMesh, steps: i
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
         step = adj @ v / degree - v
         step -= (step * normal).sum(axis=1, keepdims=True) * normal
-        loc = locate_on_surface(surface.vertices, surface.faces, v + 0.5 * step, tree=tree)
-        moved = np.einsum("pc,pcx->px", loc.bary, surface.vertices[surface.faces[loc.face]])
+        moved = locate_on_surface(surface.vertices, surface.faces, v + 0.5 * step, tree=tree).on(surface)
         for _ in range(8):
             # A move that turns a face by more than FOLD_LIMIT (a fold, or a sliver about to
             # become one) is undone for the face's corners; repeated until none is left.
@@ -219,10 +226,10 @@ def _drop_non_manifold(f: np.ndarray) -> np.ndarray:
         _, inverse, counts = np.unique(np.sort(f, axis=1), axis=0, return_inverse=True, return_counts=True)
         f = f[counts[inverse.reshape(-1)] == 1]
     for _ in range(16):
-        key = np.sort(np.stack([f, np.roll(f, -1, axis=1)], axis=2), axis=2).reshape(-1, 2)
-        n = int(f.max()) + 1 if len(f) else 1
-        _, inverse, counts = np.unique(key[:, 0] * n + key[:, 1], return_inverse=True, return_counts=True)
-        bad = (counts[inverse.reshape(-1)] > 2).reshape(-1, 3).any(axis=1)
+        if len(f) == 0:
+            break
+        edge_of_half = _undirected_edges(f).inverse                       # [3F], face-major
+        bad = (np.bincount(edge_of_half)[edge_of_half] > 2).reshape(-1, 3).any(axis=1)
         if not bad.any():
             break
         f = f[~bad]
@@ -232,9 +239,7 @@ def _drop_non_manifold(f: np.ndarray) -> np.ndarray:
 def _drop_small_components(f: np.ndarray) -> np.ndarray:
     if len(f) == 0:
         return f
-    n = int(f.max()) + 1
-    i, j = f.ravel(), np.roll(f, -1, axis=1).ravel()
-    _, comp = connected_components(sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)), directed=False)
+    _, comp = connected_components(_vertex_adjacency(f, int(f.max()) + 1), directed=False)
     face_comp = comp[f[:, 0]]
     size = np.bincount(face_comp)
     return f[size[face_comp] >= MIN_COMPONENT_FACES]
@@ -303,12 +308,6 @@ def coarse_mesh(mesh: Mesh | CleanMesh, faces: int) -> CoarseMesh | None:
     return CoarseMesh(coarse=coarse, fine=fine,
                       vertices_on_coarse=locate_on_surface(coarse.vertices, coarse.faces, fine.vertices),
                       faces_on_coarse=locate_on_surface(coarse.vertices, coarse.faces, centers))
-
-
-def fine_face_areas(cm: CoarseMesh) -> np.ndarray:
-    """[F_fine] face areas of the fine mesh scaled to unit total area."""
-    a = face_areas(cm.fine.vertices, cm.fine.faces)
-    return a / a.sum()
 
 
 __all__ = ["CoarseMesh", "SurfacePoints", "coarse_mesh", "decimate", "locate_on_surface",

@@ -13,9 +13,8 @@ from ..cluster import spherical_kmeans
 from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, akvf_falling_back, as_batch
 from ..fields.untangle import UntangledFields, untangle
-from ..mesh import CleanMesh, Mesh, MeshBatch
+from ..mesh import MeshBatch
 from ..mesh.batch import pad_packed
-from ..mesh.coarse import fine_face_areas
 from .boundaries import (RefinedMesh, face_margins, isoline_face_labels, refine_along_isolines,
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
@@ -196,11 +195,8 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
                              "MeshBatch.from_meshes(meshes, coarse_faces=...) instead")
     if isinstance(meshes, AKVFResult):
         fields, batch = meshes, meshes.batch
-    elif coarse_faces is not None:
-        fields, batch = None, MeshBatch.from_meshes(
-            [meshes] if isinstance(meshes, (Mesh, CleanMesh)) else list(meshes), coarse_faces=coarse_faces)
     else:
-        fields, batch = None, as_batch(meshes)
+        fields, batch = None, as_batch(meshes, coarse_faces=coarse_faces)
     nb = len(batch)
     ks = _per_mesh(k, nb, "k")
     for b, kb in enumerate(ks):
@@ -239,7 +235,7 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             # vertices, so boundaries (isolines) and everything after are cut on the fine mesh.
             clean, vdist = coarse.fine, coarse.vertex_field(vdist)
             feats, labels = coarse.face_values(feats), coarse.face_values(labels)
-            area = fine_face_areas(coarse)
+            area = coarse.fine_area
         if boundary == "isoline":
             labels = isoline_face_labels(clean.faces, vdist)
         adjacency = face_adjacency(clean.faces)
