@@ -45,7 +45,7 @@ def _load(name: str, path: pathlib.Path):
     return sys.modules[name]
 
 
-ref = _load("scipy_reference", _HERE / "scipy_reference.py")
+from torchakvf import scipy_reference as ref  # noqa: E402
 bench = _load("bench_eigensolver", _HERE / "bench_eigensolver.py")
 _tests_conftest = _load("_torchakvf_tests_conftest", _HERE.parent / "tests" / "conftest.py")
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import gzip
 import importlib.util
 import logging
-import pathlib
 
 import numpy as np
 import pytest
@@ -20,10 +19,7 @@ from torchakvf import shapes
 from torchakvf.fields import whitney_face_vectors
 from torchakvf.operators import batch_geometry, d0
 
-_PATH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "scipy_reference.py"
-_spec = importlib.util.spec_from_file_location("scipy_reference_eig", _PATH)
-ref = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ref)
+from torchakvf import scipy_reference as ref
 
 #: "near zero" as in akvf-math.md's tables: below this, with the next eigenvalue above GAP.
 ZERO, GAP = 0.1, 5.0

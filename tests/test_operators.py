@@ -1,10 +1,9 @@
 """DEC identities and the Killing operator, checked entry by entry against the independent
-numpy/scipy reference (benchmarks/scipy_reference.py) on closed and open meshes."""
+numpy/scipy reference (torchakvf/scipy_reference.py) on closed and open meshes."""
 from __future__ import annotations
 
 import importlib.util
 import math
-import pathlib
 
 import numpy as np
 import pytest
@@ -17,10 +16,7 @@ from torchakvf import shapes
 from torchakvf.operators import (angle_defect, angle_sum, batch_geometry, d0, d1, killing_operator,
                                  star0, star1, star2)
 
-_PATH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "scipy_reference.py"
-_spec = importlib.util.spec_from_file_location("scipy_reference_ops", _PATH)
-ref = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ref)
+from torchakvf import scipy_reference as ref
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -1,11 +1,10 @@
-"""Checks that the plain numpy/scipy baseline (benchmarks/scipy_reference.py) reproduces akvf-math.md.
+"""Checks that the plain numpy/scipy baseline (torchakvf/scipy_reference.py) reproduces akvf-math.md.
 
 The reference is the oracle for the torch implementation, so it is itself checked against the measured tables
 of akvf-math.md section 3 and against exact identities (rotation fields, Whitney exactness, Gauss-Bonnet).
 """
 
 import importlib.util
-import pathlib
 import warnings
 
 import numpy as np
@@ -13,10 +12,7 @@ import pytest
 import trimesh
 from scipy.spatial import Delaunay
 
-_PATH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "scipy_reference.py"
-_spec = importlib.util.spec_from_file_location("scipy_reference", _PATH)
-ref = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(ref)
+from torchakvf import scipy_reference as ref
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -18,7 +18,7 @@ faces = the face count of the input file; memory in MiB = 2**20 bytes):
   rounds, one ``.seg`` per (mesh, k)) with the ``--batch-faces`` budget (default: the harness's,
   that of ``torchakvf eval``). On every ``--baseline-every``-th mesh of the selection (the 1st,
   the (M+1)-th, ...): (b) ``one_at_a_time``: the same path with a face budget of 1, so each mesh
-  is a batch alone; (c) ``scipy``: the plain baseline of ``benchmarks/scipy_reference.py``
+  is a batch alone; (c) ``scipy``: the plain baseline of ``torchakvf/scipy_reference.py``
   (loaded by file path from the source tree; skipped with a note when absent): per mesh one
   ``eigsh`` for the same number of fields, then numpy untangling + numpy spherical k-means per k;
   then (a') ``batched_subset``: a separate batched run on exactly the meshes every run finished,
@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import collections
 import datetime as _dt
-import importlib.util
 import json
 import logging
 import math
@@ -68,14 +67,12 @@ from .parallel import default_workers, map_batches
 log = logging.getLogger("torchakvf.bench")
 
 __all__ = ["run_bench", "add_bench_arguments", "run_bench_command",
-           "scipy_reference_path", "DEFAULT_BASELINE_EVERY", "REPORT_JSON", "REPORT_MD"]
+           "DEFAULT_BASELINE_EVERY", "REPORT_JSON", "REPORT_MD"]
 
 #: Baselines run on every M-th mesh of the selection by default (0: no baselines).
 DEFAULT_BASELINE_EVERY = 10
 REPORT_JSON = "report.json"
 REPORT_MD = "report.md"
-#: The scipy baseline, relative to the repository root (absent when installed without sources).
-SCIPY_REFERENCE = Path("benchmarks") / "scipy_reference.py"
 #: Stage names of a run, in report order.
 STAGES = ("load", "pack", "akvf", "segment", "write", "other")
 _MIB = 2.0 ** 20
@@ -83,24 +80,14 @@ _MIB = 2.0 ** 20
 
 # ---- defaults and inputs ------------------------------------------------------------------
 
-def scipy_reference_path() -> Path:
-    """``benchmarks/scipy_reference.py`` beside the package in the source tree (may not exist)."""
-    return Path(__file__).resolve().parents[2] / SCIPY_REFERENCE
-
-
 def _load_scipy_reference():
-    """(module, None) or (None, why it is skipped)."""
-    path = scipy_reference_path()
-    if not path.is_file():
-        return None, (f"scipy baseline skipped: {SCIPY_REFERENCE} not found at {path} "
-                      "(torchakvf installed without its source tree)")
+    """(module, None) or (None, why it is skipped): scipy's sparse eigensolver stack can be
+    missing pieces on exotic builds, and the bench must still run without its baseline."""
     try:
-        spec = importlib.util.spec_from_file_location("torchakvf_bench_scipy_reference", path)
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
+        from .. import scipy_reference
     except Exception as exc:  # noqa: BLE001 - any import problem means: no baseline, said so
-        return None, f"scipy baseline skipped: loading {path} failed ({type(exc).__name__}: {exc})"
-    return mod, None
+        return None, f"scipy baseline skipped: importing torchakvf.scipy_reference failed ({type(exc).__name__}: {exc})"
+    return scipy_reference, None
 
 
 class _Mesh:
@@ -563,7 +550,7 @@ def _f(v, digits=2) -> str:
 _DESCRIPTIONS = {
     "batched": "torchakvf, harness path, batches of <= {bf} faces, every selected mesh",
     "one_at_a_time": "torchakvf, harness path, face budget 1 (one mesh per batch), baseline subset",
-    "scipy": ("benchmarks/scipy_reference.py: eigsh once per mesh + numpy untangle + numpy k-means "
+    "scipy": ("torchakvf/scipy_reference.py: eigsh once per mesh + numpy untangle + numpy k-means "
               "per k (load and clean-up: torchakvf's)"),
     "batched_subset": "torchakvf, batches of <= {bf} faces, the meshes compared with the baselines",
 }
