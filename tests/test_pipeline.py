@@ -18,10 +18,12 @@ import torch
 import torchakvf as ta
 from torchakvf import cli, shapes
 from torchakvf.errors import TorchAKVFError
-from torchakvf.pipeline import runner
 from torchakvf.pipeline.features import FeaturesTask
-from torchakvf.pipeline.runner import (MANIFEST, assign_stems, discover_inputs, peek_faces,
-                                       prepare, read_manifest, run_corpus)
+from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest
+from torchakvf.pipeline.inputs import assign_stems, discover_inputs
+from torchakvf.pipeline.resume import prepare
+from torchakvf.pipeline.runner import run_corpus
+from faketask import FakeTask
 from meshfiles import write_off, write_small_corpus
 
 REPO = Path(__file__).resolve().parents[1]
@@ -236,29 +238,6 @@ def test_cache_makes_reruns_free(tmp_path):
 
 # ---- runner logic with a fake task (no solver) --------------------------------------------
 
-class FakeTask:
-    """Writes <stem>.txt with the face count; fails the whole batch if it holds a 'poison' mesh."""
-
-    name, stages = "fake", ("akvf",)
-
-    def __init__(self):
-        self.params, self.seed, self.batches = {"x": 1}, 0, []
-
-    def output_paths(self, out_dir, stem):
-        return [Path(out_dir) / f"{stem}.txt"]
-
-    def process(self, items, device):
-        self.batches.append([it.stem for it in items])
-        if any("poison" in it.stem for it in items):
-            raise RuntimeError("poisoned batch")
-        return [len(it.clean.faces) for it in items], {"akvf": 1.0}
-
-    def write(self, item, out, out_dir):
-        path = self.output_paths(out_dir, item.stem)[0]
-        ta.io.atomic_write_bytes(path, str(out).encode())
-        return [path]
-
-
 def test_batch_failure_is_retried_one_by_one(tmp_path):
     ico = shapes.icosphere(1)
     paths = [write_off(tmp_path / "in" / f"{n}.off", ico.vertices, ico.faces) for n in ("a", "b", "poison")]
@@ -319,16 +298,29 @@ def test_discover_inputs(tmp_path, corpus):
         discover_inputs([str(tmp_path / "empty")])
 
 
-def test_peek_faces(tmp_path):
+def test_peek_face_count(tmp_path):
     (tmp_path / "a.off").write_text("# c\nOFF 4 2 0\n")
     (tmp_path / "b.off").write_text("OFF\n\n# comment\n 4  7 0\n")
     with gzip.open(tmp_path / "c.off.gz", "wt") as fh:
         fh.write("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
     (tmp_path / "d.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nelement face 5\nend_header\n")
     (tmp_path / "e.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 3 2\n")
-    (tmp_path / "bad.off").write_bytes(b"\xff\x00")
-    got = {p.name: peek_faces(p) for p in sorted(tmp_path.iterdir())}
-    assert got == {"a.off": 2, "b.off": 7, "c.off.gz": 1, "d.ply": 5, "e.obj": 2, "bad.off": None}
+    (tmp_path / "f.stl").write_bytes(b"\0" * 80 + (3).to_bytes(4, "little") + b"\0" * 150)   # binary
+    (tmp_path / "g.off.gz").write_bytes(gzip.compress(b"OFF 5 9 0\n"))
+    got = {p.name: ta.io.peek_face_count(p) for p in sorted(tmp_path.iterdir())}
+    assert got == {"a.off": 2, "b.off": 7, "c.off.gz": 1, "d.ply": 5, "e.obj": 2, "f.stl": 3, "g.off.gz": 9}
+    # An unparsable header is an error naming the file, never a guess ("1 face").
+    for name, data, problem in [("bad.off", b"\xff\x00", "not a text OFF"), ("noff.off", b"4 2 0\n", "missing the 'OFF' header"),
+                                ("counts.off", b"OFF\nfour two zero\n", "bad counts line"),
+                                ("short.off", b"OFF\n", "missing the 'n_vertices"),
+                                ("bin.off", b"OFF\n\xff\xfe 3\n", "not a text OFF"),
+                                ("nofaces.ply", b"ply\nformat ascii 1.0\nend_header\n", "element face")]:
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ta.errors.MeshError, match=problem) as info:
+            ta.io.peek_face_count(tmp_path / name)
+        assert str(tmp_path / name) in str(info.value)
+    with pytest.raises(ta.errors.MeshError, match="file not found"):
+        ta.io.peek_face_count(tmp_path / "missing.off")
 
 
 def test_torn_manifest_line_is_ignored(tmp_path):
@@ -336,7 +328,7 @@ def test_torn_manifest_line_is_ignored(tmp_path):
     out.mkdir()
     (out / MANIFEST).write_bytes(b'{"path": "/a.off", "stem": "a", "status": "ok"}\n{"path": "/b.o')
     assert list(read_manifest(out)) == ["/a.off"]
-    w = runner.ManifestWriter(out)
+    w = ManifestWriter(out)
     w.append({"path": "/c.off", "stem": "c", "status": "ok"})
     w.close()
     assert list(read_manifest(out)) == ["/a.off", "/c.off"]

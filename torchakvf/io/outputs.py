@@ -1,6 +1,7 @@
 """Writing results: .seg (PSB format), .npz, face-coloured PLY. Every write is atomic."""
 from __future__ import annotations
 
+import errno
 import gzip
 import os
 import tempfile
@@ -15,6 +16,22 @@ from ..errors import ParameterError, TorchAKVFError
 #: a run killed by SIGKILL leaves them behind, and the next run in that folder removes them
 #: (:func:`remove_stale_temp_files`).
 TEMP_SUFFIX = ".torchakvf.tmp"
+
+
+#: errno values that mean the output folder cannot take more data: no mesh is to blame, so a
+#: corpus run stops at once (finished meshes stay recorded) instead of failing every later mesh.
+_NO_ROOM = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG}
+
+
+class OutputSpaceError(TorchAKVFError):
+    """An output could not be written because its file system is full (or read-only)."""
+
+
+def _write_error(path: Path, exc: OSError) -> TorchAKVFError:
+    text = f"{path}: cannot write output ({exc.strerror or exc})"
+    if exc.errno in _NO_ROOM:
+        return OutputSpaceError(text + "; free space and run again: finished meshes are kept")
+    return TorchAKVFError(text)
 
 
 def _umask() -> int:
@@ -40,17 +57,19 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMP_SUFFIX)
     except OSError as exc:
-        raise TorchAKVFError(f"{path}: cannot write output ({exc.strerror or exc})") from None
+        raise _write_error(path, exc) from None
     try:
         with os.fdopen(fd, "wb") as fh:
             os.fchmod(fh.fileno(), 0o666 & ~_umask())
             fh.write(data)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(exc, OSError):
+            raise _write_error(path, exc) from None
         raise
 
 

@@ -15,7 +15,7 @@ A task (see :mod:`.features`, :mod:`.segment_task`) is a small object with ``nam
 
 Bugs are not bad meshes: an error of one mesh's *input* is recorded as ``failed`` and the run
 goes on, but a programming error (:func:`~.parallel.is_programming_error`) propagates with its
-traceback.
+traceback; so does a full output disk (:class:`~torchakvf.io.OutputSpaceError`, one line).
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-from ..io import load_mesh
+from ..io import OutputSpaceError, load_mesh
 from ..io.manifest import file_fingerprint
 from ..mesh import clean_mesh
 from .parallel import error_text, is_programming_error, map_batches
@@ -88,8 +88,9 @@ def failed_record(item: Item, task, seed: int, error: str) -> dict:
 
 
 def _input_failure(exc: BaseException) -> str:
-    """The manifest text of one mesh's failure; a programming error is re-raised instead."""
-    if is_programming_error(exc):
+    """The manifest text of one mesh's failure; a programming error, or an output folder that
+    is full, is no mesh's fault: re-raised, it ends the run."""
+    if is_programming_error(exc) or isinstance(exc, OutputSpaceError):
         raise exc
     return error_text(exc)
 
@@ -210,7 +211,8 @@ def run_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> list
     :func:`~.parallel.map_batches`: when the batch's computation fails, its meshes are retried
     one by one, so only the culprit fails. One record per item."""
     records: list[dict] = []
-    for outcome in map_batches([items], process_batch, (task, out_dir, device, seed)):
+    for outcome in map_batches([items], process_batch, (task, out_dir, device, seed),
+                               fatal=(OutputSpaceError,)):
         if outcome.split:
             log.warning("batch of %d meshes failed (%s); retrying them one by one",
                         len(outcome.batch), outcome.error)

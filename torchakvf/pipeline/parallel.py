@@ -86,7 +86,8 @@ def error_text(exc: BaseException) -> str:
     return " ".join(text.split())[:500]
 
 
-def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int = 1):
+def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int = 1,
+                fatal: tuple = ()):
     """Run ``fn(batch, *args)`` for each batch; yield a :class:`BatchOutcome` as each finishes.
 
     fn must be a module-level function (pickled to the workers) that writes its own outputs;
@@ -94,7 +95,8 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
     pool of spawned processes, each on one thread. A batch of several items that raises is
     split and its items retried alone; a single item that raises is reported with its error.
     A programming error (:func:`is_programming_error`: TypeError, IndexError, ...) is not a bad
-    item: it propagates, with its traceback, and ends the map.
+    item: it propagates, with its traceback, and ends the map; so does an exception of a type
+    in ``fatal`` (e.g. :class:`~torchakvf.io.OutputSpaceError`: no item is to blame).
     A worker that dies (killed, out of memory) fails its batch the same way, and the pool is
     started again for the rest.
     """
@@ -106,7 +108,7 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
             try:
                 result, error = fn(batch, *args), None
             except Exception as exc:  # noqa: BLE001 - one bad mesh must not end the run
-                if is_programming_error(exc):
+                if is_programming_error(exc) or isinstance(exc, fatal):
                     raise
                 result, error = None, error_text(exc)
             yield from _outcome(queue, batch, result, error, time.perf_counter() - t0)
@@ -136,7 +138,7 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
                     result, seconds, broken = None, time.perf_counter() - t0, True
                     error = f"worker process died ({exc})"
                 except Exception as exc:  # noqa: BLE001
-                    if is_programming_error(exc):
+                    if is_programming_error(exc) or isinstance(exc, fatal):
                         raise
                     result, seconds, error = None, time.perf_counter() - t0, error_text(exc)
                 yield from _outcome(queue, batch, result, error, seconds)
