@@ -1,4 +1,5 @@
-"""A corpus-runner task without a solver, for fast tests of the runner itself."""
+"""A corpus-runner task without a solver, for fast tests of the runner itself; and the check
+that a CLI error is one line."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -39,3 +40,13 @@ class FakeTask:
         path = self.output_paths(out_dir, item.stem)[0]
         ta.io.atomic_write_bytes(path, f"{out}{self.tag}".encode())
         return [path]
+
+
+def assert_one_line_error(err: str, *parts: str) -> None:
+    """stderr holds exactly one ``torchakvf: error: ...`` line naming ``parts`` (besides INFO
+    log lines), and no traceback."""
+    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("INFO ")]
+    assert len(lines) == 1 and lines[0].startswith("torchakvf: error: "), err
+    assert "Traceback" not in err
+    for part in parts:
+        assert part in lines[0], lines[0]

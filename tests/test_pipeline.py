@@ -23,22 +23,15 @@ from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest
 from torchakvf.pipeline.inputs import assign_stems, discover_inputs
 from torchakvf.pipeline.resume import prepare
 from torchakvf.pipeline.runner import run_corpus
-from faketask import FakeTask
+from faketask import FakeTask, assert_one_line_error
 from meshfiles import write_off, write_small_corpus
+from threads import one_torch_thread  # noqa: F401 - autouse fixture
 
 REPO = Path(__file__).resolve().parents[1]
 N = 8
 BUDGET = 600  # faces per batch: three batches for the corpus below
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """Small meshes run many tiny kernels: on a busy 2-core machine, intra-op threads waiting
-    on each other made these tests 10-100x slower (measured: 0.4 s vs 40 s for the corpus)."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
@@ -399,6 +392,14 @@ def test_segment_end_to_end(tmp_path, capsys):
     (["segment", "{src}", "-k", "2", "--formats", "seg,gif", "--out", "{tmp}/o"], "unknown format 'gif'"),
     (["features", "{src}", "--n", "-3", "--out", "{tmp}/o"], "--n must be an integer >= 1"),
     (["features", "{src}", "--batch-faces", "lots", "--out", "{tmp}/o"], "--batch-faces must be an integer"),
+    # issue 11: out-of-range values are argument errors, not per-mesh failures or silent nonsense
+    (["segment", "{src}", "-k", "2", "--eps", "2.5", "--out", "{tmp}/o"],
+     "--eps must be a number <= 2.0 (a cosine distance never exceeds 2)"),
+    (["segment", "{src}", "-k", "2", "--seed", str(2**64), "--out", "{tmp}/o"], "--seed must be an integer <= "),
+    (["features", "{src}", "--seed", str(2**70), "--out", "{tmp}/o"], "--seed must be an integer <= "),
+    (["features", "{src}", "--cache", "{src}/sub", "--out", "{tmp}/o"], "--cache {src}/sub: cannot create"),
+    (["features", "{src}", "--max-faces", "0", "--out", "{tmp}/o"], "--max-faces must be an integer >= 1"),
+    (["features", "{src}", "--coarse-faces", "x", "--out", "{tmp}/o"], "--coarse-faces must be an integer"),
 ])
 def test_cli_user_errors_are_one_line(tmp_path, capsys, argv, message):
     s = shapes.icosphere(1)
@@ -406,9 +407,7 @@ def test_cli_user_errors_are_one_line(tmp_path, capsys, argv, message):
     argv = [a.format(tmp=tmp_path, src=src) for a in argv]
     rc, out, err = run_cli(argv, capsys)
     assert rc == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("torchakvf: error: ") and message in lines[0]
-    assert "Traceback" not in err
+    assert_one_line_error(err, message.format(src=src))
     assert not (tmp_path / "o").exists()   # nothing created before the arguments are checked
 
 

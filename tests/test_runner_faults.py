@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 import torchakvf as ta
 from torchakvf import cli, shapes
@@ -22,19 +21,14 @@ from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.inputs import discover_inputs
 from torchakvf.pipeline.runner import run_corpus
 from torchakvf.pipeline.segment_task import SegmentTask
-from faketask import FakeTask
+from faketask import FakeTask, assert_one_line_error
 from meshfiles import write_off
+from threads import one_torch_thread  # noqa: F401 - autouse fixture
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1", PYTHONPATH=str(REPO))
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 def by_stem(out: Path) -> dict:
@@ -50,14 +44,6 @@ def cli_run(argv, capsys):
     rc = cli.main([str(a) for a in argv])
     out, err = capsys.readouterr()
     return rc, out, err
-
-
-def assert_one_line_error(err: str, *parts: str) -> None:
-    lines = [ln for ln in err.strip().splitlines() if not ln.startswith("INFO ")]   # progress logs
-    assert len(lines) == 1 and lines[0].startswith("torchakvf: error: "), err
-    assert "Traceback" not in err
-    for part in parts:
-        assert part in lines[0], lines[0]
 
 
 # ---- stale results ------------------------------------------------------------------------
@@ -388,24 +374,6 @@ def test_outputs_get_the_umask_mode(tmp_path, umask, mode):
         os.umask(old)
     for name in ("x.seg", "y.bin"):
         assert (tmp_path / name).stat().st_mode & 0o777 == mode
-
-
-@pytest.mark.parametrize("argv, parts", [
-    (["segment", "{src}", "-k", "2", "--eps", "2.5", "--out", "{tmp}/o"], ["--eps must be a number <= 2.0", "never exceeds 2"]),
-    (["segment", "{src}", "-k", "2", "--seed", str(2**64), "--out", "{tmp}/o"], ["--seed must be an integer <= "]),
-    (["features", "{src}", "--seed", str(2**70), "--out", "{tmp}/o"], ["--seed must be an integer <= "]),
-    (["features", "{src}", "--cache", "{src}/sub", "--out", "{tmp}/o"], ["--cache {src}/sub: cannot create"]),
-    (["features", "{src}", "--max-faces", "0", "--out", "{tmp}/o"], ["--max-faces must be an integer >= 1"]),
-    (["features", "{src}", "--coarse-faces", "x", "--out", "{tmp}/o"], ["--coarse-faces must be an integer"]),
-])
-def test_argument_errors_are_one_line(tmp_path, capsys, argv, parts):
-    s = shapes.icosphere(1)
-    src = write_off(tmp_path / "m.off", s.vertices, s.faces)
-    argv = [a.format(tmp=tmp_path, src=src) for a in argv]
-    rc, _, err = cli_run(argv, capsys)
-    assert rc == 2
-    assert_one_line_error(err, *[p.format(src=src) for p in parts])
-    assert not (tmp_path / "o").exists()
 
 
 def test_stale_temp_files_are_removed_at_start(tmp_path):

@@ -119,12 +119,9 @@ class FeaturesTask:
                                  f"more than the {self.memory_bytes / 2**30:.1f} GB of memory; {fix}")
 
     def validate(self, item) -> None:
-        from ..mesh.batch import mesh_edges
+        from .batches import require_edges
 
-        n_edges = len(mesh_edges(item.clean.faces)[0])
-        if self.n > n_edges:
-            raise ParameterError(f"{item.path}: --n {self.n} fields asked for but the mesh has only "
-                                 f"{n_edges} edges")
+        require_edges(item, self.n, f"--n {self.n} fields asked for")
 
     def process(self, items, device):
         from ..fields import akvf, untangle

@@ -22,11 +22,10 @@ import time
 from pathlib import Path
 
 from ..errors import TorchAKVFError
-from ..io.manifest import ManifestWriter
 from ..progress import progress
 from .batches import Item, run_batch
 from .outdir import OutputLock, check_output_dir
-from .runner import RunSummary, _TermAsInterrupt, plan_run, record_batch
+from .runner import RunSummary, plan_run, record_batch, recording
 
 
 class _BatchWorker:
@@ -107,48 +106,10 @@ def _run_on_ray(ray, batches, out_dir: Path, task, summary: RunSummary, *, devic
         fn_constructor_kwargs=dict(task=task, out_dir=str(out_dir), device=device, seed=seed,
                                    threads=max(int(cpus_per_worker), 1)),
         **resources)
-    writer = ManifestWriter(out_dir)
-    bar = progress(sum(len(b) for b in batches), f"torchakvf {task.name} (ray)", "meshes")
-    try:
-        with _TermAsInterrupt():
-            for row in ds.iter_rows():
-                records = json.loads(str(row["records"]))
-                record_batch(records, writer, summary, bar, task.name)
-                bar.update(len(records))
-    except KeyboardInterrupt:
-        summary.interrupted = True
-        raise
-    finally:
-        writer.close()
-        bar.close()
-    if not ray.is_initialized():
-        ray.init()
-    _ship_task_class(task)
-    specs = [json.dumps([[str(it.path), it.key, it.stem, -1 if it.faces is None else it.faces]
-                         for it in b]) for b in batches]
-    # One block per batch: a batch's records reach the manifest as soon as it is written.
-    ds = ray.data.from_items([{"batch": s} for s in specs], override_num_blocks=len(specs))
-    resources = {"num_cpus": cpus_per_worker}
-    if gpus_per_worker:
-        resources["num_gpus"] = gpus_per_worker
-    ds = ds.map_batches(
-        _BatchWorker, batch_size=1, batch_format="numpy",
-        compute=ray.data.ActorPoolStrategy(size=min(workers, len(specs))),
-        fn_constructor_kwargs=dict(task=task, out_dir=str(out_dir), device=device, seed=seed,
-                                   threads=max(int(cpus_per_worker), 1)),
-        **resources)
-    writer = ManifestWriter(out_dir)
-    try:
-        with _TermAsInterrupt():
-            for row in ds.iter_rows():
-                for rec in json.loads(str(row["records"])):
-                    writer.append(rec)
-                    if not summary.add(rec):
-                        log.warning("%s failed: %s", rec["path"], rec["error"])
-    except KeyboardInterrupt:
-        summary.interrupted = True
-        raise
-    finally:
-        writer.close()
-        summary.elapsed = time.perf_counter() - t0
-    return summary
+    start_bar = lambda: progress(sum(len(b) for b in batches), f"torchakvf {task.name} (ray)",  # noqa: E731
+                                 "meshes")
+    with recording(out_dir, summary, start_bar) as (writer, bar):
+        for row in ds.iter_rows():
+            records = json.loads(str(row["records"]))
+            record_batch(records, writer, summary, bar, task.name)
+            bar.update(len(records))

@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import signal
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
@@ -148,6 +149,23 @@ def plan_run(paths: Iterable, out_dir: Path, task, *, batch_faces: int | None, d
     return RunPlan(out_dir, plan_batches(todo, batch_faces), summary)
 
 
+@contextmanager
+def recording(out_dir: Path, summary: RunSummary, start_bar: Callable):
+    """(manifest writer, progress bar) of a run; inside, SIGTERM acts as Ctrl-C; on the way out
+    (done, interrupted, failed) both are closed and an interrupt is noted in ``summary``."""
+    writer = ManifestWriter(out_dir)
+    bar = start_bar()
+    try:
+        with _TermAsInterrupt():
+            yield writer, bar
+    except KeyboardInterrupt:
+        summary.interrupted = True
+        raise
+    finally:
+        writer.close()
+        bar.close()
+
+
 def record_batch(records: list[dict], writer: ManifestWriter, summary: RunSummary, bar, name: str) -> None:
     """Append a batch's records to the manifest and count them; a failure gets its own line."""
     for rec in records:
@@ -185,12 +203,13 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
         plan = plan_run(paths, out_dir, task, batch_faces=batch_faces, device=device, seed=seed,
                         resume=resume)
         summary = plan.summary
-        writer = ManifestWriter(out_dir)
         total_faces = sum(it.cost for b in plan.batches for it in b)
-        bar = progress_report(total_faces, f"torchakvf {task.name}", "faces", enabled=progress is not False)
-        done = 0
+        n_meshes = sum(map(len, plan.batches))
+        start_bar = lambda: progress_report(total_faces, f"torchakvf {task.name}", "faces",  # noqa: E731
+                                            enabled=progress is not False)
         try:
-            with _TermAsInterrupt():
+            with recording(out_dir, summary, start_bar) as (writer, bar):
+                done = 0
                 for bno, batch in enumerate(plan.batches, 1):
                     faces = sum(it.cost for it in batch)
                     if faces > ANNOUNCE_FACES:
@@ -199,21 +218,15 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
                     records = run_batch(batch, task, out_dir, device, seed)
                     record_batch(records, writer, summary, bar, task.name)
                     done += len(batch)
-                    bar.update(faces, note=f"{done}/{sum(map(len, plan.batches))} meshes, "
-                                           f"{summary.failed} failed")
+                    bar.update(faces, note=f"{done}/{n_meshes} meshes, {summary.failed} failed")
                     if on_batch is not None:
                         on_batch(bno, records)
-        except KeyboardInterrupt:
-            summary.interrupted = True
-            raise
         finally:
-            writer.close()
-            bar.close()
             summary.elapsed = time.perf_counter() - t_start
     return summary
 
 
-__all__ = ["MANIFEST", "RunSummary", "run_corpus", "plan_run", "record_batch", "default_batch_faces",
+__all__ = ["MANIFEST", "RunSummary", "run_corpus", "plan_run", "record_batch", "recording", "default_batch_faces",
            "peek_faces", "failure_text", "DEFAULT_BATCH_FACES",
            # re-exported from the modules a run is made of
            "Item", "plan_batches", "process_batch", "run_batch", "assign_stems", "discover_inputs",
