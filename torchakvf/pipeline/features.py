@@ -109,8 +109,14 @@ class FeaturesTask:
         """Refuse, before any work, a mesh too big for ``max_faces`` or for the memory."""
         solved = self.solved_faces(faces)
         need = estimate_bytes(solved, self.n)
-        fix = (f"solve it decimated with --coarse-faces {SUGGESTED_COARSE_FACES}"
-               if not self.coarse_faces else f"lower --coarse-faces (now {self.coarse_faces})")
+        fits = [SUGGESTED_COARSE_FACES]
+        if self.max_faces is not None:
+            fits.append(self.max_faces)
+        if self.memory_bytes is not None:
+            fits.append((self.memory_bytes - BYTES_FIXED) // (self.n * BYTES_PER_FACE_FIELD))
+        suggest = max(min(fits), 100)
+        fix = (f"solve it decimated with --coarse-faces {suggest}" if not self.coarse_faces
+               else f"lower --coarse-faces (now {self.coarse_faces})")
         if self.max_faces is not None and solved > self.max_faces:
             raise ParameterError(f"{path}: {solved:,} faces to solve is above --max-faces {self.max_faces} "
                                  f"(about {need / 2**30:.1f} GB for --n {self.n}); {fix}, or raise --max-faces")
