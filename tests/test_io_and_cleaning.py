@@ -14,15 +14,9 @@ import trimesh
 import torchakvf as ta
 from torchakvf import shapes
 
+from threads import one_torch_thread  # noqa: F401 - autouse fixture
 
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """Small sparse problems: one intra-op thread is as fast on an idle machine and avoids
-    OpenMP spin-waiting (measured 20-40x slowdowns) when the cores are oversubscribed."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+
 
 
 # ---------------------------------------------------------------------------------------------
@@ -445,3 +439,66 @@ def test_two_components_union_spectrum():
     np.testing.assert_allclose(both, union, rtol=1e-6)
     # both components contribute their 3 rotations: 6 small eigenvalues, then a gap
     assert np.all(both[:6] < 0.1) and both[6] > 5
+
+
+# ---------------------------------------------------------------------------------------------
+# one OFF reader, one .seg writer (issue 10)
+# ---------------------------------------------------------------------------------------------
+
+def test_psb_read_off_is_load_mesh(tmp_path):
+    from torchakvf.evaluate.psb import read_off
+
+    s = shapes.dumbbell(n_around=10)
+    text = "OFF\n# a comment\n" + f"{len(s.vertices)} {len(s.faces)} 0\n"
+    text += "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in s.vertices.tolist())
+    text += "".join(f"3 {a} {b} {c}\n" for a, b, c in s.faces.tolist())
+    (tmp_path / "m.off.gz").write_bytes(gzip.compress(text.encode()))
+    v, f = read_off(tmp_path / "m.off.gz")
+    mesh = ta.load_mesh(tmp_path / "m.off.gz")
+    np.testing.assert_array_equal(v, mesh.vertices)
+    np.testing.assert_array_equal(f, mesh.faces)
+    np.testing.assert_array_equal(v, s.vertices)
+    assert ta.io.peek_face_count(tmp_path / "m.off.gz") == len(s.faces)
+    (tmp_path / "q.off").write_text("OFF\n4 1 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n4 0 1 2 3\n")
+    for reader in (read_off, ta.load_mesh):   # the same strict parser: no silent split
+        with pytest.raises(ta.errors.MeshError, match="face 0 has 4 vertices"):
+            reader(tmp_path / "q.off")
+
+
+def test_write_seg_is_checked(tmp_path):
+    for bad, problem in [(np.array([0.5, 1.0]), "must be integers"), (np.array([True]), "must be integers"),
+                         (np.zeros((2, 2), int), "1-D"), (np.array([], int), "non-empty")]:
+        with pytest.raises(ta.errors.ParameterError, match=problem) as info:
+            ta.io.write_seg(tmp_path / "x.seg", bad)
+        assert "x.seg" in str(info.value)
+    assert not (tmp_path / "x.seg").exists()
+    a = ta.io.write_seg(tmp_path / "a.seg.gz", np.array([3, 1, 2]))
+    b = ta.io.write_seg(tmp_path / "b.seg.gz", np.array([3, 1, 2], dtype=np.int32))
+    assert a.read_bytes() == b.read_bytes() and gzip.decompress(a.read_bytes()) == b"3\n1\n2\n"
+
+
+def test_write_seg_is_atomic(tmp_path, monkeypatch):
+    path = ta.io.write_seg(tmp_path / "x.seg", np.array([0, 1, 1]))
+
+    def fail(src, dst):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(ta.io.outputs.os, "replace", fail)
+    with pytest.raises(ta.errors.TorchAKVFError, match="x.seg: cannot write output"):
+        ta.io.write_seg(path, np.array([2, 2, 2]))
+    assert path.read_text() == "0\n1\n1\n"                       # the old file, whole
+    assert not list(tmp_path.glob(f".*{ta.io.TEMP_SUFFIX}"))     # no temp file left
+
+
+def test_one_manifest_reader_tolerates_a_torn_tail(tmp_path):
+    from torchakvf.io.manifest import read_manifest_records
+
+    (tmp_path / "manifest.jsonl").write_bytes(
+        b'{"path": "/a.off", "stem": "a", "status": "ok", "task": "features"}\n'
+        b'not json\n[1, 2]\n'
+        b'{"path": "/b.off", "stem": "b", "status": "ok", "task": "features"}\n'
+        b'{"path": "/c.off", "stem": "c", "sta')
+    assert [r["stem"] for r in read_manifest_records(tmp_path)] == ["a", "b"]
+    for stem in ("a", "b", "c"):
+        (tmp_path / f"{stem}.npz").write_bytes(b"")
+    assert [f.name for f in ta.data.FeatureDataset(tmp_path).files] == ["a.npz", "b.npz"]

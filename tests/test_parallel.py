@@ -46,3 +46,26 @@ def test_workers_are_other_processes_and_the_environment_is_restored():
 def test_default_workers():
     assert default_workers("cuda") == 1
     assert 1 <= default_workers("cpu") <= 8
+
+
+def index_bug(batch):
+    """Module-level: a programming error on item 13 (not a bad input)."""
+    if 13 in batch:
+        return [][1]
+    return batch
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_programming_errors_are_not_bad_items(workers):
+    """An IndexError from our code ends the map with its traceback; it is not split and
+    retried, nor reported as one item's failure."""
+    seen = []
+    with pytest.raises(IndexError):
+        for o in map_batches([[1], [13, 2], [3]], index_bug, workers=workers):
+            seen.append(o)
+    assert not any(o.split or o.error for o in seen)
+
+
+def test_fatal_errors_end_the_map():
+    with pytest.raises(ValueError, match="negative"):
+        list(map_batches([[1], [-1, 2]], square_or_fail, (0,), fatal=(ValueError,)))

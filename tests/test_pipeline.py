@@ -18,25 +18,20 @@ import torch
 import torchakvf as ta
 from torchakvf import cli, shapes
 from torchakvf.errors import TorchAKVFError
-from torchakvf.pipeline import runner
 from torchakvf.pipeline.features import FeaturesTask
-from torchakvf.pipeline.runner import (MANIFEST, assign_stems, discover_inputs, peek_faces,
-                                       prepare, read_manifest, run_corpus)
+from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest
+from torchakvf.pipeline.inputs import assign_stems, discover_inputs
+from torchakvf.pipeline.resume import prepare
+from torchakvf.pipeline.runner import run_corpus
+from faketask import FakeTask, assert_one_line_error
 from meshfiles import write_off, write_small_corpus
+from threads import one_torch_thread  # noqa: F401 - autouse fixture
 
 REPO = Path(__file__).resolve().parents[1]
 N = 8
 BUDGET = 600  # faces per batch: three batches for the corpus below
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """Small meshes run many tiny kernels: on a busy 2-core machine, intra-op threads waiting
-    on each other made these tests 10-100x slower (measured: 0.4 s vs 40 s for the corpus)."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
@@ -236,29 +231,6 @@ def test_cache_makes_reruns_free(tmp_path):
 
 # ---- runner logic with a fake task (no solver) --------------------------------------------
 
-class FakeTask:
-    """Writes <stem>.txt with the face count; fails the whole batch if it holds a 'poison' mesh."""
-
-    name, stages = "fake", ("akvf",)
-
-    def __init__(self):
-        self.params, self.seed, self.batches = {"x": 1}, 0, []
-
-    def output_paths(self, out_dir, stem):
-        return [Path(out_dir) / f"{stem}.txt"]
-
-    def process(self, items, device):
-        self.batches.append([it.stem for it in items])
-        if any("poison" in it.stem for it in items):
-            raise RuntimeError("poisoned batch")
-        return [len(it.clean.faces) for it in items], {"akvf": 1.0}
-
-    def write(self, item, out, out_dir):
-        path = self.output_paths(out_dir, item.stem)[0]
-        ta.io.atomic_write_bytes(path, str(out).encode())
-        return [path]
-
-
 def test_batch_failure_is_retried_one_by_one(tmp_path):
     ico = shapes.icosphere(1)
     paths = [write_off(tmp_path / "in" / f"{n}.off", ico.vertices, ico.faces) for n in ("a", "b", "poison")]
@@ -319,16 +291,29 @@ def test_discover_inputs(tmp_path, corpus):
         discover_inputs([str(tmp_path / "empty")])
 
 
-def test_peek_faces(tmp_path):
+def test_peek_face_count(tmp_path):
     (tmp_path / "a.off").write_text("# c\nOFF 4 2 0\n")
     (tmp_path / "b.off").write_text("OFF\n\n# comment\n 4  7 0\n")
     with gzip.open(tmp_path / "c.off.gz", "wt") as fh:
         fh.write("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
     (tmp_path / "d.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nelement face 5\nend_header\n")
     (tmp_path / "e.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 3 2\n")
-    (tmp_path / "bad.off").write_bytes(b"\xff\x00")
-    got = {p.name: peek_faces(p) for p in sorted(tmp_path.iterdir())}
-    assert got == {"a.off": 2, "b.off": 7, "c.off.gz": 1, "d.ply": 5, "e.obj": 2, "bad.off": None}
+    (tmp_path / "f.stl").write_bytes(b"\0" * 80 + (3).to_bytes(4, "little") + b"\0" * 150)   # binary
+    (tmp_path / "g.off.gz").write_bytes(gzip.compress(b"OFF 5 9 0\n"))
+    got = {p.name: ta.io.peek_face_count(p) for p in sorted(tmp_path.iterdir())}
+    assert got == {"a.off": 2, "b.off": 7, "c.off.gz": 1, "d.ply": 5, "e.obj": 2, "f.stl": 3, "g.off.gz": 9}
+    # An unparsable header is an error naming the file, never a guess ("1 face").
+    for name, data, problem in [("bad.off", b"\xff\x00", "not a text OFF"), ("noff.off", b"4 2 0\n", "missing the 'OFF' header"),
+                                ("counts.off", b"OFF\nfour two zero\n", "bad counts line"),
+                                ("short.off", b"OFF\n", "missing the 'n_vertices"),
+                                ("bin.off", b"OFF\n\xff\xfe 3\n", "not a text OFF"),
+                                ("nofaces.ply", b"ply\nformat ascii 1.0\nend_header\n", "element face")]:
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ta.errors.MeshError, match=problem) as info:
+            ta.io.peek_face_count(tmp_path / name)
+        assert str(tmp_path / name) in str(info.value)
+    with pytest.raises(ta.errors.MeshError, match="file not found"):
+        ta.io.peek_face_count(tmp_path / "missing.off")
 
 
 def test_torn_manifest_line_is_ignored(tmp_path):
@@ -336,7 +321,7 @@ def test_torn_manifest_line_is_ignored(tmp_path):
     out.mkdir()
     (out / MANIFEST).write_bytes(b'{"path": "/a.off", "stem": "a", "status": "ok"}\n{"path": "/b.o')
     assert list(read_manifest(out)) == ["/a.off"]
-    w = runner.ManifestWriter(out)
+    w = ManifestWriter(out)
     w.append({"path": "/c.off", "stem": "c", "status": "ok"})
     w.close()
     assert list(read_manifest(out)) == ["/a.off", "/c.off"]
@@ -407,6 +392,14 @@ def test_segment_end_to_end(tmp_path, capsys):
     (["segment", "{src}", "-k", "2", "--formats", "seg,gif", "--out", "{tmp}/o"], "unknown format 'gif'"),
     (["features", "{src}", "--n", "-3", "--out", "{tmp}/o"], "--n must be an integer >= 1"),
     (["features", "{src}", "--batch-faces", "lots", "--out", "{tmp}/o"], "--batch-faces must be an integer"),
+    # issue 11: out-of-range values are argument errors, not per-mesh failures or silent nonsense
+    (["segment", "{src}", "-k", "2", "--eps", "2.5", "--out", "{tmp}/o"],
+     "--eps must be a number <= 2.0 (a cosine distance never exceeds 2)"),
+    (["segment", "{src}", "-k", "2", "--seed", str(2**64), "--out", "{tmp}/o"], "--seed must be an integer <= "),
+    (["features", "{src}", "--seed", str(2**70), "--out", "{tmp}/o"], "--seed must be an integer <= "),
+    (["features", "{src}", "--cache", "{src}/sub", "--out", "{tmp}/o"], "--cache {src}/sub: cannot create"),
+    (["features", "{src}", "--max-faces", "0", "--out", "{tmp}/o"], "--max-faces must be an integer >= 1"),
+    (["features", "{src}", "--coarse-faces", "x", "--out", "{tmp}/o"], "--coarse-faces must be an integer"),
 ])
 def test_cli_user_errors_are_one_line(tmp_path, capsys, argv, message):
     s = shapes.icosphere(1)
@@ -414,9 +407,7 @@ def test_cli_user_errors_are_one_line(tmp_path, capsys, argv, message):
     argv = [a.format(tmp=tmp_path, src=src) for a in argv]
     rc, out, err = run_cli(argv, capsys)
     assert rc == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("torchakvf: error: ") and message in lines[0]
-    assert "Traceback" not in err
+    assert_one_line_error(err, message.format(src=src))
     assert not (tmp_path / "o").exists()   # nothing created before the arguments are checked
 
 

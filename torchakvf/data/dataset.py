@@ -9,20 +9,72 @@ only, never code.
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from ..errors import TorchAKVFError
+from ..io.manifest import read_manifest
+
 #: Per-face arrays of a feature file, packed along faces by :func:`collate_packed`.
 FACE_KEYS = ("features", "akvf_norms", "face_vectors")
 
 
+#: Arrays every feature file holds (``face_vectors`` only with ``--face-vectors``).
+REQUIRED_KEYS = ("faces_input_count", "vertices", "faces", "akvf_norms", "features", "eigenvalues",
+                 "residuals")
+
+
 def load_feature_file(path) -> dict:
-    """The arrays of one feature .npz as numpy (``allow_pickle=False``)."""
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    """The arrays of one feature .npz as numpy (``allow_pickle=False``), checked whole.
+
+    Raises :class:`TorchAKVFError` naming the file when it cannot be read (truncated, not an
+    npz, an object array), lacks an array, or its arrays disagree in shape (e.g. features
+    [10, 32] beside faces [192, 3]): every per-face array has the file's F rows, F equals
+    ``faces_input_count``, the n fields agree, and face indices are within the vertices.
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise TorchAKVFError(f"{path}: feature file not found") from None
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        raise TorchAKVFError(f"{path}: not a readable feature file ({type(exc).__name__}: {exc}); "
+                             "delete it and run torchakvf features again") from None
+    problem = _shape_problem(arrays)
+    if problem:
+        raise TorchAKVFError(f"{path}: corrupt feature file: {problem}; delete it and run "
+                             "torchakvf features again")
+    return arrays
+
+
+def _shape_problem(z: dict) -> str | None:
+    missing = [k for k in REQUIRED_KEYS if k not in z]
+    if missing:
+        return f"missing array(s) {', '.join(missing)}"
+    v, f = z["vertices"], z["faces"]
+    if v.ndim != 2 or v.shape[1] != 3:
+        return f"vertices have shape {list(v.shape)}, expected [V, 3]"
+    if f.ndim != 2 or f.shape[1] != 3:
+        return f"faces have shape {list(f.shape)}, expected [F, 3]"
+    if z["faces_input_count"].shape != () or int(z["faces_input_count"]) != len(f):
+        return f"faces_input_count {z['faces_input_count'].tolist()} but faces has {len(f)} rows"
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        return f"face indices outside the {len(v)} vertices"
+    n = z["eigenvalues"].shape[0] if z["eigenvalues"].ndim == 1 else None
+    if n is None:
+        return f"eigenvalues have shape {list(z['eigenvalues'].shape)}, expected [n]"
+    expected = {"features": (len(f), n), "akvf_norms": (len(f), n), "residuals": (n,),
+                "face_vectors": (len(f), n, 3)}
+    for key, shape in expected.items():
+        if key in z and z[key].shape != shape:
+            return f"{key} has shape {list(z[key].shape)} beside faces {list(f.shape)} and {n} fields " \
+                   f"(expected {list(shape)})"
+    return None
 
 
 class FeatureDataset(Dataset):
@@ -38,23 +90,13 @@ class FeatureDataset(Dataset):
     def __init__(self, root, *, transform=None):
         self.root = Path(root)
         if not self.root.is_dir():
-            from ..errors import TorchAKVFError
-
             raise TorchAKVFError(f"{root}: not a folder of feature files")
         self.transform = transform
         self.files = self._list_files()
 
     def _list_files(self) -> list[Path]:
-        manifest = self.root / "manifest.jsonl"
-        if manifest.exists():
-            last: dict[str, dict] = {}
-            for line in manifest.read_bytes().splitlines():
-                try:
-                    rec = json.loads(line)
-                except ValueError:
-                    continue
-                if isinstance(rec, dict) and "path" in rec:
-                    last[str(rec["path"])] = rec
+        last = read_manifest(self.root)
+        if last:
             stems = sorted({r["stem"] for r in last.values()
                             if r.get("status") == "ok" and r.get("task", "features") == "features"})
             files = [self.root / f"{s}.npz" for s in stems]
@@ -75,11 +117,20 @@ class FeatureDataset(Dataset):
             "eigenvalues": torch.from_numpy(np.ascontiguousarray(z["eigenvalues"], dtype=np.float64)),
             "residuals": torch.from_numpy(np.ascontiguousarray(z["residuals"], dtype=np.float64)),
             "name": path.stem,
-            "params": json.loads(str(z["params_json"])) if "params_json" in z else {},
+            "params": _params(path, z),
         }
         if "face_vectors" in z:
             item["face_vectors"] = torch.from_numpy(np.ascontiguousarray(z["face_vectors"], dtype=np.float32))
         return self.transform(item) if self.transform is not None else item
+
+
+def _params(path, z: dict) -> dict:
+    if "params_json" not in z:
+        return {}
+    try:
+        return json.loads(str(z["params_json"]))
+    except ValueError:
+        raise TorchAKVFError(f"{path}: corrupt feature file: params_json is not JSON") from None
 
 
 def collate_packed(items: list[dict]) -> dict:

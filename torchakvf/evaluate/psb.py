@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
+from ..io.off import parse_off
+from ..io.outputs import write_seg  # noqa: F401 - the one .seg writer, re-exported
 
 __all__ = [
     "CATEGORIES",
@@ -243,41 +245,9 @@ def _read_seg_slow(path: Path, data: bytes) -> np.ndarray:
     return np.asarray(out, dtype=np.int64)
 
 
-def write_seg(path, labels) -> Path:
-    """Write per-face labels as a ``.seg`` file, one integer per line.
-
-    Parameters
-    ----------
-    path : str or Path
-        Destination; a name ending in ``.gz`` is written gzip-compressed. Missing parent
-        folders are created.
-    labels : array [F], int
-
-    Returns
-    -------
-    Path
-        The path written.
-    """
-    arr = np.asarray(labels)
-    if arr.ndim != 1 or arr.size == 0:
-        raise ParameterError(f"labels must be a non-empty 1-D array, got shape {list(arr.shape)}")
-    if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
-        raise ParameterError(f"labels must be integers, got dtype {arr.dtype}")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = ("\n".join(map(str, arr.astype(np.int64).tolist())) + "\n").encode("ascii")
-    if path.name.endswith(".gz"):
-        # mtime=0: identical labels give byte-identical files (reproducible data sets).
-        text = gzip.compress(text, mtime=0)
-    path.write_bytes(text)
-    return path
-
-
 def read_off(path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a triangle mesh from an ``.off`` file (gzip-compressed or plain), faces in file order.
-
-    Only what PSB needs: ASCII ``OFF``, triangles, ``#`` comments. For general mesh input use
-    the package's own readers.
+    """Read a triangle mesh from an ``.off`` file (gzip-compressed or plain, told by content),
+    faces in file order: the package's OFF parser (:func:`torchakvf.io.off.parse_off`).
 
     Returns
     -------
@@ -287,20 +257,7 @@ def read_off(path) -> tuple[np.ndarray, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"mesh file {str(path)!r} does not exist")
-    data = _read_bytes(path)
-    lines = [ln.split(b"#", 1)[0] for ln in data.splitlines()]
-    tokens = b" ".join(lines).split()
-    if not tokens or tokens[0] != b"OFF":
-        raise ParameterError(f"{path}: not an ASCII OFF file (first token {tokens[:1]!r})")
-    try:
-        n_v, n_f = int(tokens[1]), int(tokens[2])
-        vertices = np.array(tokens[4:4 + 3 * n_v], dtype=np.float64).reshape(n_v, 3)
-        body = np.array(tokens[4 + 3 * n_v:4 + 3 * n_v + 4 * n_f], dtype=np.int64).reshape(n_f, 4)
-    except (IndexError, ValueError):
-        raise ParameterError(f"{path}: truncated or malformed OFF file") from None
-    if np.any(body[:, 0] != 3):
-        raise ParameterError(f"{path}: only triangle meshes are supported")
-    return vertices, body[:, 1:].copy()
+    return parse_off(_read_bytes(path), str(path))
 
 
 def human_segment_counts(entry: PSBEntry) -> list[int]:

@@ -37,7 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
 
-from ..errors import TorchAKVFError
+from ..errors import MeshError, TorchAKVFError
+from ..io.off import off_face_count
 from .psb import BENCHMARK_CATEGORIES, MAX_MESH_ID, category_of, read_seg
 
 __all__ = [
@@ -349,21 +350,11 @@ def find_benchmark_data_dir(root, max_depth: int = 5) -> Path:
 
 
 def _off_face_count(data: bytes, path: Path) -> int:
-    """Number of faces declared in an OFF header."""
-    tokens = []
-    for line in data.split(b"\n", 64)[:64]:  # the header is within the first lines
-        line = line.split(b"#", 1)[0]
-        tokens.extend(line.split())
-        if len(tokens) >= 4:
-            break
-    if not tokens or not tokens[0].startswith(b"OFF"):
-        raise ArchiveError(f"{path}: not an OFF mesh (no 'OFF' header)")
-    counts = tokens[1:4] if tokens[0] == b"OFF" else None
+    """Number of faces declared in an OFF header (the package's OFF header reader)."""
     try:
-        return int(counts[1])
-    except (TypeError, IndexError, ValueError):
-        raise ArchiveError(f"{path}: cannot read the vertex/face counts "
-                           f"of the OFF header") from None
+        return off_face_count(data, str(path))
+    except MeshError as exc:
+        raise ArchiveError(str(exc)) from None
 
 
 def _write(data: bytes, target: Path, compress: bool) -> None:

@@ -1,7 +1,9 @@
 """Reading meshes and writing results."""
 from .load import FORMATS, load_mesh, mesh_format
-from .outputs import atomic_write_bytes, write_npz, write_ply, write_seg
+from .outputs import TEMP_SUFFIX, OutputSpaceError, atomic_write_bytes, remove_stale_temp_files, write_npz, write_ply, write_seg
+from .peek import peek_face_count
 from .results import OUTPUT_FORMATS, safe_stem, write_segmentation
 
-__all__ = ["FORMATS", "load_mesh", "mesh_format", "atomic_write_bytes", "write_npz", "write_ply",
-           "write_seg", "OUTPUT_FORMATS", "safe_stem", "write_segmentation"]
+__all__ = ["FORMATS", "load_mesh", "mesh_format", "peek_face_count", "atomic_write_bytes",
+           "remove_stale_temp_files", "TEMP_SUFFIX", "OutputSpaceError", "write_npz", "write_ply", "write_seg",
+           "OUTPUT_FORMATS", "safe_stem", "write_segmentation"]

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import MeshError
 from ..mesh.mesh import Mesh
+from .off import parse_off
 
 #: Formats read (each optionally gzip-compressed, ``name.off.gz``).
 FORMATS = ("off", "obj", "ply", "stl")
@@ -55,60 +56,10 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     if not raw.strip():
         raise MeshError(name, "file is empty")
     if fmt == "off":
-        vertices, faces = _parse_off(raw, name)
+        vertices, faces = parse_off(raw, name)
     else:
         vertices, faces = _load_with_trimesh(raw, fmt, name)
     return Mesh(vertices, faces, name=name)
-
-
-def _parse_off(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        text = raw.decode("ascii")
-    except UnicodeDecodeError:
-        raise MeshError(name, "not a text OFF file (binary or garbage bytes)") from None
-    lines = [ln.split("#", 1)[0].strip() for ln in text.splitlines()]
-    lines = [ln for ln in lines if ln]
-    if not lines or not lines[0].upper().startswith("OFF"):
-        raise MeshError(name, "missing the 'OFF' header on the first line")
-    header = lines[0][3:].split()
-    rest = lines[1:]
-    if not header:
-        if not rest:
-            raise MeshError(name, "missing the 'n_vertices n_faces n_edges' line")
-        header, rest = rest[0].split(), rest[1:]
-    try:
-        nv, nf = int(header[0]), int(header[1])
-    except (ValueError, IndexError):
-        raise MeshError(name, f"bad counts line {' '.join(header)!r} (expected 'V F E')") from None
-    if nv <= 0 or nf <= 0:
-        raise MeshError(name, f"empty mesh ({nv} vertices, {nf} faces)")
-    if len(rest) < nv + nf:
-        raise MeshError(name, f"truncated: header announces {nv} vertices and {nf} faces, "
-                              f"file has {len(rest)} data lines")
-    try:
-        vertices = np.array([ln.split()[:3] for ln in rest[:nv]], dtype=np.float64)
-    except ValueError:
-        raise MeshError(name, "a vertex line does not hold 3 numbers") from None
-    if vertices.shape != (nv, 3):
-        raise MeshError(name, "a vertex line does not hold 3 numbers")
-    face_tokens = [ln.split() for ln in rest[nv:nv + nf]]
-    sizes = np.array([len(t) for t in face_tokens])
-    try:
-        counts = np.array([int(t[0]) for t in face_tokens])
-    except ValueError:
-        raise MeshError(name, "a face line does not start with its vertex count") from None
-    not_tri = np.flatnonzero(counts != 3)
-    if len(not_tri):
-        f = int(not_tri[0])
-        raise MeshError(name, f"face {f} has {counts[f]} vertices; only triangle meshes are "
-                              f"supported ({len(not_tri)} non-triangle faces)")
-    if np.any(sizes < 4):
-        raise MeshError(name, f"face {int(np.flatnonzero(sizes < 4)[0])} lists fewer than 3 indices")
-    try:
-        faces = np.array([t[1:4] for t in face_tokens], dtype=np.int64)
-    except ValueError:
-        raise MeshError(name, "a face line holds a non-integer vertex index") from None
-    return vertices, faces
 
 
 _OBJ_FACE = re.compile(rb"^f\s+(.*)$", re.MULTILINE)

@@ -1,40 +1,114 @@
 """Writing results: .seg (PSB format), .npz, face-coloured PLY. Every write is atomic."""
 from __future__ import annotations
 
+import errno
+import gzip
 import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import TorchAKVFError
+from ..errors import ParameterError, TorchAKVFError
+
+
+#: Suffix of every temporary file a write leaves while it runs (``.<name>.<random>.torchakvf.tmp``):
+#: a run killed by SIGKILL leaves them behind, and the next run in that folder removes them
+#: (:func:`remove_stale_temp_files`).
+TEMP_SUFFIX = ".torchakvf.tmp"
+
+
+#: errno values that mean the output folder cannot take more data: no mesh is to blame, so a
+#: corpus run stops at once (finished meshes stay recorded) instead of failing every later mesh.
+_NO_ROOM = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG}
+
+
+class OutputSpaceError(TorchAKVFError):
+    """An output could not be written because its file system is full (or read-only)."""
+
+
+def _write_error(path: Path, exc: OSError) -> TorchAKVFError:
+    text = f"{path}: cannot write output ({exc.strerror or exc})"
+    if exc.errno in _NO_ROOM:
+        return OutputSpaceError(text + "; free space and run again: finished meshes are kept")
+    return TorchAKVFError(text)
+
+
+def _umask() -> int:
+    """The process umask, read without changing it where Linux tells it (/proc)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    old = os.umask(0o022)   # elsewhere: set and restore (not thread-safe, but only a fallback)
+    os.umask(old)
+    return old
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to a temporary file beside ``path``, then rename it into place, so an
-    interrupted run never leaves a half-written file under the final name."""
+    interrupted run never leaves a half-written file under the final name. The file gets the
+    mode a plain ``open(path, "w")`` would (0666 less the umask), not mkstemp's 0600."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMP_SUFFIX)
     except OSError as exc:
-        raise TorchAKVFError(f"{path}: cannot write output ({exc.strerror or exc})") from None
+        raise _write_error(path, exc) from None
     try:
         with os.fdopen(fd, "wb") as fh:
+            os.fchmod(fh.fileno(), 0o666 & ~_umask())
             fh.write(data)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(exc, OSError):
+            raise _write_error(path, exc) from None
         raise
 
 
-def write_seg(path, labels: np.ndarray) -> None:
-    """PSB .seg: one integer label per line, one line per face of the input file."""
-    labels = np.asarray(labels).astype(np.int64).reshape(-1)
-    atomic_write_bytes(path, ("\n".join(map(str, labels.tolist())) + "\n").encode())
+def remove_stale_temp_files(folder: str | os.PathLike, older_than_s: float = 0.0) -> int:
+    """Delete the temporary files (:data:`TEMP_SUFFIX`) a killed run left in ``folder``; only
+    those older than ``older_than_s`` seconds (a folder other runs may be writing into, like a
+    shared cache, needs an age). Returns how many were removed."""
+    import time
+
+    removed = 0
+    now = time.time()
+    for tmp in Path(folder).glob(f".*{TEMP_SUFFIX}"):
+        try:
+            if now - tmp.stat().st_mtime >= older_than_s:
+                tmp.unlink()
+                removed += 1
+        except OSError:
+            pass
+    return removed
+
+
+def write_seg(path, labels) -> Path:
+    """Write per-face labels as a PSB ``.seg`` file (one integer per line, one line per face of
+    the input file), atomically; a name ending in ``.gz`` is written gzip-compressed
+    (byte-identical for identical labels). Returns the path.
+
+    Raises :class:`ParameterError` unless ``labels`` is a non-empty 1-D integer array.
+    """
+    arr = np.asarray(labels)
+    if arr.ndim != 1 or arr.size == 0:
+        raise ParameterError(f"{path}: labels must be a non-empty 1-D array, got shape {list(arr.shape)}")
+    if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
+        raise ParameterError(f"{path}: labels must be integers, got dtype {arr.dtype}")
+    path = Path(path)
+    text = ("\n".join(map(str, arr.astype(np.int64).tolist())) + "\n").encode("ascii")
+    if path.name.endswith(".gz"):
+        text = gzip.compress(text, mtime=0)
+    atomic_write_bytes(path, text)
+    return path
 
 
 def write_npz(path, **arrays) -> None:

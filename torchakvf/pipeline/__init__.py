@@ -1,4 +1,6 @@
 """Corpus runs: batched, resumable, one manifest line per mesh (see :mod:`.runner`)."""
-from .runner import MANIFEST, RunSummary, discover_inputs, read_manifest, run_corpus
+from ..io.manifest import MANIFEST, read_manifest
+from .inputs import discover_inputs
+from .runner import RunSummary, run_corpus
 
 __all__ = ["MANIFEST", "RunSummary", "discover_inputs", "read_manifest", "run_corpus"]

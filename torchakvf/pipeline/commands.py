@@ -17,23 +17,37 @@ log = logging.getLogger("torchakvf")
 
 # ---- argument checks (one-line errors) ----------------------------------------------------
 
-def _int(text, flag: str, minimum: int | None = None) -> int:
+#: Largest ``--seed``: every generator the package seeds (torch.Generator, numpy) takes it,
+#: and it fits the int64 a seed may be stored in.
+MAX_SEED = 2**63 - 1
+
+
+def _int(text, flag: str, minimum: int | None = None, maximum: int | None = None) -> int:
     try:
         value = int(str(text).strip())
     except ValueError:
         raise TorchAKVFError(f"{flag} must be an integer, got {text!r}") from None
     if minimum is not None and value < minimum:
         raise TorchAKVFError(f"{flag} must be an integer >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise TorchAKVFError(f"{flag} must be an integer <= {maximum}, got {value}")
     return value
 
 
-def _float(text, flag: str, minimum: float | None = None) -> float:
+def _seed(text) -> int:
+    return _int(text, "--seed", 0, MAX_SEED)
+
+
+def _float(text, flag: str, minimum: float | None = None, maximum: float | None = None,
+           why: str = "") -> float:
     try:
         value = float(str(text).strip())
     except ValueError:
         raise TorchAKVFError(f"{flag} must be a number, got {text!r}") from None
     if value != value or (minimum is not None and value < minimum):
         raise TorchAKVFError(f"{flag} must be a number >= {minimum}, got {text!r}")
+    if maximum is not None and value > maximum:
+        raise TorchAKVFError(f"{flag} must be a number <= {maximum}{why}, got {text!r}")
     return value
 
 
@@ -80,7 +94,9 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def _run(args, task, device: str) -> int:
-    from .runner import check_output_dir, default_batch_faces, discover_inputs, run_corpus
+    from .inputs import discover_inputs
+    from .outdir import check_output_dir
+    from .runner import default_batch_faces, failure_text, run_corpus
 
     out = Path(args.out)
     ray_workers = _int(args.ray_workers, "--ray-workers", 0)
@@ -111,7 +127,7 @@ def _run(args, task, device: str) -> int:
     if summary.failed:
         shown = summary.failures[:5]
         for path, err in shown:
-            print(f"  failed: {err if Path(path).name in err else f'{path}: {err}'}")
+            print(f"  failed: {failure_text(path, err)}")
         if summary.failed > len(shown):
             print(f"  ... and {summary.failed - len(shown)} more (see {summary.manifest})")
     return summary.exit_code
@@ -149,7 +165,8 @@ def run_segment(args) -> int:
     n_fields = _int(args.n_fields, "--n-fields", 1) if args.n_fields is not None else None
     coarse = (DEFAULT_COARSE_FACES if args.coarse_faces is None
               else _int(args.coarse_faces, "--coarse-faces", 0))
-    task = SegmentTask(k, eps=_float(args.eps, "--eps", 0.0), seed=_int(args.seed, "--seed", 0),
+    eps = _float(args.eps, "--eps", 0.0, 2.0, " (a cosine distance never exceeds 2)")
+    task = SegmentTask(k, eps=eps, seed=_seed(args.seed),
                        n_fields=n_fields, remedy=_remedy(args.remedy or DEFAULT_REMEDY),
                        formats=parse_formats(args.formats), coarse_faces=coarse or None)
     return _run(args, task, _device(args.device))
@@ -167,6 +184,12 @@ def _add_features(sub) -> None:
                    help="also store the untangled face vectors [F, n, 3] (large)")
     p.add_argument("--cache", default=None, metavar="DIR",
                    help="content cache: a mesh seen before (same bytes, params, version) is copied, not recomputed")
+    p.add_argument("--coarse-faces", default="0", metavar="N",
+                   help="solve meshes of more than 1.25 N faces decimated to about N faces; each input "
+                        "face takes its coarse face's values (default 0: full resolution)")
+    p.add_argument("--max-faces", default=None, metavar="N",
+                   help="refuse a mesh with more than N faces to solve (default: refuse only meshes "
+                        "whose estimated memory exceeds this machine's)")
     p.set_defaults(func=run_features)
 
 
@@ -174,10 +197,15 @@ def run_features(args) -> int:
     from ..parts.segment import DEFAULT_REMEDY
     from .features import FeaturesTask
 
-    task = FeaturesTask(_int(args.n, "--n", 1), seed=_int(args.seed, "--seed", 0),
-                        remedy=_remedy(args.remedy or DEFAULT_REMEDY), face_vectors=args.face_vectors,
-                        cache_dir=args.cache)
-    return _run(args, task, _device(args.device))
+    n = _int(args.n, "--n", 1)
+    seed = _seed(args.seed)
+    remedy = _remedy(args.remedy or DEFAULT_REMEDY)
+    coarse = _int(args.coarse_faces, "--coarse-faces", 0) or None
+    max_faces = _int(args.max_faces, "--max-faces", 1) if args.max_faces is not None else None
+    device = _device(args.device)
+    task = FeaturesTask(n, seed=seed, remedy=remedy, face_vectors=args.face_vectors, cache_dir=args.cache,
+                        coarse_faces=coarse, max_faces=max_faces)
+    return _run(args, task, device)
 
 
 # ---- bench --------------------------------------------------------------------------------

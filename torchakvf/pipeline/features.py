@@ -11,22 +11,55 @@ array is in the input file's face order, zeros on faces dropped as degenerate):
 ``features``           float32 [F, n]  |X_i(f)| of the untangled fields (the paper's φ(f))
 ``eigenvalues``        float64 [n]     Killing eigenvalues λ·area of the raw AKVFs, ascending
 ``residuals``          float64 [n]     relative residual of each eigenpair
-``converged``          bool ()         every residual below the solver tolerance
+``converged``          bool ()         every residual at most the solver tolerance (also in the
+                                       manifest record, with ``max_residual``)
 ``face_vectors``       float32 [F,n,3] untangled Whitney vectors (only with ``--face-vectors``)
 ``params_json``        str ()          the parameters and torchakvf version, as JSON
 =====================  ==============  ==========================================================
+
+With ``coarse_faces`` a mesh of more than 1.25x that many faces is solved decimated
+(:mod:`torchakvf.mesh.coarse`) and each input face takes the values of the coarse face under
+its barycenter (``face_vectors`` then lie in the coarse face's plane). Without it, a mesh whose
+full-resolution solve would need more memory than the machine has (:func:`estimate_bytes`), or
+more faces than ``max_faces``, is refused before it is loaded, with the option to use.
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
+import os
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ..io import atomic_write_bytes, write_npz
+from ..errors import ParameterError, TorchAKVFError
+from ..io import atomic_write_bytes, remove_stale_temp_files, write_npz
 from ..parts.segment import DEFAULT_REMEDY
+
+log = logging.getLogger("torchakvf.pipeline")
+
+#: Peak memory of a full-resolution ``features`` solve, per face and field, and the fixed part
+#: (bytes; CPU, float64). Measured with ``run_corpus`` in a fresh process (peak RSS, n=32,
+#: OMP_NUM_THREADS=1): icospheres of 5,120 and 20,480 faces took 115 and 374 MiB above the
+#: 263 MiB of the loaded package, 540 B per face-field; a 1.3M-face mesh is then ~22 GB.
+BYTES_PER_FACE_FIELD = 540
+BYTES_FIXED = 300 * 2**20
+#: Face count to suggest for ``--coarse-faces`` when a mesh is refused.
+SUGGESTED_COARSE_FACES = 20_000
+
+
+def estimate_bytes(faces: int, n: int) -> int:
+    """About how many bytes a features solve of ``faces`` faces and ``n`` fields peaks at."""
+    return BYTES_FIXED + int(faces) * int(n) * BYTES_PER_FACE_FIELD
+
+
+def _physical_memory() -> int | None:
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
 
 
 class FeaturesTask:
@@ -37,57 +70,96 @@ class FeaturesTask:
 
     def __init__(self, n: int = 32, *, seed: int = 0, remedy: str = DEFAULT_REMEDY,
                  untangle_restarts: int = 8, tol: float = 1e-6, face_vectors: bool = False,
-                 cache_dir=None):
+                 cache_dir=None, coarse_faces: int | None = None, max_faces: int | None = None,
+                 memory_bytes: int | None = None):
+        """coarse_faces : solve meshes above 1.25x this many faces decimated to about this many
+        (None: full resolution). max_faces : refuse a mesh whose solve has more faces (None:
+        no limit but memory). memory_bytes : the memory a solve may use (default: the
+        machine's physical memory)."""
         self.n, self.seed, self.remedy = int(n), int(seed), remedy
         self.untangle_restarts, self.tol, self.face_vectors = int(untangle_restarts), float(tol), bool(face_vectors)
+        self.coarse_faces = int(coarse_faces) if coarse_faces else None
+        self.max_faces = int(max_faces) if max_faces is not None else None
+        self.memory_bytes = int(memory_bytes) if memory_bytes is not None else _physical_memory()
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         if self.cache_dir is not None:
-            from .runner import check_output_dir
+            from .outdir import check_output_dir
 
-            check_output_dir(self.cache_dir)
+            check_output_dir(self.cache_dir, "--cache")
+            remove_stale_temp_files(self.cache_dir, older_than_s=3600)  # shared: only old ones
 
     @property
     def params(self) -> dict:
         return {"n": self.n, "seed": self.seed, "remedy": self.remedy,
                 "untangle_restarts": self.untangle_restarts, "tol": self.tol,
-                "face_vectors": self.face_vectors}
+                "face_vectors": self.face_vectors, "coarse_faces": self.coarse_faces}
 
     def output_paths(self, out_dir, stem: str) -> list[Path]:
         return [Path(out_dir) / f"{stem}.npz"]
 
-    def validate(self, item) -> None:
-        from ..errors import ParameterError
-        from ..mesh.batch import mesh_edges
+    def solved_faces(self, faces: int) -> int:
+        """Faces of the mesh the solver sees for an input of ``faces`` faces."""
+        from ..mesh.coarse import DECIMATE_ABOVE
 
-        n_edges = len(mesh_edges(item.clean.faces)[0])
-        if self.n > n_edges:
-            raise ParameterError(f"{item.path}: --n {self.n} fields asked for but the mesh has only "
-                                 f"{n_edges} edges")
+        if self.coarse_faces and faces > DECIMATE_ABOVE * self.coarse_faces:
+            return self.coarse_faces
+        return int(faces)
+
+    def check_size(self, path, faces: int) -> None:
+        """Refuse, before any work, a mesh too big for ``max_faces`` or for the memory."""
+        solved = self.solved_faces(faces)
+        need = estimate_bytes(solved, self.n)
+        fits = [SUGGESTED_COARSE_FACES]
+        if self.max_faces is not None:
+            fits.append(self.max_faces)
+        if self.memory_bytes is not None:
+            fits.append((self.memory_bytes - BYTES_FIXED) // (self.n * BYTES_PER_FACE_FIELD))
+        suggest = max(min(fits), 100)
+        fix = (f"solve it decimated with --coarse-faces {suggest}" if not self.coarse_faces
+               else f"lower --coarse-faces (now {self.coarse_faces})")
+        if self.max_faces is not None and solved > self.max_faces:
+            raise ParameterError(f"{path}: {solved:,} faces to solve is above --max-faces {self.max_faces} "
+                                 f"(about {need / 2**30:.1f} GB for --n {self.n}); {fix}, or raise --max-faces")
+        if self.memory_bytes is not None and need > self.memory_bytes:
+            raise ParameterError(f"{path}: {solved:,} faces need about {need / 2**30:.1f} GB for --n {self.n}, "
+                                 f"more than the {self.memory_bytes / 2**30:.1f} GB of memory; {fix}")
+
+    def validate(self, item) -> None:
+        from .batches import require_edges
+
+        require_edges(item, self.n, f"--n {self.n} fields asked for")
 
     def process(self, items, device):
         from ..fields import akvf, untangle
         from ..mesh import MeshBatch
 
         t0 = time.perf_counter()
-        batch = MeshBatch.from_meshes([it.clean for it in items], device=device)
+        batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
+                                      coarse_faces=self.coarse_faces)
         fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol)
         t1 = time.perf_counter()
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
         raw_norms = fields.face_vectors.norm(dim=-1)
         outs = []
         for b, it in enumerate(items):
-            clean = it.clean
             f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+            coarse = batch.coarse_of(b)
+
+            def on_input(values, clean=it.clean, coarse=coarse):
+                """[solved faces, ...] -> [input faces, ...] (zeros on dropped faces)."""
+                values = values[f0:f1].cpu().numpy().astype(np.float32)
+                return clean.to_input_faces(values if coarse is None else coarse.face_values(values))
+
+            residuals = fields.residuals[b].cpu().numpy().astype(np.float64)
             out = {
-                "akvf_norms": clean.to_input_faces(raw_norms[f0:f1].cpu().numpy().astype(np.float32)),
-                "features": clean.to_input_faces(unt.features[f0:f1].cpu().numpy().astype(np.float32)),
+                "akvf_norms": on_input(raw_norms),
+                "features": on_input(unt.features),
                 "eigenvalues": fields.eigenvalues[b].cpu().numpy().astype(np.float64),
-                "residuals": fields.residuals[b].cpu().numpy().astype(np.float64),
-                "converged": np.bool_(bool(fields.converged[b])),
+                "residuals": residuals,
+                "converged": np.bool_(bool(np.all(residuals <= self.tol))),
             }
             if self.face_vectors:
-                out["face_vectors"] = clean.to_input_faces(
-                    unt.face_vectors[f0:f1].cpu().numpy().astype(np.float32))
+                out["face_vectors"] = on_input(unt.face_vectors)
             outs.append(out)
         t2 = time.perf_counter()
         return outs, {"akvf": t1 - t0, "untangle": t2 - t1}
@@ -102,6 +174,10 @@ class FeaturesTask:
                 "faces": mesh.faces.astype(np.int32),
                 **out,
                 "params_json": np.str_(json.dumps(params, sort_keys=True))}
+
+    def manifest_fields(self, out: dict) -> dict:
+        """Flags a mesh whose eigensolve did not converge in its manifest record."""
+        return {"converged": bool(out["converged"]), "max_residual": float(np.max(out["residuals"]))}
 
     def write(self, item, out: dict, out_dir) -> list[Path]:
         path = self.output_paths(out_dir, item.stem)[0]
@@ -119,7 +195,10 @@ class FeaturesTask:
         return h.hexdigest()
 
     def cache_lookup(self, item, out_dir) -> bool:
-        """With a cache folder: copy a cached .npz of the same content + params + version."""
+        """With a cache folder: copy a cached .npz of the same content + params + version, once
+        it is checked whole (a truncated or corrupt entry is deleted and recomputed)."""
+        from ..data.dataset import load_feature_file
+
         if self.cache_dir is None:
             return False
         try:
@@ -129,6 +208,13 @@ class FeaturesTask:
         item.extra["cache_key"] = key
         hit = self.cache_dir / f"{key}.npz"
         if not hit.exists():
+            return False
+        try:
+            load_feature_file(hit)
+        except TorchAKVFError as exc:
+            log.warning("cache entry %s is damaged (%s); deleting it and computing %s again", hit, exc,
+                        item.path)
+            hit.unlink(missing_ok=True)
             return False
         atomic_write_bytes(self.output_paths(out_dir, item.stem)[0], hit.read_bytes())
         return True

@@ -64,17 +64,39 @@ def _timed(fn, batch, args):
     return fn(batch, *args), time.perf_counter() - t0
 
 
-def _error_text(exc: BaseException) -> str:
-    return f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+#: Exceptions that mean a bug in the code, not a bad input: they are never recorded as one
+#: mesh's failure but propagate with their traceback (a torchakvf error never counts as one).
+PROGRAMMING_ERRORS = (TypeError, LookupError, AttributeError, NameError, AssertionError,
+                      NotImplementedError, ImportError, SyntaxError)
 
 
-def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int = 1):
+def is_programming_error(exc: BaseException) -> bool:
+    """Whether ``exc`` is a bug to surface rather than a bad input to record and skip."""
+    from ..errors import TorchAKVFError
+
+    return isinstance(exc, PROGRAMMING_ERRORS) and not isinstance(exc, TorchAKVFError)
+
+
+def error_text(exc: BaseException) -> str:
+    """One line for a manifest or a report: a torchakvf error's own message (it names the
+    input), any other error prefixed by its type."""
+    from ..errors import TorchAKVFError
+
+    text = str(exc) if isinstance(exc, TorchAKVFError) else f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split())[:500]
+
+
+def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int = 1,
+                fatal: tuple = ()):
     """Run ``fn(batch, *args)`` for each batch; yield a :class:`BatchOutcome` as each finishes.
 
     fn must be a module-level function (pickled to the workers) that writes its own outputs;
     its return value comes back to this process. With ``workers`` > 1 the batches run on a
     pool of spawned processes, each on one thread. A batch of several items that raises is
     split and its items retried alone; a single item that raises is reported with its error.
+    A programming error (:func:`is_programming_error`: TypeError, IndexError, ...) is not a bad
+    item: it propagates, with its traceback, and ends the map; so does an exception of a type
+    in ``fatal`` (e.g. :class:`~torchakvf.io.OutputSpaceError`: no item is to blame).
     A worker that dies (killed, out of memory) fails its batch the same way, and the pool is
     started again for the rest.
     """
@@ -85,10 +107,10 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
             t0 = time.perf_counter()
             try:
                 result, error = fn(batch, *args), None
-            except KeyboardInterrupt:
-                raise
             except Exception as exc:  # noqa: BLE001 - one bad mesh must not end the run
-                result, error = None, _error_text(exc)
+                if is_programming_error(exc) or isinstance(exc, fatal):
+                    raise
+                result, error = None, error_text(exc)
             yield from _outcome(queue, batch, result, error, time.perf_counter() - t0)
         return
 
@@ -116,7 +138,9 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
                     result, seconds, broken = None, time.perf_counter() - t0, True
                     error = f"worker process died ({exc})"
                 except Exception as exc:  # noqa: BLE001
-                    result, seconds, error = None, time.perf_counter() - t0, _error_text(exc)
+                    if is_programming_error(exc) or isinstance(exc, fatal):
+                        raise
+                    result, seconds, error = None, time.perf_counter() - t0, error_text(exc)
                 yield from _outcome(queue, batch, result, error, seconds)
             if broken:
                 # Every batch still on the dead pool is lost with it: run them again.
@@ -142,4 +166,5 @@ def _outcome(queue, batch, result, error, seconds):
         yield BatchOutcome(batch, result, error, seconds)
 
 
-__all__ = ["map_batches", "BatchOutcome", "default_workers"]
+__all__ = ["map_batches", "BatchOutcome", "default_workers", "error_text", "is_programming_error",
+           "PROGRAMMING_ERRORS"]

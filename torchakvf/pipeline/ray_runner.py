@@ -4,7 +4,7 @@ The driver does what :func:`~torchakvf.pipeline.run_corpus` does before and afte
 (resume check, size peek, face-budget batches, the manifest); the batches themselves are mapped
 with ``ray.data`` (``map_batches`` with a callable class on a fixed ``ActorPoolStrategy``) over
 ``workers`` warm actors, one per slot (e.g. one per GPU). Each actor runs the same
-:func:`~torchakvf.pipeline.runner.process_batch` and writes the outputs atomically into
+:func:`~torchakvf.pipeline.batches.run_batch` and writes the outputs atomically into
 ``out_dir``, a folder every worker can reach (one machine, or a shared file system on a
 cluster). Workers return the manifest records; the driver alone appends them to
 ``manifest.jsonl`` as they stream in, so the outputs, the manifest and resume are those of
@@ -22,8 +22,10 @@ import time
 from pathlib import Path
 
 from ..errors import TorchAKVFError
-from .runner import (MANIFEST, Item, ManifestWriter, RunSummary, _TermAsInterrupt, check_output_dir,
-                     default_batch_faces, log, peek_faces, plan_batches, prepare, process_batch)
+from ..progress import progress
+from .batches import Item, run_batch
+from .outdir import OutputLock, check_output_dir
+from .runner import RunSummary, plan_run, record_batch, recording
 
 
 class _BatchWorker:
@@ -40,7 +42,7 @@ class _BatchWorker:
         out = []
         for spec in rows["batch"]:
             items = [Item(Path(p), k, s, f if f >= 0 else None) for p, k, s, f in json.loads(str(spec))]
-            out.append(json.dumps(process_batch(items, self.task, self.out_dir, self.device, self.seed)))
+            out.append(json.dumps(run_batch(items, self.task, self.out_dir, self.device, self.seed)))
         return {"records": out}
 
 
@@ -74,19 +76,20 @@ def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, devi
     if workers < 1:
         raise TorchAKVFError(f"Ray workers must be an integer >= 1, got {workers}")
     out_dir = check_output_dir(out_dir)
-    batch_faces = int(batch_faces) if batch_faces is not None else default_batch_faces(device)
-    if batch_faces < 1:
-        raise TorchAKVFError(f"--batch-faces must be a positive integer, got {batch_faces}")
-    todo, skipped = prepare(list(paths), out_dir, task, seed=seed, resume=resume)
-    summary = RunSummary(skipped=len(skipped), manifest=out_dir / MANIFEST)
-    if skipped:
-        log.info("%s: %d meshes already done in %s, skipping them", task.name, len(skipped), out_dir)
-    for it in todo:
-        it.faces = peek_faces(it.path)
-    batches = plan_batches(todo, batch_faces)[::-1]
-    if not batches:
-        summary.elapsed = time.perf_counter() - t0
-        return summary
+    with OutputLock(out_dir):
+        plan = plan_run(paths, out_dir, task, batch_faces=batch_faces, device=device, seed=seed,
+                        resume=resume)
+        summary = plan.summary
+        batches = plan.batches[::-1]
+        if batches:
+            _run_on_ray(ray, batches, out_dir, task, summary, device=device, seed=seed,
+                        workers=workers, cpus_per_worker=cpus_per_worker, gpus_per_worker=gpus_per_worker)
+    summary.elapsed = time.perf_counter() - t0
+    return summary
+
+
+def _run_on_ray(ray, batches, out_dir: Path, task, summary: RunSummary, *, device, seed, workers,
+                cpus_per_worker, gpus_per_worker) -> None:
     if not ray.is_initialized():
         ray.init()
     _ship_task_class(task)
@@ -103,18 +106,10 @@ def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, devi
         fn_constructor_kwargs=dict(task=task, out_dir=str(out_dir), device=device, seed=seed,
                                    threads=max(int(cpus_per_worker), 1)),
         **resources)
-    writer = ManifestWriter(out_dir)
-    try:
-        with _TermAsInterrupt():
-            for row in ds.iter_rows():
-                for rec in json.loads(str(row["records"])):
-                    writer.append(rec)
-                    if not summary.add(rec):
-                        log.warning("%s failed: %s", rec["path"], rec["error"])
-    except KeyboardInterrupt:
-        summary.interrupted = True
-        raise
-    finally:
-        writer.close()
-        summary.elapsed = time.perf_counter() - t0
-    return summary
+    start_bar = lambda: progress(sum(len(b) for b in batches), f"torchakvf {task.name} (ray)",  # noqa: E731
+                                 "meshes")
+    with recording(out_dir, summary, start_bar) as (writer, bar):
+        for row in ds.iter_rows():
+            records = json.loads(str(row["records"]))
+            record_batch(records, writer, summary, bar, task.name)
+            bar.update(len(records))

@@ -1,0 +1,439 @@
+"""The corpus runner's promises under faults (issue 11): nothing stale, nothing lost, one-line
+errors, exit codes that say whether anything failed."""
+from __future__ import annotations
+
+import errno
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import torchakvf as ta
+from torchakvf import cli, shapes
+from torchakvf.errors import TorchAKVFError
+from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest, read_manifest_records
+from torchakvf.pipeline import outdir
+from torchakvf.pipeline.features import FeaturesTask
+from torchakvf.pipeline.inputs import discover_inputs
+from torchakvf.pipeline.runner import run_corpus
+from torchakvf.pipeline.segment_task import SegmentTask
+from faketask import FakeTask, assert_one_line_error
+from meshfiles import write_off
+from threads import one_torch_thread  # noqa: F401 - autouse fixture
+
+REPO = Path(__file__).resolve().parents[1]
+ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1", PYTHONPATH=str(REPO))
+
+
+
+
+def by_stem(out: Path) -> dict:
+    return {r["stem"]: r for r in read_manifest(out).values()}
+
+
+def small_meshes(root: Path, names=("a", "b", "c"), level: int = 1) -> list[Path]:
+    s = shapes.icosphere(level)
+    return [write_off(root / f"{n}.off", s.vertices, s.faces) for n in names]
+
+
+def cli_run(argv, capsys):
+    rc = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+# ---- stale results ------------------------------------------------------------------------
+
+def test_kill_and_resume_with_changed_parameters_recomputes_the_rewritten_mesh(tmp_path, capsys):
+    """The issue's scenario: finish -k 4; a -k 5 run rewrites one mesh's files and is killed
+    before its manifest line; -k 4 again must compute that mesh again, not skip it."""
+    d, e = shapes.dumbbell(n_around=12), shapes.ellipsoid(level=1)
+    src = tmp_path / "in"
+    write_off(src / "dumb.off", d.vertices, d.faces)
+    write_off(src / "ell.off", e.vertices, e.faces)
+    out = tmp_path / "O"
+    argv = ["segment", src, "-k", "4", "--out", out, "--n-fields", "8", "--formats", "seg"]
+    rc, stdout, err = cli_run(argv, capsys)
+    assert rc == 0 and "2 ok" in stdout, err
+    k4 = (out / "dumb.seg").read_bytes()
+    # The killed -k 5 run: its files for 'dumb' are in place, its manifest line never written.
+    side = tmp_path / "k5"
+    run_corpus([src / "dumb.off"], side, SegmentTask(5, n_fields=8, formats=("seg",)), progress=False)
+    k5 = (side / "dumb.seg").read_bytes()
+    assert len(set(np.loadtxt(side / "dumb.seg", dtype=int).tolist())) == 5 and k5 != k4
+    (out / "dumb.seg").write_bytes(k5)
+    rc, stdout, err = cli_run(argv, capsys)
+    assert rc == 0 and "1 ok" in stdout and "1 skipped" in stdout, stdout
+    # The -k 4 result again (4 parts), not the 5 parts; the manifest vouches for this file.
+    # (Labels are not compared with the first run's: that one solved dumb in a batch with ell.)
+    assert len(set(np.loadtxt(out / "dumb.seg", dtype=int).tolist())) == 4
+    rec = by_stem(out)["dumb"]
+    assert rec["params"]["k"] == 4
+    assert rec["outputs"]["dumb.seg"] == ta.io.manifest.file_fingerprint(out / "dumb.seg")
+
+
+def test_torn_or_deleted_output_is_computed_again(tmp_path):
+    paths = small_meshes(tmp_path / "in")
+    out = tmp_path / "out"
+    run_corpus(paths, out, FakeTask(), progress=False)
+    (out / "a.txt").write_bytes(b"8")             # torn: a prefix of "80"
+    (out / "b.txt").unlink()
+    again = run_corpus(paths, out, FakeTask(), progress=False)
+    assert (again.ok, again.skipped) == (2, 1)
+    assert (out / "a.txt").read_text() == "80" and (out / "b.txt").read_text() == "80"
+
+
+def test_changed_input_content_is_computed_again(tmp_path):
+    paths = small_meshes(tmp_path / "in")
+    out = tmp_path / "out"
+    run_corpus(paths, out, FakeTask(), progress=False)
+    s = shapes.icosphere(2)
+    write_off(paths[0], s.vertices, s.faces)      # same path, another mesh
+    again = run_corpus(paths, out, FakeTask(), progress=False)
+    assert (again.ok, again.skipped) == (1, 2)
+    assert (out / "a.txt").read_text() == "320"
+    assert by_stem(out)["a"]["input"] == ta.io.manifest.file_fingerprint(paths[0])
+
+
+def test_corrupt_feature_file_is_not_skipped(tmp_path):
+    paths = small_meshes(tmp_path / "in", names=("a",))
+    out = tmp_path / "out"
+    run_corpus(paths, out, FeaturesTask(4), progress=False)
+    whole = (out / "a.npz").read_bytes()
+    (out / "a.npz").write_bytes(whole[: len(whole) // 2])
+    again = run_corpus(paths, out, FeaturesTask(4), progress=False)
+    assert (again.ok, again.skipped) == (1, 0)
+    assert (out / "a.npz").read_bytes() == whole
+
+
+# ---- one name, two meshes -----------------------------------------------------------------
+
+def test_same_stem_across_runs_does_not_overwrite(tmp_path):
+    s1, s2 = shapes.icosphere(1), shapes.icosphere(2)
+    a = write_off(tmp_path / "a" / "x.off", s1.vertices, s1.faces)
+    b = write_off(tmp_path / "b" / "x.off", s2.vertices, s2.faces)
+    out = tmp_path / "O"
+    run_corpus([a], out, FakeTask(), progress=False)
+    run_corpus([b], out, FakeTask(), progress=False)
+    stems = {r["path"]: r["stem"] for r in read_manifest(out).values()}
+    assert stems[str(a.resolve())] == "x" and stems[str(b.resolve())].startswith("x-")
+    assert (out / "x.txt").read_text() == "80"
+    assert (out / f"{stems[str(b.resolve())]}.txt").read_text() == "320"
+    # Re-running either keeps each right: both skipped, nothing overwritten.
+    for p in (a, b, a):
+        again = run_corpus([p], out, FakeTask(), progress=False)
+        assert (again.ok, again.skipped) == (0, 1)
+    both = run_corpus([b, a], out, FakeTask(), progress=False)
+    assert (both.ok, both.skipped) == (0, 2)
+    assert (out / "x.txt").read_text() == "80"
+
+
+# ---- manifest faults ----------------------------------------------------------------------
+
+def _unwritable_manifest(out: Path, how: str) -> str:
+    """A manifest.jsonl this process cannot write (as root, chmod would not stop it)."""
+    out.mkdir(parents=True)
+    if how == "folder":                           # cannot be read, nor opened for appending
+        (out / MANIFEST).mkdir()
+        return "cannot read the manifest (Is a directory)"
+    (out / MANIFEST).symlink_to(out / "gone" / "manifest.jsonl")    # a dangling link
+    return "cannot open the manifest for appending (No such file or directory)"
+
+
+@pytest.mark.parametrize("how", ["folder", "dangling link"])
+def test_unwritable_manifest_is_one_line(tmp_path, capsys, how):
+    paths = small_meshes(tmp_path / "in", names=("a",))
+    out = tmp_path / "out"
+    problem = _unwritable_manifest(out, how)
+    with pytest.raises(TorchAKVFError, match=problem.replace("(", r"\(").replace(")", r"\)")):
+        run_corpus(paths, out, FakeTask(), progress=False)
+    assert not (out / "a.txt").exists()           # refused before any work
+    rc, _, err = cli_run(["features", paths[0], "--out", out, "--n", "4"], capsys)
+    assert rc == 2
+    assert_one_line_error(err, str(out / MANIFEST), problem)
+
+
+def test_unwritable_manifest_in_a_real_process(tmp_path):
+    paths = small_meshes(tmp_path / "in", names=("a",))
+    out = tmp_path / "out"
+    problem = _unwritable_manifest(out, "dangling link")
+    proc = subprocess.run([sys.executable, "-m", "torchakvf.cli", "features", str(paths[0]), "--out",
+                           str(out), "--n", "4"], capture_output=True, text=True, cwd=REPO, env=ENV)
+    assert proc.returncode == 2
+    assert_one_line_error(proc.stderr, problem)
+
+
+def _enospc_after(monkeypatch, good: int, torn: bool, truncate_fails: bool = False):
+    """Appends after the first ``good`` ones fail as on a full disk (half a line written when
+    ``torn``; the cut-back failing too when ``truncate_fails``)."""
+    calls = {"n": 0}
+    real = ManifestWriter._write
+
+    def write(self, data):
+        if data != b"\n":
+            calls["n"] += 1
+            if calls["n"] > good:
+                if torn:
+                    real(self, data[: len(data) // 2])
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(self, data)
+
+    monkeypatch.setattr(ManifestWriter, "_write", write)
+    if truncate_fails:
+        def no_truncate(fd, size):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        monkeypatch.setattr(ta.io.manifest.os, "ftruncate", no_truncate)
+
+
+@pytest.mark.parametrize("truncate_fails", [False, True])
+def test_full_disk_during_append_loses_nothing(tmp_path, monkeypatch, capsys, truncate_fails):
+    paths = small_meshes(tmp_path / "in", names=("a", "b", "c"))
+    out = tmp_path / "out"
+    with monkeypatch.context() as m:
+        _enospc_after(m, good=1, torn=True, truncate_fails=truncate_fails)
+        with pytest.raises(TorchAKVFError, match="No space left on device") as info:
+            run_corpus(paths, out, FakeTask(), batch_faces=80, progress=False)
+    assert "\n" not in str(info.value) and "run again" in str(info.value)
+    data = (out / MANIFEST).read_bytes()
+    assert data.endswith(b"\n") != truncate_fails     # cut back to whole lines where it can be
+    assert [r["stem"] for r in read_manifest_records(out)] == ["a"]   # the torn tail is skipped
+    # The next run (disk freed) keeps 'a' and finishes the rest.
+    again = run_corpus(paths, out, FakeTask(), batch_faces=80, progress=False)
+    assert (again.ok, again.skipped) == (2, 1)
+    assert sorted(by_stem(out)) == ["a", "b", "c"]
+    # And through the CLI: one line, exit 2.
+    with monkeypatch.context() as m:
+        _enospc_after(m, good=0, torn=True)
+        rc, _, err = cli_run(["features", paths[0], "--out", tmp_path / "o2", "--n", "4"], capsys)
+    assert rc == 2
+    assert_one_line_error(err, "cannot append to the manifest", "No space left on device")
+
+
+def _mount_tmpfs(where: Path, size: str) -> bool:
+    where.mkdir(parents=True, exist_ok=True)
+    try:
+        return subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
+                              capture_output=True).returncode == 0
+    except OSError:
+        return False
+
+
+def test_full_disk_on_a_real_tmpfs(tmp_path):
+    """A small tmpfs filled up after the first batch: the next batch's output and manifest
+    writes fail; the manifest keeps whole lines and the first mesh."""
+    mnt = tmp_path / "mnt"
+    if not _mount_tmpfs(mnt, "256k"):
+        pytest.skip("cannot mount a tmpfs here (needs root and CAP_SYS_ADMIN)")
+    try:
+        paths = small_meshes(tmp_path / "in", names=("a", "b", "c"))
+        out = mnt / "out"
+        filler = mnt / "filler"
+
+        def fill(bno, records):
+            if bno == 1:
+                fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+                try:
+                    while os.write(fd, b"\0" * 4096):
+                        pass
+                except OSError:
+                    pass
+                finally:
+                    os.close(fd)
+
+        with pytest.raises(TorchAKVFError, match="No space left on device") as info:
+            # 5 kB per record: every append needs a new page of the full disk
+            run_corpus(paths, out, FakeTask(pad=5000), batch_faces=80, progress=False, on_batch=fill)
+        assert "\n" not in str(info.value)
+        assert (out / MANIFEST).read_bytes().endswith(b"\n")
+        assert [r["stem"] for r in read_manifest_records(out)] == ["a"]
+        assert (out / "a.txt").read_text() == "80"
+        filler.unlink()
+        again = run_corpus(paths, out, FakeTask(pad=5000), batch_faces=80, progress=False)
+        assert (again.ok, again.skipped, again.failed) == (2, 1, 0)
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+def test_torn_tail_then_next_run(tmp_path):
+    paths = small_meshes(tmp_path / "in", names=("a", "b"))
+    out = tmp_path / "out"
+    run_corpus(paths[:1], out, FakeTask(), progress=False)
+    with open(out / MANIFEST, "ab") as fh:
+        fh.write(b'{"path": "/x.off", "stem": "x", "sta')     # no newline
+    assert [r["stem"] for r in read_manifest_records(out)] == ["a"]
+    again = run_corpus(paths, out, FakeTask(), progress=False)
+    assert (again.ok, again.skipped) == (1, 1)
+    assert [r["stem"] for r in read_manifest_records(out)] == ["a", "b"]
+    assert ta.data.FeatureDataset  # the dataset reads manifests with the same reader (below)
+
+
+# ---- a mesh too big for full resolution ---------------------------------------------------
+
+def test_features_refuses_a_big_mesh_up_front(tmp_path, capsys):
+    big = small_meshes(tmp_path / "in", names=("big",), level=2)[0]     # 320 faces
+    out = tmp_path / "out"
+    rc, stdout, err = cli_run(["features", big, "--out", out, "--n", "4", "--max-faces", "100"], capsys)
+    assert rc == 1
+    rec = by_stem(out)["big"]
+    assert rec["status"] == "failed" and "seconds" in rec
+    for part in (str(big), "320 faces", "--max-faces 100", "GB", "--coarse-faces"):
+        assert part in rec["error"], rec["error"]
+    assert "failed: " in stdout and "--coarse-faces" in stdout
+    # Memory: the estimate against what the machine has (here a pretend 1 MB).
+    task = FeaturesTask(4, memory_bytes=2**20)
+    summary = run_corpus([big], tmp_path / "o2", task, progress=False)
+    assert summary.failed == 1 and "more than the 0.0 GB of memory" in summary.failures[0][1]
+
+
+def test_features_coarse_to_fine(tmp_path):
+    s = shapes.ellipsoid(level=3)                                 # 1280 faces
+    src = write_off(tmp_path / "in" / "e.off", s.vertices, s.faces)
+    out = tmp_path / "out"
+    summary = run_corpus([src], out, FeaturesTask(4, coarse_faces=300, max_faces=400), progress=False)
+    assert summary.ok == 1, summary.failures                     # 300 solved faces: admitted
+    z = ta.data.load_feature_file(out / "e.npz")
+    assert z["features"].shape == (len(s.faces), 4) and np.all(z["features"].sum(1) > 0)
+    rec = by_stem(out)["e"]
+    assert rec["params"]["coarse_faces"] == 300 and isinstance(rec["converged"], bool)
+    assert rec["converged"] == bool(np.all(z["residuals"] <= 1e-6)) == bool(z["converged"])
+    assert rec["max_residual"] == pytest.approx(float(z["residuals"].max()))
+
+
+def test_progress_lines_on_long_work(tmp_path, caplog, capsys, monkeypatch):
+    from torchakvf.pipeline import runner
+
+    paths = small_meshes(tmp_path / "in", names=("a", "b"))
+    monkeypatch.setattr(runner, "ANNOUNCE_FACES", 50)             # "big" batches: 80 faces
+    with caplog.at_level("INFO", logger="torchakvf.progress"):
+        run_corpus(paths, tmp_path / "out", FakeTask(), batch_faces=80)
+    err = capsys.readouterr().err
+    assert "batch 1/2: 1 mesh(es), 80 faces" in err and "this can take minutes" in err
+    lines = [r.getMessage() for r in caplog.records if r.name == "torchakvf.progress"]
+    assert any("160/160 faces" in line for line in lines), lines
+
+
+# ---- corrupt feature files ----------------------------------------------------------------
+
+def _good_features(tmp_path) -> Path:
+    paths = small_meshes(tmp_path / "in", names=("a",), level=2)
+    out = tmp_path / "feats"
+    run_corpus(paths, out, FeaturesTask(4), progress=False)
+    return out
+
+
+def test_feature_dataset_names_the_bad_file(tmp_path):
+    out = _good_features(tmp_path)
+    good = dict(ta.data.load_feature_file(out / "a.npz"))
+    assert good["faces"].shape == (320, 3)
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "t.npz").write_bytes((out / "a.npz").read_bytes()[:500])            # truncated
+    mis = dict(good, features=np.zeros((10, 4), np.float32))                   # [10, n] beside [320, 3]
+    np.savez(bad / "m.npz", **mis)
+    few = {k: v for k, v in good.items() if k != "residuals"}
+    np.savez(bad / "r.npz", **few)
+    ds = ta.data.FeatureDataset(bad)
+    for i, (name, problem) in enumerate([("m.npz", "features has shape [10, 4] beside faces [320, 3]"),
+                                         ("r.npz", "missing array(s) residuals"),
+                                         ("t.npz", "not a readable feature file")]):
+        assert ds.files[i].name == name
+        with pytest.raises(TorchAKVFError) as info:
+            ds[i]
+        assert str(bad / name) in str(info.value) and problem in str(info.value)
+
+
+def test_truncated_cache_entry_is_recomputed_not_copied(tmp_path):
+    paths = small_meshes(tmp_path / "in", names=("a",))
+    cache = tmp_path / "cache"
+    first = run_corpus(paths, tmp_path / "o1", FeaturesTask(4, cache_dir=cache), progress=False)
+    assert first.ok == 1
+    (entry,) = cache.glob("*.npz")
+    whole = entry.read_bytes()
+    entry.write_bytes(whole[:300])
+    second = run_corpus(paths, tmp_path / "o2", FeaturesTask(4, cache_dir=cache), progress=False)
+    assert (second.ok, second.cached) == (1, 0)                  # not "ok (from cache)"
+    assert (tmp_path / "o2" / "a.npz").read_bytes() == whole
+    assert entry.read_bytes() == whole                           # the entry is whole again
+    third = run_corpus(paths, tmp_path / "o3", FeaturesTask(4, cache_dir=cache), progress=False)
+    assert third.cached == 1
+
+
+# ---- smaller things -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_outputs_get_the_umask_mode(tmp_path, umask, mode):
+    old = os.umask(umask)
+    try:
+        ta.io.write_seg(tmp_path / "x.seg", np.array([0, 1]))
+        ta.io.atomic_write_bytes(tmp_path / "y.bin", b"1")
+    finally:
+        os.umask(old)
+    for name in ("x.seg", "y.bin"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == mode
+
+
+def test_stale_temp_files_are_removed_at_start(tmp_path):
+    paths = small_meshes(tmp_path / "in", names=("a",))
+    out = tmp_path / "out"
+    out.mkdir()
+    stale = out / f".a.txt.k3j2{ta.io.TEMP_SUFFIX}"       # what a SIGKILL mid-write leaves
+    stale.write_bytes(b"half")
+    other = out / ".notes.tmp"                             # not ours: kept
+    other.write_bytes(b"keep")
+    run_corpus(paths, out, FakeTask(), progress=False)
+    assert not stale.exists() and other.exists()
+
+
+def test_two_runs_on_one_out_at_once(tmp_path, capsys):
+    paths = small_meshes(tmp_path / "in", names=("a",))
+    out = tmp_path / "out"
+    out.mkdir()
+    with outdir.OutputLock(out):                           # a run in progress
+        with pytest.raises(TorchAKVFError, match=f"another torchakvf run \\(pid {os.getpid()}\\)"):
+            run_corpus(paths, out, FakeTask(), progress=False)
+        proc = subprocess.run([sys.executable, "-m", "torchakvf.cli", "features", str(paths[0]),
+                               "--out", str(out), "--n", "4"], capture_output=True, text=True,
+                              cwd=REPO, env=ENV)
+        assert proc.returncode == 2
+        assert_one_line_error(proc.stderr, "another torchakvf run", "wait for it")
+    assert not (out / "a.txt").exists()
+    done = run_corpus(paths, out, FakeTask(), progress=False)   # released: runs
+    assert done.ok == 1
+
+
+# ---- bugs are not bad meshes; exit codes --------------------------------------------------
+
+def test_programming_error_surfaces_after_the_manifest_is_flushed(tmp_path):
+    paths = small_meshes(tmp_path / "in", names=("a", "bug", "c"))
+    out = tmp_path / "out"
+    task = FakeTask(fail={"bug": TypeError("unsupported operand")})
+    with pytest.raises(TypeError, match="unsupported operand"):
+        run_corpus(paths, out, task, batch_faces=80, progress=False)
+    assert [r["stem"] for r in read_manifest_records(out)] == ["a"]    # batch 1 recorded
+    assert task.batches == [["a"], ["bug"]]                            # stopped there, no retry
+
+
+@pytest.mark.parametrize("exc", [TorchAKVFError("bad mesh"), MemoryError(), OSError(5, "I/O error"),
+                                 RuntimeError("not positive definite")])
+def test_bad_input_fails_alone_and_the_run_goes_on(tmp_path, exc):
+    paths = small_meshes(tmp_path / "in", names=("a", "bad", "c"))
+    summary = run_corpus(paths, tmp_path / "out", FakeTask(fail={"bad": exc}), batch_faces=10_000,
+                         progress=False)
+    assert (summary.ok, summary.failed, summary.exit_code) == (2, 1, 1)
+    assert by_stem(tmp_path / "out")["bad"]["status"] == "failed"
+
+
+def test_manifest_fields_hook_and_exit_codes(tmp_path, capsys):
+    paths = small_meshes(tmp_path / "in", names=("a",))
+    run_corpus(paths, tmp_path / "out", FakeTask(), progress=False)
+    assert by_stem(tmp_path / "out")["a"]["faces_seen"] == 80
+    (tmp_path / "in" / "junk.off").write_bytes(b"OFF\n3 1 0\n")
+    for cmd in (["features", "--n", "4"], ["segment", "-k", "2", "--n-fields", "4", "--formats", "seg"]):
+        rc, stdout, _ = cli_run([cmd[0], tmp_path / "in", "--out", tmp_path / cmd[0], *cmd[1:]], capsys)
+        assert rc == 1 and "1 ok, 1 failed" in stdout and "junk.off" in stdout
+        rc, stdout, _ = cli_run([cmd[0], paths[0], "--out", tmp_path / f"{cmd[0]}-ok", *cmd[1:]], capsys)
+        assert rc == 0 and "1 ok, 0 failed" in stdout

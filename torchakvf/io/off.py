@@ -1,0 +1,96 @@
+"""The one OFF reader: the header's counts (for a cheap peek) and the whole file (for a load)."""
+from __future__ import annotations
+
+from typing import Iterable
+
+import numpy as np
+
+from ..errors import MeshError
+
+
+def off_counts(lines: Iterable[str], name: str) -> tuple[int, int, int]:
+    """(vertices, faces, header lines used) from the first comment-free, non-empty lines of an
+    OFF file (``OFF V F E`` on one line, or ``OFF`` then ``V F E``).
+
+    Raises :class:`MeshError` naming ``name`` when the ``OFF`` keyword or the counts are missing
+    or not integers: a header that cannot be read is an error, never a guess.
+    """
+    it = iter(lines)
+    first = next(it, None)
+    if first is None or not first.upper().startswith("OFF"):
+        raise MeshError(name, "missing the 'OFF' header on the first line")
+    header, used = first[3:].split(), 1
+    if not header:
+        second = next(it, None)
+        if second is None:
+            raise MeshError(name, "missing the 'n_vertices n_faces n_edges' line")
+        header, used = second.split(), 2
+    try:
+        nv, nf = int(header[0]), int(header[1])
+    except (ValueError, IndexError):
+        raise MeshError(name, f"bad counts line {' '.join(header)!r} (expected 'V F E')") from None
+    if nv < 0 or nf < 0:
+        raise MeshError(name, f"negative counts in {' '.join(header)!r}")
+    return nv, nf, used
+
+
+def data_lines(text: str) -> list[str]:
+    """The lines of an OFF text without ``#`` comments and blank lines."""
+    lines = (ln.split("#", 1)[0].strip() for ln in text.splitlines())
+    return [ln for ln in lines if ln]
+
+
+def decode_off(raw: bytes, name: str) -> str:
+    try:
+        return raw.decode("ascii")
+    except UnicodeDecodeError:
+        raise MeshError(name, "not a text OFF file (binary or garbage bytes)") from None
+
+
+def parse_off(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices [V, 3] float64 and triangles [F, 3] int64 of an ASCII OFF file's bytes, faces in
+    file order. Strict: a polygon that is not a triangle is an error, not silently split."""
+    lines = data_lines(decode_off(raw, name))
+    nv, nf, used = off_counts(lines, name)
+    rest = lines[used:]
+    if nv <= 0 or nf <= 0:
+        raise MeshError(name, f"empty mesh ({nv} vertices, {nf} faces)")
+    if len(rest) < nv + nf:
+        raise MeshError(name, f"truncated: header announces {nv} vertices and {nf} faces, "
+                              f"file has {len(rest)} data lines")
+    try:
+        vertices = np.array([ln.split()[:3] for ln in rest[:nv]], dtype=np.float64)
+    except ValueError:
+        raise MeshError(name, "a vertex line does not hold 3 numbers") from None
+    if vertices.shape != (nv, 3):
+        raise MeshError(name, "a vertex line does not hold 3 numbers")
+    face_tokens = [ln.split() for ln in rest[nv:nv + nf]]
+    sizes = np.array([len(t) for t in face_tokens])
+    try:
+        counts = np.array([int(t[0]) for t in face_tokens])
+    except ValueError:
+        raise MeshError(name, "a face line does not start with its vertex count") from None
+    not_tri = np.flatnonzero(counts != 3)
+    if len(not_tri):
+        f = int(not_tri[0])
+        raise MeshError(name, f"face {f} has {counts[f]} vertices; only triangle meshes are "
+                              f"supported ({len(not_tri)} non-triangle faces)")
+    if np.any(sizes < 4):
+        raise MeshError(name, f"face {int(np.flatnonzero(sizes < 4)[0])} lists fewer than 3 indices")
+    try:
+        faces = np.array([t[1:4] for t in face_tokens], dtype=np.int64)
+    except ValueError:
+        raise MeshError(name, "a face line holds a non-integer vertex index") from None
+    return vertices, faces
+
+
+def off_face_count(head: bytes, name: str) -> int:
+    """Faces declared by the header at the start of an OFF file's (decompressed) bytes."""
+    lines: list[str] = []
+    for raw in head.split(b"\n", 256)[:256]:   # the header is within the first lines
+        line = raw.split(b"#", 1)[0].strip()
+        if line:
+            lines.append(decode_off(line, name))
+        if len(lines) >= 2:
+            break
+    return off_counts(lines, name)[1]
