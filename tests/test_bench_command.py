@@ -9,8 +9,8 @@ import torch
 
 from torchakvf import shapes
 from torchakvf.cli import main
-from torchakvf.pipeline import bench
-from torchakvf.evaluate.harness import default_eval_batch_faces
+from torchakvf.evaluate import bench
+from torchakvf.evaluate.plan import default_eval_batch_faces
 from torchakvf.mesh.coarse import DEFAULT_COARSE_FACES
 from torchakvf.pipeline.parallel import default_workers
 from meshfiles import write_off, write_seg

@@ -76,9 +76,17 @@ def test_batch_equals_one_at_a_time(built, batch_seg):
 def test_same_seed_same_labels_other_seed_still_right(built):
     s = built["three_blobs"]
     m = ta.Mesh(s.vertices, s.faces)
-    a = ta.segment(m, k=3, seed=7)[0].labels
-    b = ta.segment(m, k=3, seed=7)[0].labels
-    np.testing.assert_array_equal(a, b)
+    a = ta.segment(m, k=3, seed=7, refine=False)[0]
+    b = ta.segment(m, k=3, seed=7, refine=False)[0]
+    np.testing.assert_array_equal(a.labels, b.labels)
+    assert a.cost == b.cost
+    # Other seeds start the solver, the untangling and k-means elsewhere; the parts stay right.
+    area = face_areas(s.vertices, s.faces)
+    for seed in (0, 123):
+        c = ta.segment(m, k=3, seed=seed, refine=False)[0]
+        assert c.params["seed"] == seed
+        assert area_agreement(c.labels, s.part_labels, area, 3) >= 0.98, seed
+        assert area_agreement(c.labels, a.labels, area, 3) >= 0.98, seed
 
 
 def test_invariant_to_rigid_motion_and_scale(built):
@@ -186,3 +194,39 @@ def test_parameter_errors(built):
         ta.segment(m, k=len(s.faces) + 1)
     with pytest.raises(ta.ParameterError, match="boundary"):
         ta.segment(m, k=2, boundary="wiggly")
+
+
+# ---- the engine: one solve for every k ------------------------------------------------------
+
+def test_segment_each_k_equals_segment_per_k(built):
+    """Every k from one solve gives the labels ``segment`` gives for that k alone (its own solve),
+    with numpy integers for k; rounds whose field counts agree share one untangling."""
+    from torchakvf.parts.engine import segment_each_k
+
+    s = built["three_blobs"]
+    m = ta.Mesh(s.vertices, s.faces)
+    res = segment_each_k([m], [[np.int64(2), 3, 4]], seed=0, refine=False, n_akvf=20)
+    assert set(res.meshes[0]) == {2, 3, 4}
+    assert len({id(r.untangled) for r in res.rounds}) == 1       # 2k <= 16: one field count
+    for k in (2, 3, 4):
+        alone = ta.segment(m, k=np.int32(k), seed=0, refine=False)[0]
+        np.testing.assert_array_equal(res.meshes[0][k].labels, alone.labels)
+        assert res.meshes[0][k].cost == pytest.approx(alone.cost, rel=1e-9)
+    assert set(res.seconds) == {"akvf", "untangle", "cluster"}
+
+
+def test_segmentation_reports_convergence(built, batch_seg):
+    for seg in batch_seg.meshes:
+        assert seg.converged is True
+        assert 0.0 <= seg.max_residual <= 1e-6
+    from torchakvf.parts.engine import AKVF_TOL
+    assert AKVF_TOL == 1e-6
+
+
+def test_method_and_solver_are_checked(built):
+    s = built["dumbbell"]
+    m = ta.Mesh(s.vertices, s.faces)
+    with pytest.raises(ta.ParameterError, match="method must be one of"):
+        ta.segment(m, k=2, method="greedy")
+    with pytest.raises(ta.ParameterError, match="solver must be one of"):
+        ta.segment(m, k=2, solver="arpack")
