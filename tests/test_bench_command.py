@@ -126,7 +126,7 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
 def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypatch, one_thread):
     root, _ = fake_psb
     # The scipy baseline cannot be imported: it is skipped, with a note.
-    monkeypatch.setattr(bench, "_load_scipy_reference",
+    monkeypatch.setattr(bench, "load_scipy_reference",
                         lambda: (None, "scipy baseline skipped: importing torchakvf.scipy_reference failed (test)"))
     fast = dict(n_fields=16, segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
     r = bench.run_bench(root, tmp_path / "b1", baseline_every=2, limit=2, **fast)

@@ -11,6 +11,12 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
+
+from .. import shapes
+from ..io import load_mesh
+from ..io.outputs import write_seg
+from ..mesh import Mesh, MeshBatch, clean_mesh
 from ..parts.engine import SegmentOptions, segment_each_k
 from ..pipeline.parallel import map_batches
 from ..progress import progress
@@ -191,12 +197,6 @@ def _scipy_segment_mesh(ref, mesh, pred_dir: Path, seed: int, n_akvf: int, stage
     operator + ``eigsh`` once (``n_akvf`` fields, as torchakvf computes), then per k: Algorithm 1
     on the first clamp(2k, 16, 32) fields (``segment_scipy``'s default), Whitney face vectors,
     their norms and spherical k-means (the reference's default restarts), and one ``.seg``."""
-    import numpy as np
-
-    from ..io import load_mesh
-    from ..io.outputs import write_seg
-    from ..mesh import clean_mesh
-
     last = [time.perf_counter()]
 
     def tick(stage, k=None):
@@ -266,9 +266,6 @@ def run_scipy(ref, meshes, work: Path, *, seed: int, n_akvf: int) -> dict:
 def warm_up(device: str, seed: int, remedy: str, n_akvf: int, segment_kwargs: dict | None = None) -> float:
     """Untimed: a small built-in shape through AKVFs + segmentation on ``device`` (lazy imports,
     CUDA context and libraries). Returns its seconds (reported, charged to no run)."""
-    from .. import shapes
-    from ..mesh import Mesh, MeshBatch
-
     options = {k: v for k, v in (segment_kwargs or {}).items() if k not in ("coarse_faces", "refine")}
     t0 = time.perf_counter()
     try:

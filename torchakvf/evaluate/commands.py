@@ -43,15 +43,26 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _register(subparsers, name: str, summary: str, description: str, add_arguments, run) -> None:
+    p = subparsers.add_parser(name, help=summary, description=description)
+    add_arguments(p)
+    p.set_defaults(func=run)
+
+
 def add_eval_command(subparsers) -> None:
     """Register ``eval`` on an argparse ``add_subparsers()`` object."""
+    _register(subparsers, "eval", "evaluate on the Princeton Segmentation Benchmark (resumable)",
+              "Segment PSB meshes, score them against the human segmentations and write "
+              "pred/<id>/<id>_k<k>.seg, scores.csv, summary.md and rand_index.png to --out. "
+              "Re-running with the same --out skips predictions already written. Exits 1 when a "
+              "mesh failed or an input file was left out (each is listed).",
+              add_eval_arguments, run_eval)
+
+
+def add_eval_arguments(p) -> None:
+    """The options of ``torchakvf eval``."""
     from .harness import DEFAULT_K_NO_GT, METRIC_GROUPS, PROTOCOLS
 
-    p = subparsers.add_parser(
-        "eval", help="evaluate on the Princeton Segmentation Benchmark (resumable)",
-        description="Segment PSB meshes, score them against the human segmentations and write "
-                    "pred/<id>/<id>_k<k>.seg, scores.csv, summary.md and rand_index.png to --out. "
-                    "Re-running with the same --out skips predictions already written.")
     p.add_argument("--psb", default=None, metavar="DIR",
                    help="PSB folder with meshes/ and gt/ (default: $TORCHAKVF_PSB, else "
                         "<repo>/../shared/psb)")
@@ -99,7 +110,6 @@ def add_eval_command(subparsers) -> None:
                    help="torch device of the predictions, e.g. cpu or cuda (default cpu; one "
                         "worker on a GPU)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.set_defaults(func=run_eval)
 
 
 def run_eval(args) -> int:
@@ -160,13 +170,10 @@ def run_eval(args) -> int:
 
 def add_bench_command(subparsers) -> None:
     """Register ``bench`` on an argparse ``add_subparsers()`` object."""
-    p = subparsers.add_parser(
-        "bench", help="throughput on the PSB: batched vs one mesh at a time vs scipy",
-        description="Segment PSB meshes at every protocol k and write report.md and report.json "
-                    "to --out: meshes/s, faces/s, seconds per stage, peak memory, and "
-                    "baseline/torchakvf time ratios measured in the same run.")
-    add_bench_arguments(p)
-    p.set_defaults(func=run_bench_command)
+    _register(subparsers, "bench", "throughput on the PSB: batched vs one mesh at a time vs scipy",
+              "Segment PSB meshes at every protocol k and write report.md and report.json to "
+              "--out: meshes/s, faces/s, seconds per stage, peak memory, and baseline/torchakvf "
+              "time ratios measured in the same run.", add_bench_arguments, run_bench_command)
 
 
 def add_bench_arguments(p) -> None:

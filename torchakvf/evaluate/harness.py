@@ -68,6 +68,7 @@ from ..operators import REMEDIES
 from ..parts.engine import DEFAULT_REMEDY, SegmentOptions
 from ..pipeline.parallel import map_batches
 from ..progress import progress as progress_bar
+from .k_auto import DEFAULT_K_RANGE, RULES, check_k_range
 from .plan import (DEFAULT_K_NO_GT, PROTOCOLS, default_eval_batch_faces, find_entries, human_mode,
                    make_batches, plan_meshes, select_entries, settings_guard, solved_face_counts)
 from .predict import PredictSettings, predict_in_worker
@@ -105,8 +106,7 @@ def _check_settings(protocol, k_mode, remedy, batch_faces, default_k, n_fields, 
     if segment_kwargs.get("solver", "auto") not in SOLVERS:
         raise TorchAKVFError(f"solver must be one of {', '.join(SOLVERS)}, got {segment_kwargs['solver']!r}")
     if k_mode == "auto":
-        from .k_auto import DEFAULT_K_RANGE, RULES, _check_range
-        k_range = tuple(_check_range(DEFAULT_K_RANGE if k_range is None else k_range))
+        k_range = tuple(check_k_range(DEFAULT_K_RANGE if k_range is None else k_range))
         if k_rule not in RULES:
             raise TorchAKVFError(f"k_rule must be one of {RULES}, got {k_rule!r}")
     options = {k: v for k, v in segment_kwargs.items() if k != "coarse_faces"}

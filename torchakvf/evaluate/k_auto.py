@@ -35,7 +35,8 @@ from ..parts.results import Segmentation
 RULES = ("elbow", "knee", "spectrum")
 DEFAULT_K_RANGE = (2, 10)
 
-__all__ = ["RULES", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k"]
+__all__ = ["RULES", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
+           "check_k_range"]
 
 
 @dataclass
@@ -66,7 +67,7 @@ class KScan:
         return Segmentation([self.segmentations[k].meshes[b] for b, k in enumerate(self.chosen)])
 
 
-def _check_range(k_range) -> tuple[int, int]:
+def check_k_range(k_range) -> tuple[int, int]:
     try:
         lo, hi = (int(v) for v in k_range)
     except (TypeError, ValueError):
@@ -128,7 +129,7 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
     segment_kwargs : the :class:`~torchakvf.parts.engine.SegmentOptions` (eps, boundary,
         solver, kmeans_restarts, ...)
     """
-    lo, hi = _check_range(k_range)
+    lo, hi = check_k_range(k_range)
     if rule not in RULES:
         raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
     opts = SegmentOptions(seed=seed, remedy=remedy, **segment_kwargs)

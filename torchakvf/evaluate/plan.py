@@ -17,6 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MeshError, ParameterError, TorchAKVFError
+from ..io import load_mesh
+from ..mesh.coarse import DECIMATE_ABOVE
+from ..pipeline.runner import default_batch_faces
 from . import psb as P
 
 PROTOCOLS = ("by-segmentation", "by-model")
@@ -53,7 +56,7 @@ def peek_face_count(path) -> int | None:
                 if len(tokens) >= 4:
                     break
     except (OSError, EOFError) as exc:
-        raise MeshError(f"{path}: cannot read the OFF header ({exc})") from None
+        raise MeshError(str(path), f"cannot read the OFF header ({exc})") from None
     if tokens and tokens[0].upper().endswith("OFF"):
         tokens = tokens[1:]
     try:
@@ -61,8 +64,8 @@ def peek_face_count(path) -> int | None:
         if int(tokens[0]) < 0 or n_faces < 0:
             raise ValueError
     except (IndexError, ValueError):
-        raise MeshError(f"{path}: unparsable OFF header (expected 'OFF' then vertex and face "
-                        f"counts, got {' '.join(tokens[:4])!r})") from None
+        raise MeshError(str(path), f"unparsable OFF header (expected 'OFF' then vertex and face "
+                                   f"counts, got {' '.join(tokens[:4])!r})") from None
     return n_faces
 
 
@@ -250,7 +253,6 @@ def plan_meshes(entries, out: Path, protocol: str, auto: bool, default_k: int) -
         try:
             faces = peek_face_count(e.mesh_path)
             if faces is None:
-                from ..io import load_mesh
                 faces = load_mesh(e.mesh_path).n_faces
         except MeshError as exc:
             plan.failure = str(exc)
@@ -298,9 +300,6 @@ def default_eval_batch_faces(device, coarse_faces=None) -> int:
     """The face budget of a batch by default: the corpus runner's for the device; on CPU with
     decimation, one decimated mesh per batch (the cores are used by worker processes instead,
     and a batch re-solves every mesh when one of them needs more eigenpairs)."""
-    from ..mesh.coarse import DECIMATE_ABOVE
-    from ..pipeline.runner import default_batch_faces
-
     if coarse_faces and str(device).startswith("cpu"):
         return int(DECIMATE_ABOVE * coarse_faces)
     return default_batch_faces(device)
@@ -311,7 +310,6 @@ def solved_face_counts(faces_of: dict, coarse_faces) -> dict:
     a mesh that will be decimated (the face budget of a batch counts what is solved)."""
     if not coarse_faces:
         return dict(faces_of)
-    from ..mesh.coarse import DECIMATE_ABOVE
     return {i: (f if f <= DECIMATE_ABOVE * coarse_faces else int(coarse_faces)) for i, f in faces_of.items()}
 
 

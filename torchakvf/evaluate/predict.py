@@ -17,6 +17,7 @@ from ..parts.engine import (SPARE_FIELDS, SegmentOptions, default_n_fields, segm
                             solve_akvfs, solve_quality)
 from . import metrics as M
 from . import psb as P
+from .k_auto import RULES, pick_k, scan_k
 
 __all__ = ["PredictSettings", "predict_batch", "predict_in_worker", "stage_clock", "eval_akvf_count"]
 
@@ -137,8 +138,6 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None):
 def _scan_and_write(batch, fields, settings: PredictSettings, costs: list) -> list:
     """k auto: the scan of k_range on the batch's AKVFs; writes each mesh's chosen k and returns
     the meta entries ("auto": the choice, every rule's, and 1-RI per k where there is gt)."""
-    from .k_auto import RULES, pick_k, scan_k
-
     o = settings.options
     scan = scan_k(fields, settings.k_range, rule=settings.k_rule, seed=o.seed, remedy=o.remedy,
                   n_fields=settings.n_fields, keep=True, eps=o.eps, solver=o.solver, method=o.method,

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import TorchAKVFError
+from ..io import load_mesh
 from . import metrics as M
 from . import psb as P
 from .plan import PredictionPlan, human_mode
@@ -157,7 +158,6 @@ def score_mesh(plan: PredictionPlan, mesh, protocol, groups, auto, failure) -> M
         row.status = "no score"
         return row
     if mesh is None:
-        from ..io import load_mesh
         mesh = load_mesh(e.mesh_path)
     row.faces = mesh.n_faces
     gts = [P.read_seg(s) for s in e.seg_paths]
