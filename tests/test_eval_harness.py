@@ -344,3 +344,15 @@ def test_eval_command_exits_non_zero_when_a_mesh_fails(good_psb, tmp_path, capsy
     assert rc == 1
     assert "41.off" in out and "1 failed" in out
     assert (tmp_path / "e" / "summary.md").is_file()
+
+
+def test_eval_on_cuda_matches_cpu(good_psb, tmp_path, cuda):
+    """The same predictions on the GPU (LOBPCG there) as on the CPU, up to faces near a boundary."""
+    root, cpu_out, d = good_psb
+    s = evaluate_psb(root, tmp_path, progress=False, metrics="rand", plot=False, device=str(cuda),
+                     **FAST)
+    assert s.row(1).scored and not s.failed
+    for k in (2, 3):
+        gpu = np.loadtxt(tmp_path / "pred" / "1" / f"1_k{k}.seg", dtype=np.int64)
+        cpu = np.loadtxt(cpu_out / "pred" / "1" / f"1_k{k}.seg", dtype=np.int64)
+        assert M.matched_agreement(gpu, cpu) >= 0.99, k

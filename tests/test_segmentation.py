@@ -230,3 +230,18 @@ def test_method_and_solver_are_checked(built):
         ta.segment(m, k=2, method="greedy")
     with pytest.raises(ta.ParameterError, match="solver must be one of"):
         ta.segment(m, k=2, solver="arpack")
+
+
+def test_segment_task_records_convergence_for_the_manifest(batch_seg):
+    from torchakvf.pipeline.segment_task import SegmentTask
+
+    task = SegmentTask(np.int64(3), n_fields=np.int64(16), solver="lanczos")
+    ms = batch_seg[1]
+    assert task.manifest_fields((ms, None)) == {"converged": True, "max_residual": ms.max_residual}
+    ms_bad = type(ms)(**{**ms.__dict__, "converged": False, "max_residual": 3e-4})
+    assert task.manifest_fields((ms_bad, None)) == {"converged": False, "max_residual": 3e-4}
+    assert task.params["solver"] == "lanczos" and task.params["method"] == "paper"
+    with pytest.raises(ta.ParameterError, match="method"):
+        SegmentTask(3, method="greedy")
+    with pytest.raises(ta.ParameterError, match="solver"):
+        SegmentTask(3, solver="arpack")
