@@ -9,8 +9,8 @@ import torch
 
 from torchakvf import shapes
 from torchakvf.cli import main
-from torchakvf.pipeline import bench
-from torchakvf.evaluate.harness import default_eval_batch_faces
+from torchakvf.evaluate import bench
+from torchakvf.evaluate.plan import default_eval_batch_faces
 from torchakvf.mesh.coarse import DEFAULT_COARSE_FACES
 from torchakvf.pipeline.parallel import default_workers
 from meshfiles import write_off, write_seg
@@ -126,7 +126,7 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
 def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypatch, one_thread):
     root, _ = fake_psb
     # The scipy baseline cannot be imported: it is skipped, with a note.
-    monkeypatch.setattr(bench, "_load_scipy_reference",
+    monkeypatch.setattr(bench, "load_scipy_reference",
                         lambda: (None, "scipy baseline skipped: importing torchakvf.scipy_reference failed (test)"))
     fast = dict(n_fields=16, segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
     r = bench.run_bench(root, tmp_path / "b1", baseline_every=2, limit=2, **fast)
@@ -138,3 +138,16 @@ def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypat
     r0 = bench.run_bench(root, tmp_path / "b0", baseline_every=0, categories="Cup", **fast)
     assert set(r0["runs"]) == {"batched"} and r0["comparison"] is None
     assert r0["selection"]["mesh_ids"] == [21]
+
+
+def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys, one_thread):
+    root, _ = fake_psb
+    (root / "gt" / "1" / "1_2.seg").write_text("1\n2\n")          # 2 labels for a whole mesh
+    rc = main(["bench", "--psb", str(root), "--out", str(tmp_path / "b"), "--baseline-every", "0",
+               "--workers", "1", "--solver", "lanczos", "--categories", "Human"])
+    assert rc == 1
+    r = json.loads((tmp_path / "b" / "report.json").read_text())
+    assert len(r["problems"]) == 1 and "1_2.seg" in r["problems"][0]
+    assert r["runs"]["batched"]["meshes_ok"] == 1 and r["selection"]["ks"] == {"1": [2, 3]}
+    assert r["settings"]["segment_kwargs"]["solver"] == "lanczos"
+    assert "1_2.seg" in (tmp_path / "b" / "report.md").read_text()

@@ -73,12 +73,19 @@ def test_batch_equals_one_at_a_time(built, batch_seg):
         assert same >= 0.999, f"{name}: batch and single labels agree on {same:.5f} of faces"
 
 
-def test_same_seed_same_labels_other_seed_still_right(built):
-    s = built["three_blobs"]
+def test_same_seed_same_labels_other_seed_still_right():
+    s = shapes.three_blobs(n_around=20)       # 768 faces: three seeded runs stay cheap
     m = ta.Mesh(s.vertices, s.faces)
-    a = ta.segment(m, k=3, seed=7)[0].labels
-    b = ta.segment(m, k=3, seed=7)[0].labels
-    np.testing.assert_array_equal(a, b)
+    a = ta.segment(m, k=3, seed=7, refine=False)[0]
+    b = ta.segment(m, k=3, seed=7, refine=False)[0]
+    np.testing.assert_array_equal(a.labels, b.labels)
+    assert a.cost == b.cost
+    # Another seed starts the solver, the untangling and k-means elsewhere; the parts stay right.
+    area = face_areas(s.vertices, s.faces)
+    c = ta.segment(m, k=3, seed=123, refine=False)[0]
+    assert c.params["seed"] == 123
+    for labels in (a.labels, c.labels):
+        assert area_agreement(labels, s.part_labels, area, 3) >= 0.98
 
 
 def test_invariant_to_rigid_motion_and_scale(built):
@@ -186,3 +193,57 @@ def test_parameter_errors(built):
         ta.segment(m, k=len(s.faces) + 1)
     with pytest.raises(ta.ParameterError, match="boundary"):
         ta.segment(m, k=2, boundary="wiggly")
+
+
+# ---- the engine: one solve for every k ------------------------------------------------------
+
+def test_segment_each_k_equals_segment_per_k():
+    """Every k in rounds over one solve gives the labels ``segment`` gives for that k alone (with
+    its own untangling), with numpy integers for k; rounds whose field counts agree share one
+    untangling."""
+    from torchakvf.parts.engine import segment_each_k
+
+    s = shapes.three_blobs(n_around=20)
+    fields = ta.akvf(ta.Mesh(s.vertices, s.faces), n=20, remedy="smooth")
+    fast = dict(seed=0, refine=False, kmeans_restarts=5, untangle_restarts=2)
+    res = segment_each_k(fields, [[np.int64(2), 3, 4]], **fast)
+    assert set(res.meshes[0]) == {2, 3, 4} and res.fields is fields
+    assert len({id(r.untangled) for r in res.rounds}) == 1       # 2k <= 16: one field count
+    for k in (2, 3, 4):
+        alone = ta.segment(fields, k=np.int32(k), **fast)
+        assert alone.untangled is not res.rounds[0].untangled
+        np.testing.assert_array_equal(res.meshes[0][k].labels, alone[0].labels)
+        assert res.meshes[0][k].cost == pytest.approx(alone[0].cost, rel=1e-12)
+    assert set(res.seconds) == {"akvf", "untangle", "cluster"}
+
+
+def test_segmentation_reports_convergence(built, batch_seg):
+    for seg in batch_seg.meshes:
+        assert seg.converged is True
+        assert 0.0 <= seg.max_residual <= 1e-6
+    from torchakvf.parts.engine import AKVF_TOL
+    assert AKVF_TOL == 1e-6
+
+
+def test_method_and_solver_are_checked(built):
+    s = built["dumbbell"]
+    m = ta.Mesh(s.vertices, s.faces)
+    with pytest.raises(ta.ParameterError, match="method must be one of"):
+        ta.segment(m, k=2, method="greedy")
+    with pytest.raises(ta.ParameterError, match="solver must be one of"):
+        ta.segment(m, k=2, solver="arpack")
+
+
+def test_segment_task_records_convergence_for_the_manifest(batch_seg):
+    from torchakvf.pipeline.segment_task import SegmentTask
+
+    task = SegmentTask(np.int64(3), n_fields=np.int64(16), solver="lanczos")
+    ms = batch_seg[1]
+    assert task.manifest_fields((ms, None)) == {"converged": True, "max_residual": ms.max_residual}
+    ms_bad = type(ms)(**{**ms.__dict__, "converged": False, "max_residual": 3e-4})
+    assert task.manifest_fields((ms_bad, None)) == {"converged": False, "max_residual": 3e-4}
+    assert task.params["solver"] == "lanczos" and task.params["method"] == "paper"
+    with pytest.raises(ta.ParameterError, match="method"):
+        SegmentTask(3, method="greedy")
+    with pytest.raises(ta.ParameterError, match="solver"):
+        SegmentTask(3, solver="arpack")

@@ -6,4 +6,15 @@ Submodules (import them directly; this package imports nothing on its own so tha
 * :mod:`torchakvf.evaluate.metrics`     - the benchmark's four segmentation metrics
 * :mod:`torchakvf.evaluate.psb`         - PSB data set access (meshes, human segmentations)
 * :mod:`torchakvf.evaluate.psb_archive` - safe extraction / conversion of the official archive
+* :mod:`torchakvf.evaluate.harness`     - ``evaluate_psb``: plan, predict, score, report
+  (:mod:`~torchakvf.evaluate.plan`, :mod:`~torchakvf.evaluate.predict`,
+  :mod:`~torchakvf.evaluate.score`, :mod:`~torchakvf.evaluate.report`)
+* :mod:`torchakvf.evaluate.k_auto`      - choosing k per mesh
+* :mod:`torchakvf.evaluate.bench`       - ``torchakvf bench``: throughput of the evaluation's
+  prediction against its baselines (:mod:`~torchakvf.evaluate.bench_runs`,
+  :mod:`~torchakvf.evaluate.bench_report`)
+* :mod:`torchakvf.evaluate.commands`    - the ``eval`` and ``bench`` commands
+
+Layers: ``evaluate`` uses ``parts`` (the segmentation engine) and ``pipeline`` (worker
+processes, the runner's defaults); nothing below imports ``evaluate``.
 """

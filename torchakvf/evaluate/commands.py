@@ -1,4 +1,5 @@
-"""``torchakvf eval``: the benchmark evaluation from the command line.
+"""``torchakvf eval`` and ``torchakvf bench``: the benchmark evaluation and throughput bench
+from the command line.
 
 ::
 
@@ -12,8 +13,14 @@ import os
 from pathlib import Path
 
 from ..errors import TorchAKVFError
+from ..mesh.coarse import DEFAULT_COARSE_FACES
+from ..pipeline.commands import _device as parse_device
+from ..pipeline.commands import _int as parse_int
+from ..pipeline.parallel import default_workers
+from .bench import DEFAULT_BASELINE_EVERY
 
-__all__ = ["add_eval_command", "default_psb_arg"]
+__all__ = ["add_eval_command", "add_bench_command", "run_eval", "run_bench_command",
+           "default_psb_arg"]
 
 
 def default_psb_arg() -> str:
@@ -36,15 +43,26 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _register(subparsers, name: str, summary: str, description: str, add_arguments, run) -> None:
+    p = subparsers.add_parser(name, help=summary, description=description)
+    add_arguments(p)
+    p.set_defaults(func=run)
+
+
 def add_eval_command(subparsers) -> None:
     """Register ``eval`` on an argparse ``add_subparsers()`` object."""
+    _register(subparsers, "eval", "evaluate on the Princeton Segmentation Benchmark (resumable)",
+              "Segment PSB meshes, score them against the human segmentations and write "
+              "pred/<id>/<id>_k<k>.seg, scores.csv, summary.md and rand_index.png to --out. "
+              "Re-running with the same --out skips predictions already written. Exits 1 when a "
+              "mesh failed or an input file was left out (each is listed).",
+              add_eval_arguments, run_eval)
+
+
+def add_eval_arguments(p) -> None:
+    """The options of ``torchakvf eval``."""
     from .harness import DEFAULT_K_NO_GT, METRIC_GROUPS, PROTOCOLS
 
-    p = subparsers.add_parser(
-        "eval", help="evaluate on the Princeton Segmentation Benchmark (resumable)",
-        description="Segment PSB meshes, score them against the human segmentations and write "
-                    "pred/<id>/<id>_k<k>.seg, scores.csv, summary.md and rand_index.png to --out. "
-                    "Re-running with the same --out skips predictions already written.")
     p.add_argument("--psb", default=None, metavar="DIR",
                    help="PSB folder with meshes/ and gt/ (default: $TORCHAKVF_PSB, else "
                         "<repo>/../shared/psb)")
@@ -84,8 +102,14 @@ def add_eval_command(subparsers) -> None:
                         "PSB mesh a batch, measured fastest)")
     p.add_argument("--default-k", type=_positive_int, default=DEFAULT_K_NO_GT,
                    help=f"parts for meshes without human segmentations (default {DEFAULT_K_NO_GT})")
+    p.add_argument("--solver", default=None, choices=["auto", "lanczos", "lobpcg"],
+                   help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
+    p.add_argument("--method", default=None, choices=["paper"],
+                   help="segmentation method (default and only one today: paper)")
+    p.add_argument("--device", default="cpu",
+                   help="torch device of the predictions, e.g. cpu or cuda (default cpu; one "
+                        "worker on a GPU)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.set_defaults(func=run_eval)
 
 
 def run_eval(args) -> int:
@@ -115,22 +139,100 @@ def run_eval(args) -> int:
         seg_kwargs["boundary"] = args.boundary
     if args.min_part_fraction is not None:
         seg_kwargs["min_part_fraction"] = args.min_part_fraction
-    from ..mesh.coarse import DEFAULT_COARSE_FACES
-
     coarse = DEFAULT_COARSE_FACES if args.coarse_faces is None else args.coarse_faces
     if coarse < 0:
         raise TorchAKVFError(f"--coarse-faces must be >= 0, got {coarse}")
     if coarse:
         seg_kwargs["coarse_faces"] = coarse
-    from ..pipeline.parallel import default_workers
-
+    for name in ("solver", "method"):   # only when given: a folder's settings stay comparable
+        if getattr(args, name) is not None:
+            seg_kwargs[name] = getattr(args, name)
+    device = parse_device(args.device)
     summary = evaluate_psb(psb_root, args.out, categories=categories, protocol=args.protocol,
                            ids=args.ids, per_category=args.per_category, seed=args.seed,
                            remedy=args.remedy, n_fields=args.n_fields, batch_faces=args.batch_faces,
                            k_mode=args.k, k_range=k_range, progress=not args.quiet,
-                           metrics=args.metrics, default_k=args.default_k,
-                           workers=args.workers or default_workers("cpu"), **seg_kwargs)
+                           metrics=args.metrics, default_k=args.default_k, device=device,
+                           workers=args.workers or default_workers(device), **seg_kwargs)
     n_ok = sum(r.scored for r in summary.rows)
-    print(f"{n_ok} meshes scored, overall 1-RI {summary.rand_index_error:.4f}; "
+    n_failed = sum(r.status.startswith("failed") for r in summary.rows)
+    print(f"{n_ok} meshes scored, {n_failed} failed, overall 1-RI {summary.rand_index_error:.4f}; "
           f"wrote {Path(args.out) / 'summary.md'}, scores.csv, rand_index.png")
-    return 0
+    for r in summary.rows:
+        if r.status.startswith("failed"):
+            print(f"  failed: mesh {r.mesh_id}: {r.status[len('failed: '):]}")
+    for line in summary.problems:
+        print(f"  problem: {line}")
+    return 1 if summary.failed else 0
+
+
+# ---- bench ----------------------------------------------------------------------------------
+
+def add_bench_command(subparsers) -> None:
+    """Register ``bench`` on an argparse ``add_subparsers()`` object."""
+    _register(subparsers, "bench", "throughput on the PSB: batched vs one mesh at a time vs scipy",
+              "Segment PSB meshes at every protocol k and write report.md and report.json to "
+              "--out: meshes/s, faces/s, seconds per stage, peak memory, and baseline/torchakvf "
+              "time ratios measured in the same run.", add_bench_arguments, run_bench_command)
+
+
+def add_bench_arguments(p) -> None:
+    """The options of ``torchakvf bench`` (values are checked in :func:`run_bench_command`)."""
+    p.add_argument("--psb", default=None, metavar="DIR",
+                   help="PSB folder with meshes/ and gt/ (default: $TORCHAKVF_PSB, else "
+                        "<repo>/../shared/psb)")
+    p.add_argument("--out", default="bench", metavar="DIR",
+                   help="output folder for report.md and report.json (default: bench/)")
+    p.add_argument("--limit", default=None, metavar="N", help="only the first N meshes by id (default: all)")
+    p.add_argument("--baseline-every", default=str(DEFAULT_BASELINE_EVERY), metavar="M",
+                   help="run the one-at-a-time and scipy baselines on every M-th mesh of the "
+                        f"selection (default {DEFAULT_BASELINE_EVERY}; 0: none)")
+    p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default cpu)")
+    p.add_argument("--seed", default="0", help="random seed (default 0)")
+    p.add_argument("--categories", default=None, metavar="A,B",
+                   help="comma-separated PSB category names (default: all)")
+    p.add_argument("--batch-faces", default=None, metavar="N",
+                   help="face budget per batch of the batched runs (default: the harness's, "
+                        "as torchakvf eval)")
+    p.add_argument("--coarse-faces", default=None, metavar="N",
+                   help=f"solve on meshes decimated to about N faces, as torchakvf eval does "
+                        f"(default {DEFAULT_COARSE_FACES}; 0: full resolution)")
+    p.add_argument("--workers", default=None, metavar="W",
+                   help="processes of the torchakvf runs, one thread each (default: one per CPU "
+                        "core on CPU, at most 8; 1 on a GPU)")
+    p.add_argument("--solver", default=None, choices=["auto", "lanczos", "lobpcg"],
+                   help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
+    p.add_argument("--method", default=None, choices=["paper"],
+                   help="segmentation method (default and only one today: paper)")
+
+
+def run_bench_command(args) -> int:
+    """``torchakvf bench``: 0 when every mesh finished in every torchakvf run and no input was
+    left out, else 1."""
+    from .bench import run_bench
+    from .bench_report import summary_lines
+    limit = parse_int(args.limit, "--limit", 1) if args.limit is not None else None
+    every = parse_int(args.baseline_every, "--baseline-every", 0)
+    seed = parse_int(args.seed, "--seed", 0)
+    batch_faces = parse_int(args.batch_faces, "--batch-faces", 1) if args.batch_faces is not None else None
+    coarse = DEFAULT_COARSE_FACES if args.coarse_faces is None else parse_int(args.coarse_faces, "--coarse-faces", 0)
+    workers = parse_int(args.workers, "--workers", 1) if args.workers is not None else None
+    categories = None
+    if args.categories is not None:
+        categories = [c.strip() for c in args.categories.split(",") if c.strip()]
+        if not categories:
+            raise TorchAKVFError("--categories: name at least one PSB category")
+    device = parse_device(args.device)
+    out = Path(args.out)
+    segment_kwargs = {"coarse_faces": coarse} if coarse else {}
+    for name in ("solver", "method"):
+        if getattr(args, name) is not None:
+            segment_kwargs[name] = getattr(args, name)
+    report = run_bench(Path(args.psb or default_psb_arg()), out, limit=limit, baseline_every=every,
+                       device=device, seed=seed, categories=categories, batch_faces=batch_faces,
+                       segment_kwargs=segment_kwargs, workers=workers,
+                       options={k: v for k, v in vars(args).items() if k not in ("func", "command")})
+    for line in summary_lines(report, out):
+        print(line)
+    failed = any(r.get("failed") for r in report["runs"].values() if r.get("kind") == "torchakvf")
+    return 1 if failed or report.get("problems") else 0

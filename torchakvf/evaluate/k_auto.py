@@ -27,15 +27,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError
-from ..fields.akvf import AKVFResult, akvf, as_batch
-from ..fields.untangle import untangle
-from ..parts.segment import (DEFAULT_REMEDY, SPARE_FIELDS, UNTANGLE_RESTARTS, Segmentation,
-                             cluster_safe_n, default_n_fields, segment)
+from ..fields.akvf import AKVFResult, as_batch
+from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, cluster_safe_n,
+                            default_n_fields, segment_rounds, solve_akvfs)
+from ..parts.results import Segmentation
 
 RULES = ("elbow", "knee", "spectrum")
 DEFAULT_K_RANGE = (2, 10)
 
-__all__ = ["RULES", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k"]
+__all__ = ["RULES", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
+           "check_k_range"]
 
 
 @dataclass
@@ -66,7 +67,7 @@ class KScan:
         return Segmentation([self.segmentations[k].meshes[b] for b, k in enumerate(self.chosen)])
 
 
-def _check_range(k_range) -> tuple[int, int]:
+def check_k_range(k_range) -> tuple[int, int]:
     try:
         lo, hi = (int(v) for v in k_range)
     except (TypeError, ValueError):
@@ -113,7 +114,7 @@ def pick_k(ks, costs, rule: str = "elbow", eigenvalues=None) -> int:
 
 def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 0,
            remedy: str = DEFAULT_REMEDY, n_fields: int | None = None, keep: bool = True,
-           **segment_kwargs) -> KScan:
+           device=None, **segment_kwargs) -> KScan:
     """Segment every mesh for each k in ``k_range`` (inclusive) and pick one k per mesh.
 
     Parameters
@@ -122,41 +123,41 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
     k_range : (k_min, k_max), inclusive, k_max >= k_min + 2
     rule : see the module notes (``"elbow"`` default)
     n_fields : fields untangled for every k (default ``default_n_fields(k_max)`` per mesh, moved
-        by :func:`~torchakvf.parts.segment.cluster_safe_n` off a degenerate eigenvalue cluster)
+        by :func:`~torchakvf.parts.engine.cluster_safe_n` off a degenerate eigenvalue cluster)
     keep : keep every k's :class:`Segmentation` (memory: one label array per mesh per k)
-    segment_kwargs : passed to :func:`torchakvf.parts.segment` (eps, boundary, ...)
+    device : torch device the batch is built on (Mesh inputs)
+    segment_kwargs : the :class:`~torchakvf.parts.engine.SegmentOptions` (eps, boundary,
+        solver, kmeans_restarts, ...)
     """
-    lo, hi = _check_range(k_range)
+    lo, hi = check_k_range(k_range)
     if rule not in RULES:
         raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
+    opts = SegmentOptions(seed=seed, remedy=remedy, **segment_kwargs)
     n = default_n_fields(hi) if n_fields is None else int(n_fields)
     if isinstance(meshes, AKVFResult):
         fields = meshes
         if fields.n < n:
             raise ParameterError(f"the AKVFs given have n = {fields.n} < the {n} fields needed")
-    else:  # a few spare fields, as segment() computes, so a degenerate cluster is not cut
-        n_akvf = n + SPARE_FIELDS if n_fields is None else n
-        fields = akvf(as_batch(meshes), n=n_akvf, seed=seed, remedy=remedy)
+    else:  # a few spare fields, as the engine computes, so a degenerate cluster is not cut
+        fields, _ = solve_akvfs(as_batch(meshes, device=device),
+                                n + SPARE_FIELDS if n_fields is None else n, opts)
+    nb = len(fields.batch)
     if n_fields is None:  # one count per mesh for every k, moved off degenerate clusters
         lam = fields.eigenvalues.detach().cpu()
-        ns = [cluster_safe_n(lam[b], n, floor=max(hi, n // 2)) for b in range(len(fields.batch))]
+        ns = [cluster_safe_n(lam[b], n, floor=max(hi, n // 2)) for b in range(nb)]
     else:
         ns = n
     for b, m in enumerate(fields.batch.meshes):
         if len(m.faces) < hi:
             raise ParameterError(f"{m.name}: k_max = {hi} is larger than its {len(m.faces)} faces")
     ks = list(range(lo, hi + 1))
-    nb = len(fields.batch)
     costs = np.zeros((nb, len(ks)))
     segs = {}
     # One field count for every k, so one untangling serves the whole scan.
-    unt = untangle(fields, n=[ns] * nb if isinstance(ns, int) else ns, seed=seed,
-                   restarts=segment_kwargs.get("untangle_restarts", UNTANGLE_RESTARTS))
-    for j, k in enumerate(ks):
-        seg = segment(fields, k=k, seed=seed, remedy=remedy, n_fields=ns, untangled=unt, **segment_kwargs)
-        costs[:, j] = [m.cost for m in seg.meshes]
+    for j, rnd in enumerate(segment_rounds(fields, [ks] * nb, opts, n_fields=ns)):
+        costs[:, j] = [m.cost for m in rnd.meshes]
         if keep:
-            segs[k] = seg
+            segs[ks[j]] = rnd.segmentation()
     eig = fields.eigenvalues.detach().cpu().numpy().astype(np.float64)
     chosen = [pick_k(ks, costs[b], rule, eig[b]) for b in range(nb)]
     return KScan(ks=ks, costs=costs, eigenvalues=eig, chosen=chosen, rule=rule, n_fields=ns,

@@ -1,4 +1,4 @@
-"""``torchakvf segment``, ``torchakvf features`` and ``torchakvf bench``: the corpus commands of the CLI.
+"""``torchakvf segment`` and ``torchakvf features``: the corpus commands of the CLI.
 
 Each command function returns the exit code (0: every mesh ok, 1: some failed) and raises
 :class:`~torchakvf.errors.TorchAKVFError` for user errors, which the CLI prints as one line
@@ -153,6 +153,10 @@ def _add_segment(sub) -> None:
                    help=f"solve on meshes decimated to about N faces and cut the parts on the "
                         f"originals (default {DEFAULT_COARSE_FACES}, measured on the PSB; 0: full "
                         "resolution)")
+    p.add_argument("--solver", default="auto", choices=["auto", "lanczos", "lobpcg"],
+                   help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
+    p.add_argument("--method", default="paper", choices=["paper"],
+                   help="segmentation method (default and only one today: paper)")
     p.set_defaults(func=run_segment)
 
 
@@ -168,7 +172,8 @@ def run_segment(args) -> int:
     eps = _float(args.eps, "--eps", 0.0, 2.0, " (a cosine distance never exceeds 2)")
     task = SegmentTask(k, eps=eps, seed=_seed(args.seed),
                        n_fields=n_fields, remedy=_remedy(args.remedy or DEFAULT_REMEDY),
-                       formats=parse_formats(args.formats), coarse_faces=coarse or None)
+                       formats=parse_formats(args.formats), coarse_faces=coarse or None,
+                       solver=args.solver, method=args.method)
     return _run(args, task, _device(args.device))
 
 
@@ -208,23 +213,10 @@ def run_features(args) -> int:
     return _run(args, task, device)
 
 
-# ---- bench --------------------------------------------------------------------------------
-
-def _add_bench(sub) -> None:
-    from .bench import add_bench_arguments, run_bench_command
-
-    p = sub.add_parser("bench", help="throughput on the PSB: batched vs one mesh at a time vs scipy",
-                       description="Segment PSB meshes at every protocol k and write report.md and "
-                                   "report.json to --out: meshes/s, faces/s, seconds per stage, peak "
-                                   "memory, and baseline/torchakvf time ratios measured in the same run.")
-    add_bench_arguments(p)
-    p.set_defaults(func=run_bench_command)
-
-
 # ---- registration -------------------------------------------------------------------------
 
 def add_corpus_commands(subparsers) -> None:
-    """Register ``segment``, ``features`` and ``bench`` on the CLI's subparsers."""
+    """Register ``segment`` and ``features`` on the CLI's subparsers (``bench`` is
+    :func:`torchakvf.evaluate.commands.add_bench_command`)."""
     _add_segment(subparsers)
     _add_features(subparsers)
-    _add_bench(subparsers)

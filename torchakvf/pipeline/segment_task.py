@@ -1,8 +1,9 @@
 """The ``segment`` task: k parts per mesh, written as ``<stem>.seg`` (+ ``.npz``, ``.ply``, ``.png``).
 
-Stages per batch: ``akvf`` (the AKVFs, once), ``untangle`` (Algorithm 1 on them; its face
-vectors also draw the PNG's generator arrows) and ``cluster`` (``segment`` on those untangled
-fields: spherical k-means, boundaries, generators).
+Stages per batch (:func:`torchakvf.parts.segment_each_k`, one k): ``akvf`` (the AKVFs, once),
+``untangle`` (Algorithm 1 on them; its face vectors also draw the PNG's generator arrows) and
+``cluster`` (spherical k-means, boundaries, generators). A mesh whose eigensolve did not
+converge is recorded so in the manifest (:meth:`SegmentTask.manifest_fields`).
 """
 from __future__ import annotations
 
@@ -11,7 +12,11 @@ from pathlib import Path
 
 from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
-from ..parts.segment import DEFAULT_REMEDY, SPARE_FIELDS, default_n_fields, field_counts
+from ..mesh import MeshBatch
+from ..mesh.batch import mesh_edges
+from ..fields.akvf import SOLVERS
+from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, default_n_fields,
+                            segment_each_k)
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -31,8 +36,13 @@ class SegmentTask:
 
     def __init__(self, k: int, *, eps: float = 0.0, seed: int = 0, n_fields: int | None = None,
                  remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = 8,
-                 kmeans_restarts: int = 20, coarse_faces: int | None = None):
+                 kmeans_restarts: int = 20, coarse_faces: int | None = None, solver: str = "auto",
+                 method: str = "paper"):
         self.k, self.eps, self.seed = int(k), float(eps), int(seed)
+        self.solver, self.method = str(solver), str(method)
+        if self.solver not in SOLVERS:
+            raise ParameterError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
+        SegmentOptions(eps=self.eps, method=self.method)   # one-line errors before any work
         # None: segment's own choice (2k in [16, 32], moved off degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
         self.n_fields = int(n_fields) if n_fields is not None else None
@@ -49,14 +59,12 @@ class SegmentTask:
         return {"k": self.k, "eps": self.eps, "seed": self.seed, "n_fields": n_fields,
                 "remedy": self.remedy, "formats": list(self.formats),
                 "untangle_restarts": self.untangle_restarts, "kmeans_restarts": self.kmeans_restarts,
-                "coarse_faces": self.coarse_faces}
+                "coarse_faces": self.coarse_faces, "solver": self.solver, "method": self.method}
 
     def output_paths(self, out_dir, stem: str) -> list[Path]:
         return [Path(out_dir) / f"{stem}.{fmt}" for fmt in self.formats]
 
     def validate(self, item) -> None:
-        from ..mesh.batch import mesh_edges
-
         n_faces = len(item.clean.faces)
         if self.k > n_faces:
             raise ParameterError(f"{item.path}: -k {self.k} is larger than the mesh's {n_faces} faces")
@@ -66,26 +74,27 @@ class SegmentTask:
                                  f"{n_edges} edges")
 
     def process(self, items, device):
-        from ..fields import untangle
-        from ..fields.akvf import akvf_falling_back
-        from ..mesh import MeshBatch
-        from ..parts import segment
-
         t0 = time.perf_counter()
         batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
                                       coarse_faces=self.coarse_faces)
-        fields, _ = akvf_falling_back(batch, n=self.n_akvf, seed=self.seed, remedy=self.remedy)
-        t1 = time.perf_counter()
-        ns = field_counts(fields, self.k, self.n_fields)
-        unt = untangle(fields, n=ns, seed=self.seed, restarts=self.untangle_restarts)
-        t2 = time.perf_counter()
-        seg = segment(fields, self.k, eps=self.eps, seed=self.seed, n_fields=self.n_fields,
-                      remedy=self.remedy, untangle_restarts=self.untangle_restarts,
-                      kmeans_restarts=self.kmeans_restarts, refine=False, untangled=unt)
-        t3 = time.perf_counter()
+        t_pack = time.perf_counter() - t0
+        res = segment_each_k(batch, self.k, eps=self.eps, seed=self.seed, n_fields=self.n_fields,
+                             remedy=self.remedy, solver=self.solver, method=self.method,
+                             untangle_restarts=self.untangle_restarts,
+                             kmeans_restarts=self.kmeans_restarts, refine=False, n_akvf=self.n_akvf)
+        seg = res.segmentation(self.k)
         # The untangled fields draw the PNG's generator arrows.
         vectors = [seg.face_vectors(b) if "png" in self.formats else None for b in range(len(items))]
-        return list(zip(seg.meshes, vectors)), {"akvf": t1 - t0, "untangle": t2 - t1, "cluster": t3 - t2}
+        seconds = dict(res.seconds)
+        seconds["akvf"] += t_pack     # packing the batch is charged to the solve, as before
+        return list(zip(seg.meshes, vectors)), seconds
+
+    @staticmethod
+    def manifest_fields(out) -> dict:
+        """Per mesh, what the manifest records beside the runner's own fields: whether its
+        eigensolve converged and its largest eigenpair residual (``out``: from :meth:`process`)."""
+        ms, _ = out
+        return {"converged": bool(ms.converged), "max_residual": float(ms.max_residual)}
 
     def write(self, item, out, out_dir) -> list[Path]:
         ms, vectors = out

@@ -1,0 +1,221 @@
+"""The reports of ``torchakvf bench``: report.json, report.md and the stdout summary."""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import platform
+from pathlib import Path
+
+from ..io.outputs import atomic_write_bytes
+from .bench_runs import STAGES
+
+__all__ = ["REPORT_JSON", "REPORT_MD", "report_header", "write_bench_reports", "summary_lines"]
+
+REPORT_JSON = "report.json"
+REPORT_MD = "report.md"
+
+
+def report_header(version, psb_root, out, device, seed, batch_faces, baseline_every, limit, categories,
+            remedy, n_akvf, n_fields, segment_kwargs, options) -> dict:
+    import torch
+
+    env = {"torchakvf": version, "torch": torch.__version__, "python": platform.python_version(),
+           "platform": platform.platform(), "cpu_count": os.cpu_count(),
+           "torch_threads": torch.get_num_threads()}
+    if str(device).startswith("cuda"):
+        env["cuda_device"] = torch.cuda.get_device_name(torch.device(device))
+    if isinstance(categories, str):
+        categories = [c.strip() for c in categories.split(",") if c.strip()]
+    return {
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "options": dict(options) if options is not None else None,
+        "settings": {"psb": str(psb_root), "out": str(out), "device": str(device), "seed": int(seed),
+                     "batch_faces": int(batch_faces), "baseline_every": int(baseline_every),
+                     "limit": limit, "categories": categories, "protocol": "by-segmentation",
+                     "remedy": remedy, "n_akvf": n_akvf, "n_fields": n_fields,
+                     "segment_kwargs": dict(sorted(segment_kwargs.items()))},
+        "environment": env,
+        "units": {"seconds": "wall seconds (time.perf_counter)", "faces": "faces of the input file",
+                  "memory": "MiB (2**20 bytes)",
+                  "ratio": "baseline seconds / torchakvf seconds on the same meshes, this run"},
+        "runs": {},
+        "notes": [],
+    }
+
+
+
+# ---- reports ------------------------------------------------------------------------------
+
+def _f(v, digits=2) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    return f"{v:,.{digits}f}"
+
+
+_DESCRIPTIONS = {
+    "batched": "torchakvf, harness path, batches of <= {bf} faces, every selected mesh",
+    "one_at_a_time": "torchakvf, harness path, face budget 1 (one mesh per batch), baseline subset",
+    "scipy": ("torchakvf/scipy_reference.py: eigsh once per mesh + numpy untangle + numpy k-means "
+              "per k (load and clean-up: torchakvf's)"),
+    "batched_subset": "torchakvf, batches of <= {bf} faces, the meshes compared with the baselines",
+}
+
+
+def _markdown(r: dict) -> str:
+    s = r["settings"]
+    sel = r["selection"]
+    L = ["# torchakvf bench\n"]
+    L.append(f"- created {r['created']}; torchakvf {r['environment']['torchakvf']}, torch "
+             f"{r['environment']['torch']} ({r['environment']['torch_threads']} threads, "
+             f"{r['environment']['cpu_count']} CPUs), device {s['device']}"
+             + (f" ({r['environment']['cuda_device']})" if "cuda_device" in r["environment"] else ""))
+    L.append(f"- PSB {s['psb']}: {sel['meshes']} meshes, {sel['faces']:,} faces, "
+             f"{sel['predictions']} (mesh, k) predictions (protocol by-segmentation: every distinct "
+             f"human segment count; meshes without ground truth, at the harness's default k: "
+             f"{sel['meshes_without_ground_truth']})")
+    L.append(f"- settings: seed {s['seed']}, batch_faces {s['batch_faces']}, baseline every "
+             f"{s['baseline_every']}, limit {s['limit'] or 'none'}, categories "
+             f"{','.join(s['categories']) if s['categories'] else 'all'}, remedy {s['remedy']}, "
+             f"{s['n_akvf']} AKVFs per mesh, segment {s['segment_kwargs']}")
+    L.append(f"- wall time {_f(r['wall_seconds'], 1)} s (plan {_f(sel['plan_seconds'], 1)} s, "
+             f"warm-up {_f(r.get('warm_up_seconds'), 1)} s, neither part of a run); peak RSS "
+             f"{_f(r['peak_memory']['ru_maxrss_mib'], 0)} MiB"
+             + (f" in this process, {_f(r['peak_memory']['worker_maxrss_mib'], 0)} MiB in the "
+                f"largest worker, at most {_f(r['peak_memory']['total_rss_bound_mib'], 0)} MiB in "
+                f"all" if r["peak_memory"].get("worker_maxrss_mib") else "")
+             + (f", CUDA peak allocated {_f(r['peak_memory']['cuda_max_memory_allocated_mib'], 0)} MiB"
+                if r["peak_memory"]["cuda_max_memory_allocated_mib"] is not None else ""))
+    L.append("\n## Runs\n")
+    L.append("| run | meshes ok | faces | wall s | meshes/s | faces/s | load s | pack s | akvf s | "
+             "segment s | write s | other s | workers | peak RSS MiB | CUDA peak MiB |")
+    L.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for name, run in r["runs"].items():
+        if "skipped" in run:
+            L.append(f"| {name} | skipped | | | | | | | | | | | | | |")
+            continue
+        st = run["stage_seconds"]
+        L.append(f"| {name} | {run['meshes_ok']}/{run['meshes']} | {run['faces_ok']:,} | "
+                 f"{_f(run['wall_seconds'])} | {_f(run['meshes_per_second'], 3)} | "
+                 f"{_f(run['faces_per_second'], 0)} | "
+                 + " | ".join(_f(st[x]) for x in STAGES)
+                 + f" | {run.get('workers', 1)} | {_rss_cell(run)} | {_f(run['cuda_max_memory_allocated_mib'], 0)} |")
+    L.append("")
+    for name, run in r["runs"].items():
+        if "skipped" in run:
+            L.append(f"- **{name}**: {run['skipped']}")
+        else:
+            how = "one mesh at a time, CPU" if run["kind"] == "scipy" else f"{run['batches']} batch(es)"
+            L.append(f"- **{name}**: {_DESCRIPTIONS[name].format(bf=s['batch_faces'])} ({how})")
+    L.append("\nStages: load = reading files; pack = clean-up, packing, transfer to the device; "
+             "akvf = operator + eigensolve (once per batch, shared by every k); segment = "
+             "untangling + spherical k-means + boundaries; write = prediction files; other = the "
+             "rest of the wall time. Stage seconds add up over the workers (with W workers they "
+             "can sum to W x the wall time). Peak RSS is ru_maxrss after the run: the process's "
+             "peak so far, which never goes down; with workers, 'main + W x worker' where worker "
+             "is the largest worker's peak so far: a bound on the run's resident total.")
+    L.append("\n## Untangle + cluster seconds by k\n")
+    names = [n for n, run in r["runs"].items() if "skipped" not in run]
+    ks = sorted({int(k) for n in names for k in r["runs"][n]["segment_seconds_by_k"]})
+    L.append("| k | " + " | ".join(f"{n}: predictions | {n}: s | {n}: s/prediction" for n in names) + " |")
+    L.append("|---:|" + "---:|---:|---:|" * len(names))
+    for k in ks:
+        cells = []
+        for n in names:
+            v = r["runs"][n]["segment_seconds_by_k"].get(str(k))
+            if v is None:
+                cells += ["-", "-", "-"]
+            else:
+                per = v["seconds"] / v["predictions"] if v["predictions"] else None
+                cells += [str(v["predictions"]), _f(v["seconds"]), _f(per, 3)]
+        L.append(f"| {k} | " + " | ".join(cells) + " |")
+    L.append("\nA round of a batch segments every mesh at one k each; its time is charged to "
+             "the k's by face share (meshes padded with k = 1 charge nothing).")
+    L.append("\n## Baselines / torchakvf (same meshes, this run)\n")
+    c = r.get("comparison")
+    if c is None:
+        L.append("No baselines were run (--baseline-every 0).")
+    else:
+        L.append(f"Baseline subset: every M-th selected mesh (M = {c['baseline_every']}), "
+                 f"{len(c['subset_ids'])} meshes; {c['meshes']} compared "
+                 f"({c['faces']:,} faces; ids {', '.join(map(str, c['mesh_ids'])) or '-'}); "
+                 f"torchakvf time from run {c['torchakvf_run']} on exactly those meshes.\n")
+        L.append("| baseline | baseline s | torchakvf s | ratio | akvf ratio | segment ratio |")
+        L.append("|---|---:|---:|---:|---:|---:|")
+        for name in ("one_at_a_time", "scipy"):
+            v = c["ratios"].get(name)
+            if v is None:
+                L.append(f"| {name} | - | - | {'skipped' if name == 'scipy' else '-'} | - | - |")
+                continue
+            L.append(f"| {name} | {_f(v['baseline_seconds'])} | {_f(v['torchakvf_seconds'])} | "
+                     f"**{_f(v['ratio'])}** | {_f(v['stage_ratios'].get('akvf'))} | "
+                     f"{_f(v['stage_ratios'].get('segment'))} |")
+        L.append("\nratio = baseline seconds / torchakvf seconds (> 1: torchakvf faster); a "
+                 "baseline's seconds are its per-mesh seconds summed over the compared meshes.")
+        if c["excluded"]:
+            L.append("\nExcluded from the comparison (failed in some run):")
+            for i, why in c["excluded"].items():
+                L.append(f"- {i}: {why}")
+    fails = [(n, i, e) for n, run in r["runs"].items() for i, e in run.get("failed", {}).items()]
+    if fails:
+        L.append("\n## Failures\n")
+        for n, i, e in fails:
+            L.append(f"- {n}, mesh {i}: {e}")
+    slow = [(n, i, v) for n, run in r["runs"].items() for i, v in run.get("unconverged", {}).items()]
+    if slow:
+        L.append("\n## Eigensolves that did not converge\n")
+        for n, i, v in slow:
+            L.append(f"- {n}, mesh {i}: largest eigenpair residual {v:.3g}")
+    if r.get("problems"):
+        L.append("\n## Inputs left out\n")
+        L.extend(f"- {line}" for line in r["problems"])
+    if r["notes"]:
+        L.append("\n## Notes\n")
+        for note in r["notes"]:
+            L.append(f"- {note}")
+    return "\n".join(L) + "\n"
+
+
+def _jsonable(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    return obj
+
+
+def _rss_cell(run: dict) -> str:
+    if run.get("worker_maxrss_mib") is None:
+        return _f(run.get("ru_maxrss_mib"), 0)
+    return (f"{_f(run['ru_maxrss_mib'], 0)} + {run['workers']} x {_f(run['worker_maxrss_mib'], 0)}"
+            f" <= {_f(run['total_rss_bound_mib'], 0)}")
+
+
+def write_bench_reports(out: Path, report: dict) -> None:
+    clean = _jsonable(report)
+    atomic_write_bytes(out / REPORT_JSON, (json.dumps(clean, indent=1) + "\n").encode())
+    atomic_write_bytes(out / REPORT_MD, _markdown(clean).encode())
+
+
+def summary_lines(report: dict, out: Path) -> list:
+    """The short stdout summary of a report."""
+    a = report["runs"]["batched"]
+    L = [f"torchakvf bench: {a['meshes_ok']}/{a['meshes']} meshes, {a['faces_ok']:,} faces, "
+         f"{report['selection']['predictions']} predictions in {_f(a['wall_seconds'], 1)} s: "
+         f"{_f(a['meshes_per_second'], 3)} meshes/s, {_f(a['faces_per_second'], 0)} faces/s "
+         f"(batches of <= {a['batch_faces']} faces, {a['device']}, {a.get('workers', 1)} "
+         f"worker(s)); peak RSS {_f(report['peak_memory']['total_rss_bound_mib'], 0)} MiB at most"]
+    c = report.get("comparison")
+    if c is not None:
+        parts = []
+        for name in ("one_at_a_time", "scipy"):
+            v = c["ratios"].get(name)
+            parts.append(f"{name} {_f(v['ratio'])}x" if v else f"{name} skipped")
+        L.append(f"  baseline / torchakvf on {c['meshes']} meshes: " + ", ".join(parts))
+    for note in report["notes"]:
+        L.append(f"  note: {note}")
+    L.append(f"  wrote {out / REPORT_MD} and {out / REPORT_JSON}")
+    return L

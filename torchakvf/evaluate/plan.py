@@ -1,0 +1,329 @@
+"""Which PSB meshes an evaluation runs, which k's each needs, and in which batches.
+
+Problems with one input (an unreadable mesh header, a bad human ``.seg``, a corrupt meta file)
+are collected as lines naming the file, so that the rest of the run goes on: see
+:class:`PredictionPlan` ``.problems`` and :func:`plan_meshes`.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import gzip
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import MeshError, ParameterError, TorchAKVFError
+from ..io import load_mesh
+from ..mesh.coarse import DECIMATE_ABOVE
+from ..pipeline.runner import default_batch_faces
+from . import psb as P
+
+PROTOCOLS = ("by-segmentation", "by-model")
+#: k for meshes without human segmentations (given-k protocols): the median over the 300
+#: labelled PSB meshes of their most common human segment count.
+DEFAULT_K_NO_GT = 6
+
+__all__ = ["PROTOCOLS", "DEFAULT_K_NO_GT", "PredictionPlan", "select_entries", "parse_ids",
+           "find_entries", "plan_meshes", "settings_guard", "peek_face_count", "make_batches",
+           "solved_face_counts", "default_eval_batch_faces", "human_mode"]
+
+
+def human_mode(counts) -> int:
+    """Most common segment count (ties: the smaller)."""
+    c = collections.Counter(int(v) for v in counts)
+    return min(c, key=lambda v: (-c[v], v))
+
+
+def peek_face_count(path) -> int | None:
+    """Face count from an OFF file's header without reading the rest (None: not an OFF file).
+
+    Raises MeshError naming the file when the header cannot be parsed."""
+    # TODO(merge): use torchakvf.io.peek_face_count (same name and contract).
+    path = Path(path)
+    if not re.search(r"\.off(\.gz)?$", path.name, re.IGNORECASE):
+        return None
+    tokens: list[str] = []
+    try:
+        with open(path, "rb") as fh:
+            gz = fh.read(2) == b"\x1f\x8b"
+        with (gzip.open(path, "rt", errors="replace") if gz else open(path, errors="replace")) as fh:
+            for line in fh:
+                tokens += line.split("#", 1)[0].split()
+                if len(tokens) >= 4:
+                    break
+    except (OSError, EOFError) as exc:
+        raise MeshError(str(path), f"cannot read the OFF header ({exc})") from None
+    if tokens and tokens[0].upper().endswith("OFF"):
+        tokens = tokens[1:]
+    try:
+        n_faces = int(tokens[1])
+        if int(tokens[0]) < 0 or n_faces < 0:
+            raise ValueError
+    except (IndexError, ValueError):
+        raise MeshError(str(path), f"unparsable OFF header (expected 'OFF' then vertex and face "
+                                   f"counts, got {' '.join(tokens[:4])!r})") from None
+    return n_faces
+
+
+@dataclass
+class PredictionPlan:
+    """One mesh of an evaluation: what it needs and where its predictions go.
+
+    entry : the PSB entry, its ``seg_paths`` reduced to the human segmentations that can be used
+    counts : their segment counts (k order), [] without usable ones
+    ks : the k's this mesh's score needs (empty with k = auto)
+    faces : the input's face count (from the header)
+    problems : one line per bad input of this mesh (a human .seg left out, a corrupt meta file)
+    failure : why the mesh cannot be evaluated at all, or None
+    """
+
+    entry: P.PSBEntry
+    counts: list
+    ks: list
+    pred_dir: Path
+    faces: int = 0
+    problems: list = field(default_factory=list)
+    failure: str | None = None
+
+    @property
+    def mesh_id(self) -> int:
+        return self.entry.mesh_id
+
+    def pred_path(self, k: int) -> Path:
+        return self.pred_dir / f"{self.mesh_id}_k{k}.seg"
+
+    @property
+    def meta_path(self) -> Path:
+        return self.pred_dir / f"{self.mesh_id}_meta.json"
+
+    def meta(self) -> dict:
+        """The mesh's meta file ({} when there is none); TorchAKVFError naming it when corrupt."""
+        try:
+            text = self.meta_path.read_text()
+        except FileNotFoundError:
+            return {}
+        except OSError as exc:
+            raise TorchAKVFError(f"{self.meta_path}: cannot read ({exc})") from None
+        try:
+            meta = json.loads(text)
+            if not isinstance(meta, dict):
+                raise ValueError("not a JSON object")
+        except ValueError as exc:
+            raise TorchAKVFError(f"{self.meta_path}: corrupt meta file ({exc}); delete it (and "
+                                 f"the mesh's predictions) to predict the mesh again") from None
+        return meta
+
+    def auto_k(self) -> int | None:
+        k = self.meta().get("auto", {}).get("chosen")
+        return int(k) if k is not None else None
+
+    def missing(self, auto: bool) -> list:
+        if auto:
+            k = self.auto_k()
+            return ["auto"] if k is None or not self.pred_path(k).is_file() else []
+        return [k for k in self.ks if not self.pred_path(k).is_file()]
+
+
+def parse_ids(text: str) -> list[int]:
+    """``"1,5,21-23"`` -> [1, 5, 21, 22, 23]."""
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if "-" in part:
+                a, b = part.split("-", 1)
+                out.extend(range(int(a), int(b) + 1))
+            else:
+                out.append(int(part))
+        except ValueError:
+            raise TorchAKVFError(f"bad mesh id {part!r} in --ids (use e.g. 1,5,21-23)") from None
+    return out
+
+
+def select_entries(entries, categories=None, ids=None, per_category=None) -> list:
+    """The entries of the given categories (names, or a comma string), ids (ints, or a string
+    like "1,5,21-23") and at most ``per_category`` per category (the first by id)."""
+    if categories is not None:
+        if isinstance(categories, str):
+            categories = [c for c in categories.split(",") if c.strip()]
+        lookup = {c.lower(): c for c in P.BENCHMARK_CATEGORIES}
+        wanted = []
+        for c in categories:
+            c = c.strip()
+            if c.lower() in {a.lower() for a in P.ABSENT_CATEGORIES}:
+                raise TorchAKVFError(f"category {c!r} has no meshes in the benchmark")
+            if c.lower() not in lookup:
+                raise TorchAKVFError(f"unknown PSB category {c!r}; choose from "
+                                     f"{', '.join(P.BENCHMARK_CATEGORIES)}")
+            wanted.append(lookup[c.lower()])
+        entries = [e for e in entries if e.category in set(wanted)]
+    if ids is not None:
+        if isinstance(ids, str):
+            ids = parse_ids(ids)
+        ids = sorted({int(i) for i in ids})
+        have = {e.mesh_id for e in entries}
+        missing = [i for i in ids if i not in have]
+        if missing:
+            raise TorchAKVFError(f"PSB mesh id(s) {', '.join(map(str, missing[:10]))} not found "
+                                 f"(among the selected categories)")
+        entries = [e for e in entries if e.mesh_id in set(ids)]
+    if per_category is not None:
+        if int(per_category) < 1:
+            raise TorchAKVFError(f"per_category must be >= 1, got {per_category}")
+        seen = collections.Counter()
+        kept = []
+        for e in entries:  # sorted by id: the first N of each category
+            if seen[e.category] < int(per_category):
+                kept.append(e)
+                seen[e.category] += 1
+        entries = kept
+    return entries
+
+
+_SEG_NAME = re.compile(r"^(\d+)_(\d+)\.seg(\.gz)?$")
+
+
+def find_entries(root: Path) -> tuple[list, list]:
+    """(PSB entries, problem lines): :func:`torchakvf.evaluate.psb.find_psb_meshes`, except that
+    a mesh file with an id outside 1..400 or a ``.seg`` in another mesh's folder is a problem
+    line naming the file (left out) instead of the end of the run."""
+    # TODO(merge): a find_psb_meshes that reports such files instead of raising (owner of psb.py)
+    # would make this a one-liner; until then the tolerant pass runs only after it raised.
+    try:
+        return P.find_psb_meshes(root), []
+    except FileNotFoundError as exc:
+        raise TorchAKVFError(str(exc)) from None
+    except ParameterError:
+        pass
+    problems, entries = [], []
+    by_id: dict[int, Path] = {}
+    for path in sorted((root / "meshes").glob("*.off*"), key=lambda p: (len(p.name), p.name)):
+        m = re.fullmatch(r"(\d+)\.off(\.gz)?", path.name)
+        if m is None:
+            continue
+        if not 1 <= int(m.group(1)) <= P.MAX_MESH_ID:
+            problems.append(f"{path}: PSB mesh ids are 1..{P.MAX_MESH_ID}; file left out")
+        elif int(m.group(1)) not in by_id or not m.group(2):   # the uncompressed one wins
+            by_id[int(m.group(1))] = path
+    for mesh_id, path in sorted(by_id.items()):
+        segs: dict[int, Path] = {}
+        for seg in sorted((root / "gt" / str(mesh_id)).glob("*.seg*")):
+            s = _SEG_NAME.match(seg.name)
+            if s is None:
+                continue
+            if int(s.group(1)) != mesh_id:
+                problems.append(f"{seg}: a segmentation of mesh {s.group(1)} in the folder of mesh "
+                                f"{mesh_id}; left out")
+            elif int(s.group(2)) not in segs or not s.group(3):
+                segs[int(s.group(2))] = seg
+        entries.append(P.PSBEntry(mesh_id, P.category_of(mesh_id), path, [segs[k] for k in sorted(segs)]))
+    return entries, problems
+
+
+def _usable_humans(entry, faces: int) -> tuple[list, list, list]:
+    """(seg paths that can be scored against, their segment counts, problem lines)."""
+    ok, counts, problems = [], [], []
+    for s in entry.seg_paths:
+        try:
+            lab = P.read_seg(s)
+        except (ParameterError, OSError) as exc:   # empty, non-integer, unreadable
+            problems.append(f"{exc if str(s) in str(exc) else f'{s}: {exc}'}; human segmentation left out")
+            continue
+        if faces and lab.size != faces:
+            problems.append(f"{s}: {lab.size} labels for the mesh's {faces} faces; human "
+                            f"segmentation left out")
+            continue
+        ok.append(s)
+        counts.append(int(np.unique(lab).size))
+    return ok, counts, problems
+
+
+def plan_meshes(entries, out: Path, protocol: str, auto: bool, default_k: int) -> list:
+    """One :class:`PredictionPlan` per entry: its face count, usable humans and k's."""
+    plans = []
+    for e in entries:
+        plan = PredictionPlan(e, [], [], out / "pred" / str(e.mesh_id))
+        plans.append(plan)
+        try:
+            faces = peek_face_count(e.mesh_path)
+            if faces is None:
+                faces = load_mesh(e.mesh_path).n_faces
+        except MeshError as exc:
+            plan.failure = str(exc)
+            continue
+        plan.faces = int(faces)
+        segs, counts, plan.problems = _usable_humans(e, plan.faces)
+        if e.seg_paths and not segs:
+            plan.failure = "none of its human segmentations can be used (see the problems above)"
+        plan.entry, plan.counts = dataclasses.replace(e, seg_paths=segs), counts
+        try:
+            plan.meta()
+        except TorchAKVFError as exc:
+            plan.problems.append(str(exc))
+            plan.failure = f"corrupt meta file {plan.meta_path.name} (kept, not replaced)"
+            continue
+        if auto:
+            plan.ks = []
+        elif not counts:
+            plan.ks = [int(default_k)]
+        elif protocol == "by-segmentation":
+            plan.ks = sorted(set(counts))
+        else:
+            plan.ks = [human_mode(counts)]
+    return plans
+
+
+def settings_guard(out: Path, prediction_settings: dict) -> None:
+    """Refuse to mix predictions made with different settings in one folder (a corrupt
+    settings.json is an error naming it, not silently replaced)."""
+    path = out / "settings.json"
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text()).get("prediction")
+        except (ValueError, AttributeError) as exc:
+            raise TorchAKVFError(f"{path}: corrupt settings file ({exc}); delete it (with the "
+                                 f"predictions it describes) or use another --out") from None
+        diff = [] if old is None else sorted(k for k in set(old) | set(prediction_settings)
+                                             if old.get(k) != prediction_settings.get(k))
+        if diff:  # a setting added later, absent from an old file, reads as its default None
+            raise TorchAKVFError(f"{out}: holds predictions made with other settings "
+                                 f"({', '.join(diff)} differ); use another --out or delete it")
+
+
+def default_eval_batch_faces(device, coarse_faces=None) -> int:
+    """The face budget of a batch by default: the corpus runner's for the device; on CPU with
+    decimation, one decimated mesh per batch (the cores are used by worker processes instead,
+    and a batch re-solves every mesh when one of them needs more eigenpairs)."""
+    if coarse_faces and str(device).startswith("cpu"):
+        return int(DECIMATE_ABOVE * coarse_faces)
+    return default_batch_faces(device)
+
+
+def solved_face_counts(faces_of: dict, coarse_faces) -> dict:
+    """{mesh id: faces of the mesh the solver sees}: the input's, or about ``coarse_faces`` for
+    a mesh that will be decimated (the face budget of a batch counts what is solved)."""
+    if not coarse_faces:
+        return dict(faces_of)
+    return {i: (f if f <= DECIMATE_ABOVE * coarse_faces else int(coarse_faces)) for i, f in faces_of.items()}
+
+
+def make_batches(plans, faces_of: dict, budget: int) -> list:
+    """Consecutive plans grouped into batches of at most ``budget`` faces (``faces_of``: by
+    mesh id); a mesh larger than the budget is a batch alone."""
+    batches, cur, cur_faces = [], [], 0
+    for p in plans:
+        f = faces_of[p.mesh_id]
+        if cur and cur_faces + f > budget:
+            batches.append(cur)
+            cur, cur_faces = [], 0
+        cur.append(p)
+        cur_faces += f
+    if cur:
+        batches.append(cur)
+    return batches

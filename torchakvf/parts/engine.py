@@ -1,0 +1,373 @@
+"""The segmentation engine: solve the AKVFs once, untangle once per field count, cluster per k,
+cut the parts. Every caller (``segment``, the corpus ``segment`` task, the PSB harness, the
+automatic-k scan, the bench) goes through here.
+
+    segment_each_k(meshes, ks)      one solve, every k of every mesh   -> :class:`SegmentEachK`
+      solve_akvfs                   the AKVFs of the batch, once
+      segment_rounds                round r: every mesh at its r-th k  -> :class:`KRound` s
+        field_counts                fields untangled per mesh for those k (one untangling per
+                                    distinct tuple of counts, shared by the rounds that agree)
+        spherical_kmeans            all meshes of the round at once
+        cut_parts                   ONE mesh: boundaries, clean-up, generators -> MeshSegmentation
+
+A new stage of the method that works on one mesh's clustering (a merge of parts, a boundary
+refinement) goes in :func:`cut_parts`, and only there.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields as dataclass_fields
+
+import numpy as np
+
+from ..cluster import spherical_kmeans
+from ..errors import ParameterError
+from ..fields.akvf import SOLVERS, AKVFResult, akvf, akvf_falling_back, as_batch
+from ..fields.untangle import UntangledFields, untangle
+from ..mesh import MeshBatch
+from ..mesh.batch import pad_packed
+from .boundaries import (face_margins, isoline_face_labels, refine_along_isolines,
+                         vertex_distances)
+from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
+from .generators import part_generators
+from .results import MeshSegmentation, Segmentation
+from .topology import face_adjacency
+
+#: Mesh-quality remedy used by default (see torchakvf.operators.killing); chosen by the
+#: PSB measurements in the README.
+DEFAULT_REMEDY = "smooth"
+BOUNDARIES = ("isoline", "faces")
+#: Segmentation methods: "paper" = Solomon et al. 2011 as implemented here (the only one today).
+METHODS = ("paper",)
+#: Random orthogonal starts of Algorithm 1 besides the identity (the best is kept).
+UNTANGLE_RESTARTS = 8
+#: Eigenvalues closer than this (relative) belong to one cluster, which N must not split.
+CLUSTER_GAP = 1e-2
+#: AKVFs computed beyond the default N when the engine solves them itself, so that a degenerate
+#: eigenvalue cluster cut at N can be seen and completed (:func:`cluster_safe_n`).
+SPARE_FIELDS = 4
+#: k given to a mesh that sits out a round of :func:`segment_rounds` (its clustering is trivial
+#: and its parts are not cut).
+PAD_K = 1
+#: The residual tolerance of an AKVF solve made without one (akvf's default).
+AKVF_TOL = akvf.__kwdefaults__["tol"]
+
+
+def default_n_fields(k: int) -> int:
+    """The paper's N = 2k, clamped to [16, 32]."""
+    return int(min(max(2 * k, 16), 32))
+
+
+def cluster_safe_n(eigenvalues, n: int, floor: int = 1) -> int:
+    """The field count nearest below ``n`` (at least ``floor``) that does not split a cluster of
+    near-equal eigenvalues; if none, the nearest above within the computed ones, else ``n``.
+
+    Only the span of a degenerate cluster is meaningful: cutting one leaves fields that no
+    rotation can localize (measured: two spheres, n = 16 splitting a 10-fold cluster -> 13%
+    leakage). eigenvalues : the ascending computed spectrum, length >= n.
+    """
+    lam = [float(x) for x in eigenvalues]
+
+    def splits(m: int) -> bool:
+        return m < len(lam) and lam[m] - lam[m - 1] <= CLUSTER_GAP * max(abs(lam[m - 1]), 1.0)
+
+    for m in range(n, floor - 1, -1):
+        if m >= 1 and not splits(m):
+            return m
+    for m in range(n + 1, len(lam) + 1):
+        if not splits(m):
+            return m
+    return n
+
+
+def per_mesh(value, nb: int, what: str) -> list[int]:
+    """One positive int (Python or numpy) for every mesh, or a sequence of nb of them -> list."""
+    vals = [value] * nb if isinstance(value, (int, np.integer)) else list(value)
+    if len(vals) != nb:
+        raise ParameterError(f"{what} has {len(vals)} values for {nb} meshes")
+    for v in vals:
+        if not isinstance(v, (int, np.integer)) or isinstance(v, (bool, np.bool_)) or v < 1:
+            raise ParameterError(f"{what} must be a positive integer (or one per mesh), got {v!r}")
+    return [int(v) for v in vals]
+
+
+def _default_or_given(ks: list[int], n_fields, nb: int) -> list[int]:
+    return [default_n_fields(kb) for kb in ks] if n_fields is None else per_mesh(n_fields, nb, "n_fields")
+
+
+def field_counts(fields: AKVFResult, k, n_fields=None) -> list[int]:
+    """The number of fields untangled per mesh for these k.
+
+    Default (``n_fields=None``): the paper's 2k clamped to [16, 32], moved by
+    :func:`cluster_safe_n` off a degenerate cluster of the mesh's computed eigenvalues;
+    otherwise ``n_fields`` (one int or one per mesh), which must not exceed ``fields.n``.
+    """
+    nb = len(fields.batch)
+    ks = per_mesh(k, nb, "k")
+    ns = _default_or_given(ks, n_fields, nb)
+    if max(ns) > fields.n:
+        raise ParameterError(f"n_fields up to {max(ns)} asked for, but the AKVFs given have n = {fields.n}")
+    if n_fields is None:
+        lam = fields.eigenvalues.detach().cpu()
+        ns = [cluster_safe_n(lam[b], ns[b], floor=max(ks[b], ns[b] // 2)) for b in range(nb)]
+    return ns
+
+
+def akvf_count(ks, n_fields=None) -> int:
+    """AKVFs to solve for so that every k of ``ks`` (one list of k's per mesh) finds its fields:
+    the largest ``n_fields`` when given, else the largest default count plus :data:`SPARE_FIELDS`."""
+    if n_fields is not None:
+        ns = [n_fields] if isinstance(n_fields, (int, np.integer)) else list(n_fields)
+        return max(per_mesh(ns, len(ns), "n_fields"))
+    return default_n_fields(max(max(kb) for kb in ks)) + SPARE_FIELDS
+
+
+@dataclass(frozen=True)
+class SegmentOptions:
+    """How the parts are cut (the options of :func:`~torchakvf.parts.segment` besides k,
+    n_fields and the batch's own: device, decimation). See ``segment`` for each one."""
+
+    eps: float = 0.0
+    seed: int = 0
+    remedy: str = DEFAULT_REMEDY
+    solver: str = "auto"
+    method: str = "paper"
+    kmeans_restarts: int = 20
+    untangle_restarts: int = UNTANGLE_RESTARTS
+    boundary: str = "isoline"
+    min_part_fraction: float = 0.01
+    refine: bool = True
+
+    def __post_init__(self):
+        if self.boundary not in BOUNDARIES:
+            raise ParameterError(f"boundary must be one of {BOUNDARIES}, got {self.boundary!r}")
+        if self.solver not in SOLVERS:
+            raise ParameterError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
+        if self.method not in METHODS:
+            raise ParameterError(f"method must be one of {METHODS}, got {self.method!r}")
+        if not (self.eps >= 0):
+            raise ParameterError(f"eps must be >= 0, got {self.eps!r}")
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclass_fields(cls))
+
+
+def solve_akvfs(batch: MeshBatch, n: int, opts: SegmentOptions) -> tuple[AKVFResult, list]:
+    """The n smallest AKVFs of every mesh of the batch, once for every k: (result, [(mesh index,
+    why it was solved at full resolution)]) as :func:`~torchakvf.fields.akvf.akvf_falling_back`."""
+    # TODO(merge): pass solver=opts.solver once akvf takes solver= (today's keyword is method=).
+    return akvf_falling_back(batch, n=int(n), seed=opts.seed, remedy=opts.remedy, method=opts.solver)
+
+
+def solve_quality(fields: AKVFResult, b: int) -> tuple[bool, float]:
+    """(converged, max_residual) of mesh b's eigensolve: its largest relative eigenpair residual
+    and whether that is within the solve's tolerance (:data:`AKVF_TOL`)."""
+    # TODO(merge): use fields.converged[b] once AKVFResult.converged means "within tol" per mesh.
+    residual = float(fields.residuals[b].max())
+    return bool(residual <= AKVF_TOL), residual
+
+
+def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
+              opts: SegmentOptions) -> MeshSegmentation:
+    """Mesh b's parts from its clustering: boundaries, (ε > 0) connecting region, clean-up of
+    small pieces and symmetry generators, on the input's faces.
+
+    batch : the batch that was solved (``fields.batch``); km : the
+    :class:`~torchakvf.cluster.spherical_kmeans.KMeansResult` of the round, k : mesh b's k in it.
+    """
+    unt = untangled
+    n_b = int(unt.n_fields[b])
+    clean = batch.meshes[b]
+    f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+    feats = unt.mesh_features(b).detach().cpu().numpy()
+    area = fields.system.geometry.face_area[f0:f1].detach().cpu().numpy()
+    centers = km.centers[b, :k, :n_b].detach().cpu().numpy()
+    labels = km.labels[b, :f1 - f0].detach().cpu().numpy()
+    vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
+    coarse = batch.coarse_of(b)
+    if coarse is not None:
+        # Solved on a decimated mesh: the distance fields are interpolated at the fine
+        # vertices, so boundaries (isolines) and everything after are cut on the fine mesh.
+        clean, vdist = coarse.fine, coarse.vertex_field(vdist)
+        feats, labels = coarse.face_values(feats), coarse.face_values(labels)
+        area = coarse.fine_area
+    if opts.boundary == "isoline":
+        labels = isoline_face_labels(clean.faces, vdist)
+    adjacency = face_adjacency(clean.faces)
+    if opts.eps > 0:
+        labels = connecting_region(labels, face_margins(clean.faces, vdist), opts.eps)
+        labels = absorb_single_neighbour_regions(labels, adjacency)
+        labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=True)
+        labels = absorb_single_neighbour_regions(labels, adjacency)
+    else:
+        labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=False)
+    gens = part_generators(labels, feats, area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
+    converged, residual = solve_quality(fields, b)
+    return MeshSegmentation(
+        name=clean.name, k=k, labels=clean.labels_to_input_faces(labels),
+        features=clean.to_input_faces(feats), eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
+        generators=gens,
+        refined=refine_along_isolines(clean.vertices, clean.faces, vdist) if opts.refine else None,
+        cost=float(km.cost[b]),
+        params=dict(k=k, eps=opts.eps, seed=opts.seed, n_fields=n_b, remedy=opts.remedy,
+                    boundary=opts.boundary, kmeans_restarts=opts.kmeans_restarts,
+                    untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
+                    coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
+                    solver=opts.solver, method=opts.method),
+        converged=converged, max_residual=residual)
+
+
+@dataclass
+class KRound:
+    """One round of :func:`segment_rounds`: every mesh at one k.
+
+    ks : [B] the k of each mesh in this round (:data:`PAD_K` for a mesh with no k left)
+    active : indices of the meshes whose own k this round is
+    meshes : [B] MeshSegmentation per active mesh, None for the others
+    untangled : the untangled fields the round clustered (shared with rounds of equal counts)
+    seconds : {"untangle": s (0 when shared), "cluster": s (k-means + cutting the parts)}
+    """
+
+    ks: list
+    active: list
+    meshes: list
+    untangled: UntangledFields
+    seconds: dict
+
+    def segmentation(self) -> Segmentation:
+        return Segmentation(self.meshes, untangled=self.untangled)
+
+
+def check_ks(batch: MeshBatch, ks: list) -> list:
+    """ks : one int or one list of k's per mesh -> [B] lists of distinct ints (order kept);
+    ParameterError for a k that is not a positive integer or exceeds its mesh's faces."""
+    nb = len(batch)
+    if isinstance(ks, (int, np.integer)):
+        ks = [[ks]] * nb
+    ks = list(ks)
+    if len(ks) != nb:
+        raise ParameterError(f"k has {len(ks)} values for {nb} meshes")
+    out = []
+    for b, kb in enumerate(ks):
+        kb = [kb] if isinstance(kb, (int, np.integer)) else list(kb)
+        kb = list(dict.fromkeys(per_mesh(kb, len(kb), "k")))
+        n_f = len(batch.meshes[b].faces)
+        for kk in kb:
+            if kk > n_f:
+                raise ParameterError(f"{batch.meshes[b].name}: k = {kk} is larger than its {n_f} faces")
+        out.append(kb)
+    return out
+
+
+def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=None,
+                   untangled: UntangledFields | None = None):
+    """Yields one :class:`KRound` per round: round r segments every mesh with its r-th k.
+
+    ks : one list of k's per mesh (or one int, or one int per mesh); meshes with fewer k's sit
+        out the later rounds (clustered with :data:`PAD_K`, not cut)
+    n_fields : fields untangled per mesh, as :func:`field_counts` (None: from each round's k)
+    untangled : the untangled fields of these AKVFs to use (their counts must be those the k's
+        need): rounds whose counts agree share one untangling either way
+    """
+    batch = fields.batch
+    ks = check_ks(batch, ks)
+    nb = len(batch)
+    cache = {}
+    if untangled is not None:
+        cache[tuple(int(v) for v in untangled.n_fields)] = untangled
+    for r in range(max(len(kb) for kb in ks)):
+        t0 = time.perf_counter()
+        active = [b for b in range(nb) if r < len(ks[b])]
+        round_ks = [ks[b][r] if r < len(ks[b]) else PAD_K for b in range(nb)]
+        ns = tuple(field_counts(fields, round_ks, n_fields))
+        if untangled is not None and (untangled.source is not fields or ns not in cache):
+            raise ParameterError(f"the untangled fields given are for n = {list(untangled.n_fields)} "
+                                 f"of other AKVFs; these k need n = {list(ns)} of the AKVFs passed")
+        if ns not in cache:
+            cache[ns] = untangle(fields, n=list(ns), seed=opts.seed, restarts=opts.untangle_restarts)
+        unt = cache[ns]
+        t1 = time.perf_counter()
+        xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
+        km = spherical_kmeans(xpad, mask, round_ks, restarts=opts.kmeans_restarts, seed=opts.seed)
+        meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts) if b in active else None
+                  for b in range(nb)]
+        t2 = time.perf_counter()
+        yield KRound(ks=round_ks, active=active, meshes=meshes, untangled=unt,
+                     seconds={"untangle": t1 - t0, "cluster": t2 - t1})
+
+
+@dataclass
+class SegmentEachK:
+    """What :func:`segment_each_k` returns.
+
+    fields : the AKVFs (of ``fields.batch``: decimated meshes that could not be solved are at
+        full resolution there); fell_back : [(mesh index, why)] of those meshes
+    meshes : [B] {k: MeshSegmentation} of every k asked for each mesh
+    rounds : the :class:`KRound` s, in order (their ``meshes`` are the same objects)
+    seconds : {"akvf": s, "untangle": s, "cluster": s}
+    """
+
+    fields: AKVFResult
+    fell_back: list
+    meshes: list
+    rounds: list = field(default_factory=list)
+    seconds: dict = field(default_factory=dict)
+
+    def segmentation(self, k) -> Segmentation:
+        """Every mesh at k (one int, or one per mesh); with the untangled fields behind them when
+        one round made them all."""
+        ks = per_mesh(k, len(self.meshes), "k")
+        for r in self.rounds:
+            if r.ks == ks and len(r.active) == len(ks):
+                return r.segmentation()
+        return Segmentation([self.meshes[b][kb] for b, kb in enumerate(ks)])
+
+
+def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None,
+                   remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = "paper",
+                   kmeans_restarts: int = 20, untangle_restarts: int = UNTANGLE_RESTARTS,
+                   boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
+                   coarse_faces: int | None = None, device=None, n_akvf: int | None = None,
+                   untangled: UntangledFields | None = None) -> SegmentEachK:
+    """Segment every mesh at each of its k's from one AKVF solve.
+
+    meshes : MeshBatch, Mesh, list of Mesh, or an :class:`AKVFResult` to reuse (its n must
+        cover the field counts)
+    ks : per mesh, the list of its k's (or one int per mesh, or one int for all)
+    n_akvf : AKVFs to solve for (default :func:`akvf_count`: the largest default field count
+        of the k's plus :data:`SPARE_FIELDS`, or the largest ``n_fields``); pass a fixed one to
+        make a mesh's fields independent of the k's of the meshes sharing its batch
+    coarse_faces, device : how the batch is built from Mesh inputs (see ``segment``)
+    the rest : as in :func:`~torchakvf.parts.segment`
+    """
+    opts = SegmentOptions(eps=eps, seed=seed, remedy=remedy, solver=solver, method=method,
+                          kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
+                          boundary=boundary, min_part_fraction=min_part_fraction, refine=refine)
+    if coarse_faces is not None and isinstance(meshes, (AKVFResult, MeshBatch)):
+        raise ParameterError("coarse_faces applies to Mesh inputs; build the batch with "
+                             "MeshBatch.from_meshes(meshes, coarse_faces=...) instead")
+    t0 = time.perf_counter()
+    fell_back = []
+    if isinstance(meshes, AKVFResult):
+        fields = meshes
+    else:
+        batch = as_batch(meshes, device=device, coarse_faces=coarse_faces)
+        ks = check_ks(batch, ks)
+        fields, fell_back = solve_akvfs(batch, akvf_count(ks, n_fields) if n_akvf is None else n_akvf, opts)
+    t1 = time.perf_counter()
+    out = SegmentEachK(fields=fields, fell_back=fell_back, meshes=[{} for _ in range(len(fields.batch))],
+                       seconds={"akvf": t1 - t0, "untangle": 0.0, "cluster": 0.0})
+    for rnd in segment_rounds(fields, ks, opts, n_fields=n_fields, untangled=untangled):
+        out.rounds.append(rnd)
+        for b in rnd.active:
+            out.meshes[b][rnd.ks[b]] = rnd.meshes[b]
+        for stage, s in rnd.seconds.items():
+            out.seconds[stage] += s
+    return out
+
+
+__all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
+           "field_counts", "akvf_count", "default_n_fields", "cluster_safe_n", "per_mesh",
+           "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS",
+           "UNTANGLE_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]
