@@ -8,16 +8,14 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import gzip
 import json
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import MeshError, ParameterError, TorchAKVFError
-from ..io import load_mesh
+from ..io import load_mesh, peek_face_count
 from ..mesh.coarse import DECIMATE_ABOVE
 from ..pipeline.runner import default_batch_faces
 from . import psb as P
@@ -28,7 +26,7 @@ PROTOCOLS = ("by-segmentation", "by-model")
 DEFAULT_K_NO_GT = 6
 
 __all__ = ["PROTOCOLS", "DEFAULT_K_NO_GT", "PredictionPlan", "select_entries", "parse_ids",
-           "find_entries", "plan_meshes", "settings_guard", "peek_face_count", "make_batches",
+           "find_entries", "plan_meshes", "settings_guard", "make_batches",
            "solved_face_counts", "default_eval_batch_faces", "human_mode"]
 
 
@@ -37,36 +35,6 @@ def human_mode(counts) -> int:
     c = collections.Counter(int(v) for v in counts)
     return min(c, key=lambda v: (-c[v], v))
 
-
-def peek_face_count(path) -> int | None:
-    """Face count from an OFF file's header without reading the rest (None: not an OFF file).
-
-    Raises MeshError naming the file when the header cannot be parsed."""
-    # TODO(merge): use torchakvf.io.peek_face_count (same name and contract).
-    path = Path(path)
-    if not re.search(r"\.off(\.gz)?$", path.name, re.IGNORECASE):
-        return None
-    tokens: list[str] = []
-    try:
-        with open(path, "rb") as fh:
-            gz = fh.read(2) == b"\x1f\x8b"
-        with (gzip.open(path, "rt", errors="replace") if gz else open(path, errors="replace")) as fh:
-            for line in fh:
-                tokens += line.split("#", 1)[0].split()
-                if len(tokens) >= 4:
-                    break
-    except (OSError, EOFError) as exc:
-        raise MeshError(str(path), f"cannot read the OFF header ({exc})") from None
-    if tokens and tokens[0].upper().endswith("OFF"):
-        tokens = tokens[1:]
-    try:
-        n_faces = int(tokens[1])
-        if int(tokens[0]) < 0 or n_faces < 0:
-            raise ValueError
-    except (IndexError, ValueError):
-        raise MeshError(str(path), f"unparsable OFF header (expected 'OFF' then vertex and face "
-                                   f"counts, got {' '.join(tokens[:4])!r})") from None
-    return n_faces
 
 
 @dataclass
@@ -186,43 +154,17 @@ def select_entries(entries, categories=None, ids=None, per_category=None) -> lis
     return entries
 
 
-_SEG_NAME = re.compile(r"^(\d+)_(\d+)\.seg(\.gz)?$")
 
 
 def find_entries(root: Path) -> tuple[list, list]:
     """(PSB entries, problem lines): :func:`torchakvf.evaluate.psb.find_psb_meshes`, except that
     a mesh file with an id outside 1..400 or a ``.seg`` in another mesh's folder is a problem
     line naming the file (left out) instead of the end of the run."""
-    # TODO(merge): a find_psb_meshes that reports such files instead of raising (owner of psb.py)
-    # would make this a one-liner; until then the tolerant pass runs only after it raised.
+    problems: list = []
     try:
-        return P.find_psb_meshes(root), []
+        entries = P.find_psb_meshes(root, problems=problems)
     except FileNotFoundError as exc:
         raise TorchAKVFError(str(exc)) from None
-    except ParameterError:
-        pass
-    problems, entries = [], []
-    by_id: dict[int, Path] = {}
-    for path in sorted((root / "meshes").glob("*.off*"), key=lambda p: (len(p.name), p.name)):
-        m = re.fullmatch(r"(\d+)\.off(\.gz)?", path.name)
-        if m is None:
-            continue
-        if not 1 <= int(m.group(1)) <= P.MAX_MESH_ID:
-            problems.append(f"{path}: PSB mesh ids are 1..{P.MAX_MESH_ID}; file left out")
-        elif int(m.group(1)) not in by_id or not m.group(2):   # the uncompressed one wins
-            by_id[int(m.group(1))] = path
-    for mesh_id, path in sorted(by_id.items()):
-        segs: dict[int, Path] = {}
-        for seg in sorted((root / "gt" / str(mesh_id)).glob("*.seg*")):
-            s = _SEG_NAME.match(seg.name)
-            if s is None:
-                continue
-            if int(s.group(1)) != mesh_id:
-                problems.append(f"{seg}: a segmentation of mesh {s.group(1)} in the folder of mesh "
-                                f"{mesh_id}; left out")
-            elif int(s.group(2)) not in segs or not s.group(3):
-                segs[int(s.group(2))] = seg
-        entries.append(P.PSBEntry(mesh_id, P.category_of(mesh_id), path, [segs[k] for k in sorted(segs)]))
     return entries, problems
 
 

@@ -116,7 +116,7 @@ def default_psb_root() -> Path | None:
     return None
 
 
-def find_psb_meshes(root) -> list[PSBEntry]:
+def find_psb_meshes(root, problems: list | None = None) -> list[PSBEntry]:
     """List the benchmark's meshes under ``root``, sorted by mesh id.
 
     Reads both ``N.off.gz`` and ``N.off`` (if both exist the uncompressed one is used) and the
@@ -126,6 +126,8 @@ def find_psb_meshes(root) -> list[PSBEntry]:
     ----------
     root : str or Path
         Folder holding ``meshes/`` and (optionally) ``gt/``.
+    problems : a list to collect one line per misplaced file (naming it; the file is left out)
+        instead of raising on the first one
 
     Returns
     -------
@@ -135,9 +137,9 @@ def find_psb_meshes(root) -> list[PSBEntry]:
     ------
     FileNotFoundError
         If ``root`` or ``root/meshes`` does not exist.
-    ValueError
-        If a mesh file name has an id outside 1..400, or a segmentation file belongs to
-        another mesh.
+    ParameterError (a ValueError)
+        Without ``problems``: if a mesh file name has an id outside 1..400, or a segmentation
+        file belongs to another mesh.
     """
     root = Path(root)
     if not root.is_dir():
@@ -153,17 +155,24 @@ def find_psb_meshes(root) -> list[PSBEntry]:
             continue  # READMEs and other stray files are not meshes
         mesh_id = int(m.group(1))
         if not 1 <= mesh_id <= MAX_MESH_ID:
-            raise ParameterError(f"{path}: PSB mesh ids are 1..{MAX_MESH_ID}, got {mesh_id}")
+            _problem(problems, f"{path}: PSB mesh ids are 1..{MAX_MESH_ID}, got {mesh_id}; file left out")
+            continue
         # Prefer the uncompressed file when both exist: it is faster to read.
         if mesh_id not in meshes or not m.group(2):
             meshes[mesh_id] = path
     gt_dir = root / "gt"
     return [PSBEntry(mesh_id, category_of(mesh_id), meshes[mesh_id],
-                     _find_segs(gt_dir / str(mesh_id), mesh_id))
+                     _find_segs(gt_dir / str(mesh_id), mesh_id, problems))
             for mesh_id in sorted(meshes)]
 
 
-def _find_segs(folder: Path, mesh_id: int) -> list[Path]:
+def _problem(problems: list | None, line: str) -> None:
+    if problems is None:
+        raise ParameterError(line)
+    problems.append(line)
+
+
+def _find_segs(folder: Path, mesh_id: int, problems: list | None = None) -> list[Path]:
     if not folder.is_dir():
         return []
     pattern = re.compile(r"^(\d+)_(\d+)\.seg(\.gz)?$")
@@ -173,8 +182,9 @@ def _find_segs(folder: Path, mesh_id: int) -> list[Path]:
         if not m or not path.is_file():
             continue
         if int(m.group(1)) != mesh_id:
-            raise ParameterError(f"{path}: segmentation of mesh {m.group(1)} "
-                                 f"in the folder of mesh {mesh_id}")
+            _problem(problems, f"{path}: a segmentation of mesh {m.group(1)} in the folder of mesh "
+                               f"{mesh_id}; left out")
+            continue
         k = int(m.group(2))
         if k not in found or not m.group(3):
             found[k] = path
