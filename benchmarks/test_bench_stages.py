@@ -43,7 +43,7 @@ def test_eigensolve(benchmark, device, size, count, method):
     if method == "lanczos" and device != "cpu":
         pytest.skip("ARPACK runs on the CPU only")
     batch = _batch(size, count, device)
-    benchmark.pedantic(lambda: ta.akvf(batch, n=32, remedy="smooth", method=method), rounds=2)
+    benchmark.pedantic(lambda: ta.akvf(batch, n=32, remedy="smooth", solver=method), rounds=2)
 
 
 @pytest.mark.parametrize("device", DEVICES)

@@ -23,7 +23,7 @@ from .topology import face_adjacency
 
 #: Mesh-quality remedy used by default (see torchakvf.operators.killing); chosen by the
 #: PSB measurements in the README.
-DEFAULT_REMEDY = "smooth"
+from ..operators.killing import DEFAULT_REMEDY  # noqa: E402  (one default, where the operator lives)
 BOUNDARIES = ("isoline", "faces")
 #: Random orthogonal starts of Algorithm 1 besides the identity (the best is kept).
 UNTANGLE_RESTARTS = 8
