@@ -36,6 +36,7 @@ class AKVFResult:
         as if solved
     iterations, shifts : [B] eigensolver diagnostics
     dropped : [B] spurious negative modes (λ·area < SPURIOUS_BELOW) skipped under a remedy
+    solved : [B] eigenpairs computed per mesh (n + room for spurious modes; decided per mesh)
     batch : the :class:`MeshBatch`; ``system``: its :class:`KillingSystem`
     """
 
@@ -49,6 +50,7 @@ class AKVFResult:
     dropped: torch.Tensor
     batch: MeshBatch
     system: KillingSystem
+    solved: torch.Tensor | None = None
 
     @property
     def n(self) -> int:
@@ -214,7 +216,8 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
                       face_vectors=fv.to(out_dt), residuals=residuals,
                       iterations=torch.stack([p[3] for p in per_mesh]).to(dev),
                       shifts=torch.stack([p[4] for p in per_mesh]).to(dev), converged=converged,
-                      dropped=torch.tensor(dropped, dtype=torch.long, device=dev), batch=batch, system=system)
+                      dropped=torch.tensor(dropped, dtype=torch.long, device=dev), batch=batch, system=system,
+                      solved=torch.tensor(counts, dtype=torch.long, device=dev))
 
 
 def _group_ptr(eig, group: list[int], edges: list[int]) -> torch.Tensor:
