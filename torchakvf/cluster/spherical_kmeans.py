@@ -16,8 +16,9 @@ _NEG = -4.0   # below any cosine: marks centers that do not exist for a mesh
 
 @dataclass
 class KMeansResult:
-    """labels : [B, N_max] (-1 on padding); centers : [B, k_max, d] unit vectors (0 when unused);
-    cost : [B] Σ (1 - cos) of the restart kept; iterations : [B]."""
+    """labels : [B, N_max] per padded row (rows as given to :func:`spherical_kmeans`, -1 on
+    padding); centers : [B, k_max, d] unit vectors (0 when unused); cost : [B] Σ w (1 - cos) of
+    the restart kept; iterations : [B] Lloyd iterations (float32 and float64 phases together)."""
 
     labels: torch.Tensor
     centers: torch.Tensor

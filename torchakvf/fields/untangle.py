@@ -24,6 +24,10 @@ FLOAT32_PHASE_TOL = 10.0
 class UntangledFields:
     """Untangled AKVFs of a batch (first n of each mesh's AKVFs, rotated).
 
+    Packed rows are in the index space of the batch (``batch.edge_ptr`` / ``batch.face_ptr``):
+    each mesh as packed, i.e. cleaned and, in a batch built with ``coarse_faces``, decimated.
+    :meth:`torchakvf.parts.Segmentation.face_vectors` maps to the input faces.
+
     rotation : [B, n, n] orthogonal A_b (untangled = raw @ A_b)
     forms : packed [ΣE, n] untangled 1-forms (S1-orthonormal per mesh)
     face_vectors : packed [ΣF, n, 3] untangled Whitney vectors at barycenters
@@ -50,7 +54,8 @@ class UntangledFields:
         return self.rotation.shape[-1]
 
     def mesh_features(self, b: int) -> torch.Tensor:
-        """[F_b, n_b] features of mesh b (cleaned faces)."""
+        """[F_b, n_b] features of mesh b on the faces of the packed mesh ``batch.meshes[b]``
+        (cleaned; decimated in a coarse_faces batch)."""
         ptr = self.batch.face_ptr
         return self.features[int(ptr[b]):int(ptr[b + 1]), :self.n_fields[b]]
 
