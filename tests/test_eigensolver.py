@@ -399,8 +399,11 @@ def test_solver_error_never_suggests_what_was_tried():
     assert "remedy" not in str(exc.value)
     from torchakvf.fields.akvf import _remedy_advice
     for remedy in ("none", "clamp", "smooth"):
-        advice = _remedy_advice(remedy)
-        assert f"try remedy={remedy!r}" not in advice, (remedy, advice)
+        for decimated in (False, True):
+            advice = _remedy_advice(remedy, decimated)
+            assert f"try remedy={remedy!r}" not in advice, (remedy, advice)
+    assert "full resolution" in _remedy_advice("smooth", True)
+    assert "full resolution" not in _remedy_advice("smooth", False)
     assert "try remedy='smooth'" in _remedy_advice("none")
 
 
@@ -500,3 +503,14 @@ def test_segmentation_does_not_depend_on_batch_mates_psb(psb):
     assert both[0].params["n_fields"] == alone.params["n_fields"]
     agree = float((both[0].labels == alone.labels).mean())
     assert agree >= 0.999, agree
+
+
+def test_psb_unsolvable_mesh_error_does_not_suggest_what_was_tried(psb):
+    """PSB mesh 351 cannot be factored at any shift even under "smooth" (the default): the
+    error names the mesh and what was tried, and suggests something else."""
+    mesh = ta.load_mesh(psb / "meshes" / "351.off.gz")
+    with pytest.raises(ta.SolverError) as exc:
+        ta.akvf(ta.MeshBatch.from_meshes([mesh], coarse_faces=4000), n=20)
+    text = str(exc.value)
+    assert "351" in text and "remedy='smooth'" in text
+    assert "try remedy='smooth'" not in text and "full resolution" in text

@@ -99,12 +99,15 @@ def solver_for(device: torch.device) -> str:
     return "lanczos" if torch.device(device).type == "cpu" else "lobpcg"
 
 
-def _remedy_advice(remedy: str) -> str:
+def _remedy_advice(remedy: str, decimated: bool = False) -> str:
     """What to try after a failed solve under ``remedy`` (never what was just tried)."""
     if remedy != "smooth":
         return f"it was solved with remedy={remedy!r}; try remedy='smooth' (the default)"
+    if decimated:
+        return ("it was solved decimated with remedy='smooth', the strongest remedy; solve it at "
+                "full resolution (akvf_falling_back does) or repair the input mesh")
     return ("it was solved with remedy='smooth', the strongest remedy; repair the mesh (remesh "
-            "it or close its holes), or solve it at full resolution if it was decimated")
+            "it, close its holes)")
 
 
 def _field_count(n) -> int:
@@ -166,7 +169,8 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         except SolverError as exc:
             if "fields asked for" in str(exc):
                 raise
-            raise SolverError(f"{exc}; {_remedy_advice(remedy)}") from None
+            decimated = any(batch.coarse_of(b) is not None for b in meshes_)
+            raise SolverError(f"{exc}; {_remedy_advice(remedy, decimated)}") from None
 
     drop = remedy != "none"
     edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
