@@ -366,6 +366,7 @@ def test_api_solver_alias_numpy_n_and_device():
     m = mesh_of(shapes.icosphere(2))
     a = ta.akvf(m, n=np.int64(6), solver="lanczos", remedy=PAPER)
     assert a.n == 6
+    assert ta.untangle(a, n=np.int32(4)).n == 4
     with pytest.warns(DeprecationWarning, match="solver"):
         b = ta.akvf(m, n=6, method="lanczos", remedy=PAPER)
     torch.testing.assert_close(a.eigenvalues, b.eigenvalues)

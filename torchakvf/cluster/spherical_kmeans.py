@@ -5,6 +5,7 @@ rows [B, N_max, d] with a mask, centers [B, R, k_max, d] with a mask for meshes 
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import torch
@@ -43,7 +44,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         restart are float64. tests/test_precision.py checks float32 against float64.
     """
     nb, n_max, d = x.shape
-    ks = [int(k)] * nb if isinstance(k, int) else [int(v) for v in k]
+    ks = [int(k)] * nb if isinstance(k, numbers.Integral) else [int(v) for v in k]
     counts = mask.sum(1).tolist()
     if len(ks) != nb:
         raise ParameterError(f"k has {len(ks)} values for {nb} meshes")

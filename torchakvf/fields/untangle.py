@@ -7,6 +7,7 @@ All meshes and all restarts run as one batched set of [B·R, n, n] SVDs.
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import torch
@@ -99,7 +100,7 @@ def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: 
     """
     batch = fields.batch
     nb = len(batch)
-    ns = [fields.n] * nb if n is None else ([int(n)] * nb if isinstance(n, int) else [int(v) for v in n])
+    ns = [fields.n] * nb if n is None else ([int(n)] * nb if isinstance(n, numbers.Integral) else [int(v) for v in n])
     if len(ns) != nb or min(ns) < 1 or max(ns) > fields.n:
         raise ParameterError(f"n must be 1..{fields.n} per mesh (one int or {nb} ints), got {n!r}")
     n_max = max(ns)
