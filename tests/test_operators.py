@@ -160,7 +160,7 @@ EXACT_SHAPES = ["icosphere3", "open_tube", "golden_disk", "hemisphere3", "square
 @pytest.mark.parametrize("name", EXACT_SHAPES)
 def test_stiffness_matches_scipy_reference(meshes, name, bc):
     b = ta.MeshBatch.from_meshes([meshes[name]])
-    system = killing_operator(b, boundary_correction=bc)
+    system = killing_operator(b, boundary_correction=bc, remedy="none")
     cm = b.meshes[0]
     R, S1, edges, meta = ref.killing_operator_scipy(cm.vertices, cm.faces, boundary_correction=bc)
     assert meta["n_nonpositive_S1"] == 0        # precondition: no mass floor anywhere
@@ -182,7 +182,7 @@ def test_stiffness_matches_scipy_reference(meshes, name, bc):
 
 def test_stiffness_symmetric_whole_batch(batch):
     for bc in (True, False):
-        R = _scipy(killing_operator(batch, boundary_correction=bc).stiffness)
+        R = _scipy(killing_operator(batch, boundary_correction=bc, remedy="none").stiffness)
         assert abs(R - R.T).max() <= 1e-14 * abs(R).max()
 
 
@@ -192,20 +192,45 @@ def test_stiffness_matches_reference_with_negative_cotans():
     cm = b.meshes[0]
     R, S1, _, meta = ref.killing_operator_scipy(cm.vertices, cm.faces)
     assert meta["n_nonpositive_S1"] > 0
-    Rt = _scipy(killing_operator(b).stiffness)
+    Rt = _scipy(killing_operator(b, remedy="none").stiffness)
     assert abs(Rt - R).max() <= 1e-9 * abs(R).max(), abs(Rt - R).max() / abs(R).max()
+
+
+@pytest.mark.parametrize("remedy", ["clamp", "smooth"])
+@pytest.mark.parametrize("name", ["ellipsoid3", "hemisphere3", "square_patch"])
+def test_remedy_operators_match_independent_reference(meshes, name, remedy):
+    """The remedies against the scipy reference's own statement of them (floored star1 in
+    every term, ring-averaged curvature written with scipy.sparse), on meshes with negative
+    cotans (ellipsoid3), a boundary (hemisphere3) and a jittered open patch."""
+    if name == "ellipsoid3":
+        s = shapes.ellipsoid(level=3)
+        mesh = ta.Mesh(s.vertices, s.faces)
+    else:
+        mesh = meshes[name]
+    b = ta.MeshBatch.from_meshes([mesh])
+    cm = b.meshes[0]
+    system = killing_operator(b, remedy=remedy)
+    R, S1, edges, _ = ref.killing_operator_scipy(cm.vertices, cm.faces, remedy=remedy)
+    np.testing.assert_array_equal(b.edges.numpy(), edges)
+    Rt, scale = _scipy(system.stiffness), abs(R).max()
+    assert abs(Rt - R).max() <= 1e-9 * scale, abs(Rt - R).max() / scale
+    np.testing.assert_allclose(system.mass.numpy(), S1, rtol=1e-12)
+    # The remedy does change the operator (so the comparison above can fail).
+    R_none, *_ = ref.killing_operator_scipy(cm.vertices, cm.faces, remedy="none")
+    if remedy == "smooth" or bool((system.star1_raw < system.mass).any()):
+        assert abs(Rt - R_none).max() > 1e-6 * scale
 
 
 def test_batch_is_block_diagonal_of_each_alone(meshes):
     names = ["icosphere3", "golden_disk", "open_tube", "hemisphere3"]
     for bc in (True, False):
         batch = ta.MeshBatch.from_meshes([meshes[k] for k in names])
-        system = killing_operator(batch, boundary_correction=bc)
+        system = killing_operator(batch, boundary_correction=bc, remedy="none")
         idx = system.stiffness.indices()
         owner = batch.edge_to_mesh
         assert torch.equal(owner[idx[0]], owner[idx[1]])         # nothing couples two meshes
         for b, k in enumerate(names):
-            alone = killing_operator(ta.MeshBatch.from_meshes([meshes[k]]), boundary_correction=bc)
+            alone = killing_operator(ta.MeshBatch.from_meshes([meshes[k]]), boundary_correction=bc, remedy="none")
             r, c, v, size = system.block(b)
             assert size == len(alone.mass)
             Rb = sp.csr_matrix((v.numpy(), (r.numpy(), c.numpy())), shape=(size, size))
@@ -236,8 +261,8 @@ def test_disk_rigid_motions_need_boundary_correction(meshes):
     mid = 0.5 * (p[e[:, 0]] + p[e[:, 1]])
     rot = np.einsum("ec,ec->e", np.cross([0.0, 0.0, 1.0], mid), vec)
     w = np.stack([vec[:, 0], vec[:, 1], rot], axis=1)     # x, y translations; rotation about z
-    rq_bc = _rayleigh(killing_operator(b, boundary_correction=True), w)
-    rq_naive = _rayleigh(killing_operator(b, boundary_correction=False), w)
+    rq_bc = _rayleigh(killing_operator(b, boundary_correction=True, remedy="none"), w)
+    rq_naive = _rayleigh(killing_operator(b, boundary_correction=False, remedy="none"), w)
     assert np.all(np.abs(rq_bc[:2]) < 1e-8), rq_bc
     assert abs(rq_bc[2]) < 0.1, rq_bc
     assert np.all(rq_naive > 1.0), rq_naive
@@ -245,7 +270,7 @@ def test_disk_rigid_motions_need_boundary_correction(meshes):
 
 def test_sphere_rotations_nearly_killing(meshes):
     b = ta.MeshBatch.from_meshes([meshes["icosphere3"]])
-    system = killing_operator(b)
+    system = killing_operator(b, remedy="none")
     p = system.geometry.points.numpy()
     e = b.edges.numpy()
     vec = p[e[:, 1]] - p[e[:, 0]]
@@ -274,3 +299,63 @@ def test_remedy_validation_and_clamp(meshes):
     # flat_disk has exact right angles (star1 ~ 0): it is counted
     assert int(none.negative_star1_counts()[1]) > 0
     assert int(none.negative_star1_counts()[0]) == 0
+
+
+def test_meshbatch_to_dtype_keeps_index_tensors():
+    b = ta.MeshBatch.from_meshes([ta.Mesh(shapes.icosphere(1).vertices, shapes.icosphere(1).faces)])
+    for moved in (b.to(torch.float32), b.to("cpu", torch.float32), b.to(dtype=torch.float32)):
+        assert moved.verts.dtype == torch.float32 and moved.face_edge_sign.dtype == torch.float32
+        for name in ("faces", "edges", "face_edges", "vert_ptr", "face_ptr", "edge_ptr"):
+            assert getattr(moved, name).dtype == torch.int64, name
+            assert torch.equal(getattr(moved, name), getattr(b, name)), name
+    assert b.to("cpu").dtype == torch.float64
+    with pytest.raises(ta.ParameterError):
+        b.to(torch.int32)
+
+
+def test_owner_index_matches_batch_maps():
+    from torchakvf.mesh import owner_index
+    ptr = torch.tensor([0, 3, 3, 5])
+    assert owner_index(ptr).tolist() == [0, 0, 0, 2, 2]
+    s = [shapes.icosphere(1), shapes.icosphere(2)]
+    b = ta.MeshBatch.from_meshes([ta.Mesh(x.vertices, x.faces) for x in s])
+    assert torch.equal(b.face_to_mesh, owner_index(b.face_ptr))
+    assert b.edge_to_mesh.tolist() == [0] * 120 + [1] * 480
+
+
+def test_single_threaded_restores_the_thread_count_also_when_overlapping():
+    import threading
+
+    from torchakvf._threads import single_threaded
+    saved = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        with single_threaded():
+            assert torch.get_num_threads() == 1
+            with single_threaded():
+                assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        # Two threads whose blocks overlap (A enters, B enters, A leaves, B leaves): the process
+        # ends with its thread count, not with the 1 that B would have saved.
+        a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+
+        def first():
+            with single_threaded():
+                a_in.set()
+                b_in.wait(5)
+            a_out.set()
+
+        def second():
+            a_in.wait(5)
+            with single_threaded():
+                b_in.set()
+                a_out.wait(5)
+
+        ts = [threading.Thread(target=first), threading.Thread(target=second)]
+        for t in ts:
+            t.start()
+        for t in ts:
+            t.join(10)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(saved)

@@ -401,6 +401,40 @@ def human_consistency(per_category: int | None) -> tuple[float, dict[str, float]
     return float(np.mean(list(cat_means.values()))), cat_means, n_files
 
 
+def _per_face_rand_index_error(a: np.ndarray, b: np.ndarray) -> float:
+    """1 - RI counted face by face (not from a contingency table): face i disagrees with every
+    face j that shares its segment in exactly one of a, b; each pair is seen twice."""
+    def same(keys):
+        _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+        return counts[inverse.reshape(-1)] - 1            # other faces in face i's (joint) segment
+    n = len(a)
+    a, b = a.astype(np.int64), b.astype(np.int64)
+    joint = (a - a.min()) * (int(b.max() - b.min()) + 1) + (b - b.min())
+    disagree_twice = np.sum(same(a) + same(b) - 2 * same(joint), dtype=np.int64)
+    return float(disagree_twice / 2) / (n * (n - 1) / 2)
+
+
+def _independent_human_consistency(per_category=None):
+    """The benchmark's human-vs-human 1-RI (mean over categories of the per-mesh mean over
+    pairs of human segmentations), with the files read by gzip/numpy directly."""
+    by_cat: dict[str, list[float]] = {}
+    for e in find_psb_meshes(psb_root()):
+        if not e.has_gt:
+            continue
+        scores = by_cat.setdefault(e.category, [])
+        if per_category is not None and len(scores) >= per_category:
+            continue
+        segs = []
+        for path in e.seg_paths:
+            opener = gzip.open if str(path).endswith(".gz") else open
+            with opener(path, "rt") as fh:
+                segs.append(np.array([int(line) for line in fh.read().split()], dtype=np.int64))
+        scores.append(float(np.mean([_per_face_rand_index_error(x, y)
+                                     for x, y in itertools.combinations(segs, 2)])))
+    cats = {c: float(np.mean(v)) for c, v in by_cat.items()}
+    return float(np.mean(list(cats.values()))), cats
+
+
 def _report(label: str, overall: float, cat_means: dict[str, float], n_files: int, secs: float):
     print(f"\n[{label}] human-vs-human 1-RI = {overall:.4f} over {len(cat_means)} categories "
           f"({n_files} segmentations, {secs:.1f} s); published (19 categories): "
@@ -416,7 +450,11 @@ def test_psb_human_consistency_quick():
     _report("quick, 2 meshes per category", overall, cat_means, n_files,
             time.perf_counter() - start)
     assert len(cat_means) == 15
-    assert 0.03 < overall < 0.2
+    # The published 0.103 covers 19 categories, 4 of which are held back here, so it cannot be
+    # matched; the check is against an independent count of the same pairs instead.
+    expected, expected_cats = _independent_human_consistency(per_category=2)
+    assert overall == pytest.approx(expected, rel=1e-12, abs=0)
+    assert cat_means == pytest.approx(expected_cats, rel=1e-12, abs=0)
 
 
 @needs_psb
@@ -427,7 +465,8 @@ def test_psb_human_consistency_full():
             time.perf_counter() - start)
     # 15 categories have ground truth here; 4 are held back.
     assert len(cat_means) == 15 and n_files > 3000
-    assert 0.06 < overall < 0.14
+    expected, _ = _independent_human_consistency(per_category=None)
+    assert overall == pytest.approx(expected, rel=1e-12, abs=0)
 
 
 @needs_psb

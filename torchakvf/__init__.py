@@ -4,7 +4,7 @@ Pipeline (one folder a stage): io -> mesh -> operators -> solvers -> fields -> c
 parts -> io outputs. The public API is plain functions on a :class:`MeshBatch` or a
 :class:`Mesh`.
 """
-from .errors import MeshError, ParameterError, SolverError, TorchAKVFError
+from .errors import ConvergenceWarning, MeshError, ParameterError, SolverError, TorchAKVFError
 from .io import load_mesh
 from .mesh import CleanMesh, Mesh, MeshBatch, clean_mesh
 from .fields import AKVFResult, UntangledFields, akvf, untangle
@@ -13,6 +13,6 @@ from . import data
 
 __version__ = "0.1.0"
 
-__all__ = ["TorchAKVFError", "MeshError", "SolverError", "ParameterError", "load_mesh", "Mesh",
+__all__ = ["TorchAKVFError", "MeshError", "SolverError", "ParameterError", "ConvergenceWarning", "load_mesh", "Mesh",
            "CleanMesh", "clean_mesh", "MeshBatch", "AKVFResult", "akvf", "UntangledFields", "untangle",
            "Segmentation", "MeshSegmentation", "segment", "__version__"]

@@ -2,24 +2,40 @@
 from __future__ import annotations
 
 import contextlib
+import threading
 
 import torch
+
+_lock = threading.Lock()
+_depth = 0
+_saved = 1
 
 
 @contextlib.contextmanager
 def single_threaded():
-    """Run small dense factorizations (n×n eigh/svd with n ~ 10-150) on one CPU thread.
+    """Context manager: run small dense factorizations (n×n eigh/svd with n ~ 10-150) on one
+    CPU thread, then give the process back the thread count it had.
 
     Measured here: a 144×144 float64 ``eigh`` took 3.7 ms on one thread and up to 3 s with
     two OpenMP threads when the cores were busy (spin-waiting threads); such matrices are too
-    small to gain from threads anyway. The previous thread count is restored on exit.
+    small to gain from threads anyway.
+
+    torch's intra-op thread count is process-wide, so the blocks are counted across threads
+    and nesting: the first to enter saves the count, the last to leave restores it (two
+    overlapping blocks on two threads cannot leave the process at one thread for good).
+    Other threads' work runs single-threaded while a block is open.
     """
-    before = torch.get_num_threads()
-    if before == 1:
-        yield
-        return
-    torch.set_num_threads(1)
+    global _depth, _saved
+    with _lock:
+        if _depth == 0:
+            _saved = torch.get_num_threads()
+            if _saved != 1:
+                torch.set_num_threads(1)
+        _depth += 1
     try:
         yield
     finally:
-        torch.set_num_threads(before)
+        with _lock:
+            _depth -= 1
+            if _depth == 0 and torch.get_num_threads() != _saved:
+                torch.set_num_threads(_saved)

@@ -25,3 +25,8 @@ class SolverError(TorchAKVFError):
 
 class ParameterError(TorchAKVFError, ValueError):
     """A parameter is out of its documented range."""
+
+
+class ConvergenceWarning(UserWarning):
+    """A result was returned but did not meet its tolerance (e.g. an eigensolve whose residual
+    stayed above ``tol``); the result object flags the meshes concerned."""

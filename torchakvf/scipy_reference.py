@@ -121,7 +121,14 @@ def _face_geometry(V: np.ndarray, F: np.ndarray):
 # The Killing operator
 # ----------------------------------------------------------------------------------------------------------------
 
-def killing_operator_scipy(V, F, boundary_correction: bool = True):
+#: Mesh-quality remedies, restated here from the docstring of torchakvf.operators.killing (the
+#: oracle must not import it): star1 floored at this fraction of its mean |star1| ...
+REMEDY_FLOOR = 0.1
+#: ... and, for "smooth", Gaussian curvature averaged over this many vertex rings.
+SMOOTH_RINGS = 4
+
+
+def killing_operator_scipy(V, F, boundary_correction: bool = True, remedy: str = "none"):
     """Discrete Killing operator of akvf-math.md section 2 on the unit-area-scaled mesh.
 
     Parameters
@@ -131,6 +138,10 @@ def killing_operator_scipy(V, F, boundary_correction: bool = True):
         boundary term (b) of akvf-math.md; if False, the closed-surface formula
         ``d1^T S2 d1 + 2 S1 d0 S0^{-1} d0^T S1 - 2 S1 diag(K_e)`` is used as is (wrong on open meshes, kept for
         comparison).  On closed meshes both are identical.
+    remedy : "none" (the paper's operator), "clamp" (star1 replaced by max(star1, 0.1 mean|star1|)
+        everywhere it appears: mass matrix, divergence, curvature term) or "smooth" (clamp, and
+        K_v = (sum of angle defects) / (sum of vertex areas) over the closed 4-ring of each vertex,
+        i.e. ``(I + Adj)^4 theta / (I + Adj)^4 A_v`` with Adj the vertex adjacency).
 
     Returns
     -------
@@ -166,6 +177,10 @@ def killing_operator_scipy(V, F, boundary_correction: bool = True):
     A_v = np.bincount(F.ravel(), weights=np.repeat(area / 3.0, 3), minlength=nV)
     S0_inv = np.divide(1.0, A_v, out=np.zeros(nV), where=A_v > 0)  # unreferenced vertices: no edges, 0
     S2 = 1.0 / area
+    if remedy not in ("none", "clamp", "smooth"):
+        raise ValueError(f"unknown remedy {remedy!r}")
+    if remedy != "none":
+        S1 = np.maximum(S1, REMEDY_FLOOR * np.mean(np.abs(S1)))
 
     # --- boundary edges: used once by a face -----------------------------------------------------------------
     edge_nfaces = np.bincount(fe.ravel(), minlength=nE)
@@ -181,6 +196,13 @@ def killing_operator_scipy(V, F, boundary_correction: bool = True):
     theta = np.where(referenced & ~boundary_vertex, 2.0 * np.pi - angle_sum, 0.0)
     turning = np.where(boundary_vertex, np.pi - angle_sum, 0.0)  # geodesic turning (Gauss-Bonnet partner)
     K_v = theta * S0_inv
+    if remedy == "smooth":
+        ring = sp.csr_matrix((np.ones(2 * nE), (edges.ravel(), edges[:, ::-1].ravel())), shape=(nV, nV))
+        ring = ring + sp.identity(nV, format="csr")
+        num, den = theta.copy(), A_v.copy()
+        for _ in range(SMOOTH_RINGS):
+            num, den = ring @ num, ring @ den
+        K_v = np.divide(num, den, out=np.zeros(nV), where=den > 0)
     K_e = 0.5 * (K_v[edges[:, 0]] + K_v[edges[:, 1]])
     euler = nV - int(np.sum(~referenced)) - nE + nF
 

@@ -5,6 +5,7 @@ rows [B, N_max, d] with a mask, centers [B, R, k_max, d] with a mask for meshes 
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import torch
@@ -16,8 +17,9 @@ _NEG = -4.0   # below any cosine: marks centers that do not exist for a mesh
 
 @dataclass
 class KMeansResult:
-    """labels : [B, N_max] (-1 on padding); centers : [B, k_max, d] unit vectors (0 when unused);
-    cost : [B] Σ (1 - cos) of the restart kept; iterations : [B]."""
+    """labels : [B, N_max] per padded row (rows as given to :func:`spherical_kmeans`, -1 on
+    padding); centers : [B, k_max, d] unit vectors (0 when unused); cost : [B] Σ w (1 - cos) of
+    the restart kept; iterations : [B] Lloyd iterations (float32 and float64 phases together)."""
 
     labels: torch.Tensor
     centers: torch.Tensor
@@ -36,11 +38,13 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     seed : each mesh's random draws come from ``torch.Generator().manual_seed(seed)`` alone
     weights : optional [B, N_max] row weights of the cost (e.g. face areas); default 1 per row
     iteration_dtype : float type of the similarities [B, N, R·k] of the Lloyd iterations (the
-        largest products); seeding, cluster sums, the final assignment and the cost that picks
-        the restart are float64. tests/test_precision.py checks float32 against float64.
+        largest products). With float32, Lloyd iterations go on in float64 from where the
+        float32 ones stopped until no label changes, so the partition returned is a float64
+        fixed point; seeding, cluster sums, the final assignment and the cost that picks the
+        restart are float64. tests/test_precision.py checks float32 against float64.
     """
     nb, n_max, d = x.shape
-    ks = [int(k)] * nb if isinstance(k, int) else [int(v) for v in k]
+    ks = [int(k)] * nb if isinstance(k, numbers.Integral) else [int(v) for v in k]
     counts = mask.sum(1).tolist()
     if len(ks) != nb:
         raise ParameterError(f"k has {len(ks)} values for {nb} meshes")
@@ -62,10 +66,6 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
                          for _ in range(nb)]).to(dev)                             # [B, R, k_max]
     centers = _kmeanspp(x, w, draws, center_ok)                                    # [B, R, k_max, d]
 
-    # The similarities [B, N, R·k] are the largest array (260 MB at k = 81 on a 20k-face mesh):
-    # one buffer for every iteration, since allocating it afresh costs as much as the GEMM.
-    x_it = x.to(iteration_dtype)
-    sim_buf = x_it.new_empty(nb, n_max, r * k_max)
     ragged = bool((kvec != k_max).any())
 
     def assign(xb, cb, absent_b, out=None):
@@ -81,44 +81,53 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
 
     labels = torch.full((nb, n_max, r), -1, dtype=torch.long, device=dev)
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
-    active = torch.ones(nb, r, dtype=torch.bool, device=dev)
-    for _ in range(max_iter):
-        # Only restarts still moving iterate: settled ones (and meshes whose restarts have all
-        # settled) drop out, so a slow restart does not make the others pay for its iterations.
-        # Each live mesh's q active restarts go first; shorter lists are padded with settled
-        # restarts, which are computed but not written back.
-        live = torch.nonzero(active.any(dim=1)).reshape(-1)
-        if len(live) == 0:
-            break
-        m = len(live)
-        act = active[live]                                                          # [m, R]
-        q = int(act.sum(dim=1).max())
-        slot = torch.argsort((~act).to(torch.int8), dim=1, stable=True)[:, :q]      # [m, q]
-        valid = torch.gather(act, 1, slot)                                          # [m, q]
-        rows = torch.arange(m, device=dev)[:, None]
-        cl = centers[live][rows, slot]                                              # [m, q, k, d]
-        new = assign(x_it[live], cl, absent[live], sim_buf)[1]                     # [m, N, q]
-        lab = labels[live]
-        idx = slot[:, None, :].expand(m, n_max, q)
-        old = torch.gather(lab, 2, idx)
-        changed = (new != old).any(dim=1) & valid                                  # [m, q]
-        labels[live] = lab.scatter(2, idx, torch.where(valid[:, None, :], new, old))
-        iters[live] += act.long()
-        # Weighted sums per (mesh, restart, cluster) by index_add, one restart at a time: a
-        # one-hot GEMM would build [m, N, q, k] (260 MB at k = 81 on a 20k-face mesh).
-        xw = (x[live] * w[live, :, None]).reshape(m * n_max, d)
-        base = (torch.arange(m, device=dev)[:, None] * (q * k_max)).expand(m, n_max).reshape(-1)
-        sums = x.new_zeros(m * q * k_max, d)
-        for j in range(q):
-            sums.index_add_(0, base + j * k_max + new[:, :, j].reshape(-1), xw)
-        sums = sums.reshape(m, q, k_max, d)
-        norm = sums.norm(dim=-1, keepdim=True)
-        # An emptied cluster keeps its previous center rather than vanishing.
-        moved = torch.where(norm > 0, sums / norm.clamp(min=1e-300), cl)
-        cent = centers[live]
-        cent[rows.expand(m, q)[valid], slot[valid]] = moved[valid]
-        centers[live] = cent
-        active[live] = act.scatter(1, slot, changed)
+    # float32 Lloyd iterations, then float64 ones from where they stopped (usually one
+    # iteration that changes nothing): the fixed point reached, and so the labels, is a float64
+    # one, whatever round-off the float32 similarities had on this BLAS, thread count or padding.
+    phases = [iteration_dtype] if iteration_dtype == torch.float64 else [iteration_dtype, torch.float64]
+    for phase in phases:
+        active = torch.ones(nb, r, dtype=torch.bool, device=dev)
+        # The similarities [B, N, R·k] are the largest array (260 MB at k = 81 on a 20k-face
+        # mesh): one buffer for every iteration, since allocating it afresh costs as much as the GEMM.
+        x_it = x.to(phase)
+        sim_buf = x_it.new_empty(nb, n_max, r * k_max)
+        for _ in range(max_iter):
+            # Only restarts still moving iterate: settled ones (and meshes whose restarts have all
+            # settled) drop out, so a slow restart does not make the others pay for its iterations.
+            # Each live mesh's q active restarts go first; shorter lists are padded with settled
+            # restarts, which are computed but not written back.
+            live = torch.nonzero(active.any(dim=1)).reshape(-1)
+            if len(live) == 0:
+                break
+            m = len(live)
+            act = active[live]                                                          # [m, R]
+            q = int(act.sum(dim=1).max())
+            slot = torch.argsort((~act).to(torch.int8), dim=1, stable=True)[:, :q]      # [m, q]
+            valid = torch.gather(act, 1, slot)                                          # [m, q]
+            rows = torch.arange(m, device=dev)[:, None]
+            cl = centers[live][rows, slot]                                              # [m, q, k, d]
+            new = assign(x_it[live], cl, absent[live], sim_buf)[1]                     # [m, N, q]
+            lab = labels[live]
+            idx = slot[:, None, :].expand(m, n_max, q)
+            old = torch.gather(lab, 2, idx)
+            changed = (new != old).any(dim=1) & valid                                  # [m, q]
+            labels[live] = lab.scatter(2, idx, torch.where(valid[:, None, :], new, old))
+            iters[live] += act.long()
+            # Weighted sums per (mesh, restart, cluster) by index_add, one restart at a time: a
+            # one-hot GEMM would build [m, N, q, k] (260 MB at k = 81 on a 20k-face mesh).
+            xw = (x[live] * w[live, :, None]).reshape(m * n_max, d)
+            base = (torch.arange(m, device=dev)[:, None] * (q * k_max)).expand(m, n_max).reshape(-1)
+            sums = x.new_zeros(m * q * k_max, d)
+            for j in range(q):
+                sums.index_add_(0, base + j * k_max + new[:, :, j].reshape(-1), xw)
+            sums = sums.reshape(m, q, k_max, d)
+            norm = sums.norm(dim=-1, keepdim=True)
+            # An emptied cluster keeps its previous center rather than vanishing.
+            moved = torch.where(norm > 0, sums / norm.clamp(min=1e-300), cl)
+            cent = centers[live]
+            cent[rows.expand(m, q)[valid], slot[valid]] = moved[valid]
+            centers[live] = cent
+            active[live] = act.scatter(1, slot, changed)
 
     del sim_buf, x_it
     # The final assignment, in float64, one restart at a time ([B, N, k], not [B, N, R·k]).

@@ -1,16 +1,19 @@
 """Approximate Killing vector fields of a batch: operator, eigensolve, Whitney interpolation."""
 from __future__ import annotations
 
+import itertools
+import numbers
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from ..errors import ParameterError, SolverError
+from ..errors import ConvergenceWarning, ParameterError, SolverError
 from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
-from ..operators.killing import KillingSystem, killing_operator
+from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
 from ..solvers.lanczos import shift_invert_lanczos
 from ..solvers.lobpcg import segmented_lobpcg
 from .whitney import whitney_face_vectors
@@ -20,12 +23,20 @@ from .whitney import whitney_face_vectors
 class AKVFResult:
     """The n smallest AKVFs of every mesh of a batch (unit-area frame).
 
+    Index spaces: "packed" rows are the batch's meshes one after another (``batch.edge_ptr``,
+    ``batch.face_ptr``), each mesh as packed, i.e. cleaned and, in a batch built with
+    ``coarse_faces``, decimated; :meth:`mesh_face_vectors` maps back to the input faces.
+
     eigenvalues : [B, n] ascending, λ·area (a unit sphere's rotations: 0, then 8π, ...)
     forms : packed [ΣE, n] 1-forms (edge values), S1-orthonormal per mesh
     face_vectors : packed [ΣF, n, 3] Whitney vectors at face barycenters
     residuals : [B, n] relative residual of each eigenpair (see :class:`EigenResult`)
-    iterations, shifts, converged : [B] eigensolver diagnostics
+    converged : [B] bool, every one of the mesh's n residuals <= tol; a mesh where it is False
+        was returned with a :class:`~torchakvf.errors.ConvergenceWarning` and must not be used
+        as if solved
+    iterations, shifts : [B] eigensolver diagnostics
     dropped : [B] spurious negative modes (λ·area < SPURIOUS_BELOW) skipped under a remedy
+    solved : [B] eigenpairs computed per mesh (n + room for spurious modes; decided per mesh)
     batch : the :class:`MeshBatch`; ``system``: its :class:`KillingSystem`
     """
 
@@ -39,17 +50,20 @@ class AKVFResult:
     dropped: torch.Tensor
     batch: MeshBatch
     system: KillingSystem
+    solved: torch.Tensor | None = None
 
     @property
     def n(self) -> int:
         return self.eigenvalues.shape[1]
 
     def mesh_forms(self, b: int) -> torch.Tensor:
-        """[E_b, n] forms of mesh b (edges of the cleaned mesh)."""
+        """[E_b, n] forms of mesh b on the edges of the packed mesh (``batch.meshes[b]``)."""
         return self.forms[int(self.batch.edge_ptr[b]):int(self.batch.edge_ptr[b + 1])]
 
     def mesh_face_vectors(self, b: int) -> np.ndarray:
-        """[F_input, n, 3] face vectors of mesh b on the input's faces (0 on dropped faces)."""
+        """[F_input, n, 3] face vectors of mesh b on the faces of the mesh that was packed, in
+        its input order (0 on faces cleaning dropped). For a decimated mesh that is the
+        decimated mesh; :meth:`Segmentation.face_vectors` reports on the original's faces."""
         fv = self.face_vectors[int(self.batch.face_ptr[b]):int(self.batch.face_ptr[b + 1])]
         return self.batch.meshes[b].to_input_faces(fv.detach().cpu().numpy())
 
@@ -85,63 +99,134 @@ def solver_for(device: torch.device) -> str:
     return "lanczos" if torch.device(device).type == "cpu" else "lobpcg"
 
 
-def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str = "none",
-         boundary_correction: bool = True, max_iter: int = 60, method: str = "auto") -> AKVFResult:
+def _remedy_advice(remedy: str, decimated: bool = False) -> str:
+    """What to try after a failed solve under ``remedy`` (never what was just tried)."""
+    if remedy != "smooth":
+        return f"it was solved with remedy={remedy!r}; try remedy='smooth' (the default)"
+    if decimated:
+        return ("it was solved decimated with remedy='smooth', the strongest remedy; solve it at "
+                "full resolution (akvf_falling_back does) or repair the input mesh")
+    return ("it was solved with remedy='smooth', the strongest remedy; repair the mesh (remesh "
+            "it, close its holes)")
+
+
+def _field_count(n) -> int:
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+        raise ParameterError(f"n must be a positive integer, got {n!r}")
+    return int(n)
+
+
+def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str = DEFAULT_REMEDY,
+         boundary_correction: bool = True, max_iter: int = 60, solver: str = "auto",
+         device=None, method: str | None = None) -> AKVFResult:
     """The n smallest approximate Killing vector fields of each mesh.
 
     Parameters
     ----------
     meshes : MeshBatch, Mesh, or list of Mesh (a mesh is a batch of one)
-    n : number of fields per mesh (each mesh needs at least n edges)
-    tol : eigenpair residual at which a mesh counts as converged
+    n : number of fields per mesh (a Python or numpy integer; each mesh needs more than n edges)
+    tol : eigenpair residual at which a mesh counts as converged (``AKVFResult.converged``;
+        a mesh that does not converge is flagged there and warned about, not raised)
     seed : seed of the solver's random start (the same start for every mesh)
-    remedy : mesh-quality remedy of the operator (:data:`torchakvf.operators.REMEDIES`); any
-        remedy but "none" also skips spurious eigenpairs below :data:`SPURIOUS_BELOW` (the n
-        returned are the n smallest of the rest; ``dropped`` counts the skipped ones)
+    remedy : mesh-quality remedy of the operator (:data:`torchakvf.operators.REMEDIES`, default
+        :data:`~torchakvf.operators.killing.DEFAULT_REMEDY`; "none" is the paper's operator);
+        any remedy but "none" also skips spurious eigenpairs below :data:`SPURIOUS_BELOW` (the
+        n returned are the n smallest of the rest; ``dropped`` counts the skipped ones)
     boundary_correction : use the open-mesh boundary terms (akvf-math.md)
-    method : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
+    solver : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
         shift-invert on the same factor, CPU, one mesh at a time), or "auto" (:func:`solver_for`)
+    device : device of the batch built from Mesh inputs (a MeshBatch given is moved there);
+        default: the batch's own, "cpu" for meshes
+    method : deprecated alias of ``solver``
 
     Work runs on the batch's device; the operator and solve are float64 whatever the
     coordinates' dtype, and results are returned in the batch's dtype.
-    """
-    if not isinstance(n, int) or n < 1:
-        raise ParameterError(f"n must be a positive integer, got {n!r}")
-    if method not in SOLVERS:
-        raise ParameterError(f"method must be one of {SOLVERS}, got {method!r}")
-    batch = as_batch(meshes)
-    system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
-    if method == "auto":
-        method = solver_for(batch.device)
 
-    def solve(count: int):
-        if method == "lanczos":
-            return shift_invert_lanczos(system, count, tol=tol, seed=seed, names=batch.names)
-        return segmented_lobpcg(system, count, tol=tol, seed=seed, names=batch.names, max_iter=max_iter)
+    Each mesh's result depends on that mesh alone: the number of eigenpairs solved (n plus
+    room for spurious modes) is decided per mesh, never by its batch mates.
+    """
+    if method is not None:
+        warnings.warn("akvf(method=...) is deprecated; use solver=...", DeprecationWarning, stacklevel=2)
+        solver = method
+    n = _field_count(n)
+    if solver not in SOLVERS:
+        raise ParameterError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    if remedy not in REMEDIES:
+        raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
+    batch = as_batch(meshes, device=device)
+    system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
+    if solver == "auto":
+        solver = solver_for(batch.device)
+    names = batch.names
+
+    def solve(meshes_: list[int], count: int):
+        sub = system if len(meshes_) == len(batch) else system.select(meshes_)
+        sub_names = [names[b] for b in meshes_]
+        try:
+            if solver == "lanczos":
+                return shift_invert_lanczos(sub, count, tol=tol, seed=seed, names=sub_names)
+            return segmented_lobpcg(sub, count, tol=tol, seed=seed, names=sub_names, max_iter=max_iter)
+        except SolverError as exc:
+            if "fields asked for" in str(exc):
+                raise
+            decimated = any(batch.coarse_of(b) is not None for b in meshes_)
+            raise SolverError(f"{exc}; {_remedy_advice(remedy, decimated)}") from None
 
     drop = remedy != "none"
-    max_edges = int((batch.edge_ptr[1:] - batch.edge_ptr[:-1]).min())
-    extra = min(SPURIOUS_MARGIN, max(max_edges - n - 1, 0)) if drop else 0
-    eig = solve(n + extra)
-    dropped = (eig.eigenvalues < SPURIOUS_BELOW).sum(dim=1)
-    for _ in range(3):
-        # More spurious modes than the margin: solve again with room for all of them.
-        short = int(dropped.max()) - extra
-        if not drop or short <= 0 or n + extra + 1 >= max_edges:
+    edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
+    # Per mesh: n eigenpairs plus room for spurious ones (capped below the mesh's edge count).
+    counts = [n + (min(SPURIOUS_MARGIN, max(e - n - 1, 0)) if drop else 0) for e in edges]
+    per_mesh: list = [None] * len(batch)
+    todo = list(range(len(batch)))
+    for _ in range(4):
+        # Meshes needing the same count are solved together; a mesh with more spurious modes
+        # than its room is solved again alone with more (its mates keep theirs).
+        for count in sorted({counts[b] for b in todo}):
+            group = [b for b in todo if counts[b] == count]
+            eig = solve(group, count)
+            vecs = batch.split(eig.vectors, _group_ptr(eig, group, edges))
+            for j, b in enumerate(group):
+                per_mesh[b] = (eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j], eig.shifts[j])
+        if not drop:
             break
-        extra = min(extra + short + SPURIOUS_MARGIN, max_edges - n - 1)
-        eig = solve(n + extra)
-        dropped = (eig.eigenvalues < SPURIOUS_BELOW).sum(dim=1)
+        again = []
+        for b in todo:
+            spurious = int((per_mesh[b][0] < SPURIOUS_BELOW).sum())
+            short = spurious - (counts[b] - n)
+            if short > 0 and counts[b] < edges[b] - 1:
+                counts[b] = min(counts[b] + short + SPURIOUS_MARGIN, edges[b] - 1)
+                again.append(b)
+        if not again:
+            break
+        todo = again
     # Per mesh, the first n eigenpairs that are not spurious (ascending order kept).
-    spurious = eig.eigenvalues < SPURIOUS_BELOW if drop else torch.zeros_like(eig.eigenvalues, dtype=torch.bool)
-    keep = torch.argsort(spurious.to(torch.int8), dim=1, stable=True)[:, :n]
-    forms = eig.vectors.gather(1, keep[batch.edge_to_mesh])
+    lam, forms, res, dropped = [], [], [], []
+    for values, vectors, residuals, _, _ in per_mesh:
+        spurious = values < SPURIOUS_BELOW if drop else torch.zeros_like(values, dtype=torch.bool)
+        keep = torch.argsort(spurious.to(torch.int8), stable=True)[:n]
+        lam.append(values[keep]), forms.append(vectors[:, keep]), res.append(residuals[keep])
+        dropped.append(int(spurious.sum()))
+    dev = batch.device
+    eigenvalues, residuals, forms = torch.stack(lam), torch.stack(res), torch.cat(forms)
+    converged = (residuals <= tol).all(dim=1)
+    if not bool(converged.all()):
+        bad = [f"{names[b]} (residual {float(residuals[b].max()):.1e})"
+               for b in torch.nonzero(~converged).reshape(-1).tolist()]
+        warnings.warn(f"AKVF eigensolve did not reach tol {tol:.0e} for {', '.join(bad)}; these "
+                      "meshes are flagged in AKVFResult.converged", ConvergenceWarning, stacklevel=2)
     fv = whitney_face_vectors(batch, system.geometry, forms)
     out_dt = batch.dtype
-    return AKVFResult(eigenvalues=eig.eigenvalues.gather(1, keep).to(out_dt), forms=forms.to(out_dt),
-                      face_vectors=fv.to(out_dt), residuals=eig.residuals.gather(1, keep),
-                      iterations=eig.iterations, shifts=eig.shifts, converged=eig.converged,
-                      dropped=spurious.sum(dim=1), batch=batch, system=system)
+    return AKVFResult(eigenvalues=eigenvalues.to(out_dt), forms=forms.to(out_dt),
+                      face_vectors=fv.to(out_dt), residuals=residuals,
+                      iterations=torch.stack([p[3] for p in per_mesh]).to(dev),
+                      shifts=torch.stack([p[4] for p in per_mesh]).to(dev), converged=converged,
+                      dropped=torch.tensor(dropped, dtype=torch.long, device=dev), batch=batch, system=system,
+                      solved=torch.tensor(counts, dtype=torch.long, device=dev))
+
+
+def _group_ptr(eig, group: list[int], edges: list[int]) -> torch.Tensor:
+    """[len(group)+1] offsets of the group's meshes in ``eig.vectors``."""
+    return torch.tensor([0] + list(itertools.accumulate(edges[b] for b in group)))
 
 
 def akvf_falling_back(batch: MeshBatch, n: int = 32, **kwargs) -> tuple[AKVFResult, list]:

@@ -23,6 +23,12 @@ from .mesh import Mesh
 log = logging.getLogger("torchakvf.mesh")
 
 
+def owner_index(ptr: torch.Tensor) -> torch.Tensor:
+    """[ΣN] index of the mesh owning each packed row, from offsets ``ptr`` [B+1]
+    (``owner_index(batch.face_ptr)`` is ``batch.face_to_mesh``)."""
+    return torch.repeat_interleave(torch.arange(len(ptr) - 1, device=ptr.device), ptr[1:] - ptr[:-1])
+
+
 def mesh_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Undirected edges of a triangle mesh and each face's edges.
 
@@ -131,29 +137,35 @@ class MeshBatch:
     def names(self) -> list[str]:
         return [m.name for m in self.meshes]
 
-    def _to_mesh(self, ptr: torch.Tensor) -> torch.Tensor:
-        counts = ptr[1:] - ptr[:-1]
-        return torch.repeat_interleave(torch.arange(len(self), device=self.device), counts)
-
     @property
     def vert_to_mesh(self) -> torch.Tensor:
-        """[ΣV] mesh index of each vertex."""
-        return self._to_mesh(self.vert_ptr)
+        """[ΣV] mesh index of each packed vertex."""
+        return owner_index(self.vert_ptr)
 
     @property
     def face_to_mesh(self) -> torch.Tensor:
-        """[ΣF] mesh index of each face."""
-        return self._to_mesh(self.face_ptr)
+        """[ΣF] mesh index of each packed face."""
+        return owner_index(self.face_ptr)
 
     @property
     def edge_to_mesh(self) -> torch.Tensor:
-        """[ΣE] mesh index of each edge."""
-        return self._to_mesh(self.edge_ptr)
+        """[ΣE] mesh index of each packed edge."""
+        return owner_index(self.edge_ptr)
 
-    def to(self, device) -> "MeshBatch":
-        """The same batch on another device."""
-        mv = {k: getattr(self, k).to(device) for k in
-              ("verts", "faces", "edges", "face_edges", "face_edge_sign", "vert_ptr", "face_ptr", "edge_ptr")}
+    _FLOAT_FIELDS = ("verts", "face_edge_sign")
+    _INDEX_FIELDS = ("faces", "edges", "face_edges", "vert_ptr", "face_ptr", "edge_ptr")
+
+    def to(self, device=None, dtype: torch.dtype | None = None) -> "MeshBatch":
+        """The same batch on another device and/or with another float type, like
+        ``Tensor.to``: ``batch.to("cuda")``, ``batch.to(torch.float32)``,
+        ``batch.to("cuda", torch.float32)``. Index tensors stay int64 (only the coordinates and
+        the half-edge signs take ``dtype``)."""
+        if isinstance(device, torch.dtype):
+            device, dtype = None, device
+        if dtype is not None and dtype not in (torch.float32, torch.float64):
+            raise ParameterError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        mv = {k: getattr(self, k).to(device=device, dtype=dtype) for k in self._FLOAT_FIELDS}
+        mv.update({k: getattr(self, k).to(device=device) for k in self._INDEX_FIELDS})
         return MeshBatch(meshes=self.meshes, coarse=self.coarse, **mv)
 
     def coarse_of(self, b: int) -> CoarseMesh | None:
@@ -201,7 +213,7 @@ def pad_packed(x: torch.Tensor, ptr: torch.Tensor, fill: float = 0.0
     counts = ptr[1:] - ptr[:-1]
     b = len(counts)
     n_max = int(counts.max()) if b else 0
-    owner = torch.repeat_interleave(torch.arange(b, device=x.device), counts)
+    owner = owner_index(ptr.to(x.device))
     pos = torch.arange(x.shape[0], device=x.device) - ptr[:-1][owner]
     padded = x.new_full((b, n_max) + tuple(x.shape[1:]), fill)
     padded[owner, pos] = x

@@ -95,10 +95,17 @@ class CleanMesh:
         return out
 
 
+def face_cross_products(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """[F, 3] (p1 - p0) x (p2 - p0) per triangle: twice the area times the unit normal
+    (the one place numpy code gets face areas and normals from; the torch operators compute
+    theirs in :func:`torchakvf.operators.geometry.batch_geometry`)."""
+    p = vertices[faces]
+    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+
+
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Triangle areas [F] (units of length^2)."""
-    p = vertices[faces]
-    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    return 0.5 * np.linalg.norm(face_cross_products(vertices, faces), axis=1)
 
 
 def clean_mesh(mesh: Mesh) -> CleanMesh:

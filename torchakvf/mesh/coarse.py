@@ -23,7 +23,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..errors import MeshError, ParameterError
-from .clean import CleanMesh, _undirected_edges, _vertex_adjacency, clean_mesh, face_areas
+from .clean import CleanMesh, _undirected_edges, _vertex_adjacency, clean_mesh, face_areas, face_cross_products
 from .mesh import Mesh
 
 #: Face count the CLI commands that segment decimate to by default (see README: measured on
@@ -214,8 +214,7 @@ def _relax_on_surface(v: np.ndarray, f: np.ndarray, surface: CleanMesh, steps: i
 
 
 def _unit_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    p = v[f]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n = face_cross_products(v, f)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 

@@ -17,12 +17,17 @@ from dataclasses import dataclass
 import torch
 
 from ..errors import ParameterError
-from ..mesh.batch import MeshBatch
+from ..mesh.batch import MeshBatch, owner_index
 from . import dec
 from .geometry import BatchGeometry, batch_geometry
 
 #: Mesh-quality remedies (see :func:`killing_operator`).
 REMEDIES = ("none", "clamp", "smooth")
+#: The remedy every entry point uses by default (akvf, segment, features, the CLI): "none"
+#: (the paper's operator) leaves badly shaped real meshes without a positive definite shift
+#: (PSB meshes 1 and 181 raise SolverError) or with eigenvalues far below zero; "smooth" solves
+#: them (README, "Choices worth knowing").
+DEFAULT_REMEDY = "smooth"
 #: Rings of curvature averaging per remedy.
 CURVATURE_RINGS = {"none": 0, "clamp": 0, "smooth": 4}
 
@@ -52,6 +57,22 @@ class KillingSystem:
     def n_meshes(self) -> int:
         return len(self.edge_ptr) - 1
 
+    def select(self, meshes) -> "KillingSystem":
+        """The system of meshes ``meshes`` (indices, in that order) alone, for solving a subset
+        of the batch; ``geometry`` is None in it (Whitney vectors need the whole batch's)."""
+        rows, cols, vals, ptr, mass, raw = [], [], [], [0], [], []
+        for b in meshes:
+            r, c, v, size = self.block(int(b))
+            rows.append(r + ptr[-1]), cols.append(c + ptr[-1]), vals.append(v)
+            lo, hi = int(self.edge_ptr[b]), int(self.edge_ptr[b + 1])
+            mass.append(self.mass[lo:hi]), raw.append(self.star1_raw[lo:hi])
+            ptr.append(ptr[-1] + size)
+        dev = self.mass.device
+        stiff = torch.sparse_coo_tensor(torch.stack([torch.cat(rows), torch.cat(cols)]), torch.cat(vals),
+                                        (ptr[-1], ptr[-1]), check_invariants=False).coalesce()
+        return KillingSystem(stiffness=stiff, mass=torch.cat(mass), star1_raw=torch.cat(raw),
+                             edge_ptr=torch.tensor(ptr, dtype=torch.long, device=dev), geometry=None)
+
     def block(self, b: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
         """COO entries (rows, cols, vals) of mesh b's block with local indices, and its size."""
         idx, vals = self.stiffness.indices(), self.stiffness.values()
@@ -62,19 +83,17 @@ class KillingSystem:
     def negative_star1_counts(self) -> torch.Tensor:
         """[B] number of edges with star1 <= 0 (obtuse pairs) per mesh."""
         counts = self.edge_ptr.new_zeros(self.n_meshes)
-        owner = torch.repeat_interleave(torch.arange(self.n_meshes, device=counts.device),
-                                        self.edge_ptr[1:] - self.edge_ptr[:-1])
-        counts.index_add_(0, owner, (self.star1_raw <= 0).long())
+        counts.index_add_(0, owner_index(self.edge_ptr), (self.star1_raw <= 0).long())
         return counts
 
 
 def _per_mesh_mean(x: torch.Tensor, ptr: torch.Tensor) -> torch.Tensor:
-    owner = torch.repeat_interleave(torch.arange(len(ptr) - 1, device=x.device), ptr[1:] - ptr[:-1])
+    owner = owner_index(ptr)
     total = x.new_zeros(len(ptr) - 1).index_add_(0, owner, x)
     return (total / (ptr[1:] - ptr[:-1]).to(x.dtype))[owner]
 
 
-def mass_star1(star1: torch.Tensor, edge_ptr: torch.Tensor, remedy: str = "none") -> torch.Tensor:
+def mass_star1(star1: torch.Tensor, edge_ptr: torch.Tensor, remedy: str = DEFAULT_REMEDY) -> torch.Tensor:
     """The positive star1 used as S1 under ``remedy`` ([ΣE] -> [ΣE]).
 
     "none": the paper's cotan weights, floored at MASS_FLOOR * mean |star1| only so that the
@@ -109,7 +128,7 @@ def _ring_average_curvature(batch: MeshBatch, theta: torch.Tensor, a_v: torch.Te
     return (num / den)[:, 0]
 
 
-def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy: str = "none",
+def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy: str = DEFAULT_REMEDY,
                      dtype: torch.dtype = torch.float64,
                      curvature_rings: int | None = None) -> KillingSystem:
     """Assemble R and S1 for every mesh of ``batch`` (on the batch's device).
@@ -118,7 +137,8 @@ def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy:
     ----------
     boundary_correction : add the boundary-flux and boundary terms on open meshes (without
         them the operator's kernel is the Neumann-harmonic fields, not the Killing fields).
-    remedy : mesh-quality remedy, one of :data:`REMEDIES` (see :func:`mass_star1`).
+    remedy : mesh-quality remedy, one of :data:`REMEDIES` (default :data:`DEFAULT_REMEDY`;
+        "none" is the paper's operator, see :func:`mass_star1`).
     dtype : float type of the assembly; float64 unless a float32 check says otherwise.
     """
     geo = batch_geometry(batch, dtype)

@@ -26,6 +26,7 @@ from ..fields.akvf import SOLVERS, AKVFResult, akvf, akvf_falling_back, as_batch
 from ..fields.untangle import UntangledFields, untangle
 from ..mesh import MeshBatch
 from ..mesh.batch import pad_packed
+from ..operators.killing import DEFAULT_REMEDY
 from .boundaries import (face_margins, isoline_face_labels, refine_along_isolines,
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
@@ -33,9 +34,6 @@ from .generators import part_generators
 from .results import MeshSegmentation, Segmentation
 from .topology import face_adjacency
 
-#: Mesh-quality remedy used by default (see torchakvf.operators.killing); chosen by the
-#: PSB measurements in the README.
-DEFAULT_REMEDY = "smooth"
 BOUNDARIES = ("isoline", "faces")
 #: Segmentation methods: "paper" = Solomon et al. 2011 as implemented here (the only one today).
 METHODS = ("paper",)
@@ -156,16 +154,14 @@ class SegmentOptions:
 def solve_akvfs(batch: MeshBatch, n: int, opts: SegmentOptions) -> tuple[AKVFResult, list]:
     """The n smallest AKVFs of every mesh of the batch, once for every k: (result, [(mesh index,
     why it was solved at full resolution)]) as :func:`~torchakvf.fields.akvf.akvf_falling_back`."""
-    # TODO(merge): pass solver=opts.solver once akvf takes solver= (today's keyword is method=).
-    return akvf_falling_back(batch, n=int(n), seed=opts.seed, remedy=opts.remedy, method=opts.solver)
+    return akvf_falling_back(batch, n=int(n), seed=opts.seed, remedy=opts.remedy, solver=opts.solver,
+                             tol=AKVF_TOL)
 
 
 def solve_quality(fields: AKVFResult, b: int) -> tuple[bool, float]:
     """(converged, max_residual) of mesh b's eigensolve: its largest relative eigenpair residual
     and whether that is within the solve's tolerance (:data:`AKVF_TOL`)."""
-    # TODO(merge): use fields.converged[b] once AKVFResult.converged means "within tol" per mesh.
-    residual = float(fields.residuals[b].max())
-    return bool(residual <= AKVF_TOL), residual
+    return bool(fields.converged[b]), float(fields.residuals[b].max())
 
 
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,

@@ -53,9 +53,10 @@ class ShiftedFactor:
                 continue
             self.sigma = sigma
             return
+        # No advice here: what to try next depends on what was tried (the caller adds it).
         raise SolverError(f"{name}: the Killing operator has eigenvalues below {shifts[-1]} "
-                          f"(λ·area); no shift made R - σS1 positive definite ({last}). The mesh "
-                          "is likely badly shaped: try remedy='smooth'")
+                          f"(λ·area); no shift made R - σS1 positive definite ({last}); the mesh "
+                          "is likely badly shaped")
 
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
         rhs = rhs.to(torch.float64).contiguous()

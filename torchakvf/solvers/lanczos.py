@@ -1,7 +1,7 @@
 """Alternative eigensolver: implicitly restarted Lanczos (ARPACK, via scipy ``eigsh``) in
 shift-invert mode on the same CHOLMOD factor the LOBPCG path uses. CPU only, one mesh at a time.
 
-Offered for comparison (``torchakvf.akvf(..., method="lanczos")``): it needs fewer solves per
+Offered for comparison (``torchakvf.akvf(..., solver="lanczos")``): it needs fewer solves per
 eigenpair, but each is a single right-hand side, and with a loose tolerance Lanczos can drop
 copies of repeated eigenvalues, which a block method does not. See benchmarks/bench_eigensolver.py.
 """
@@ -31,7 +31,7 @@ def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed:
     for b, e in enumerate(sizes):
         if n >= e:
             raise SolverError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges "
-                              "(Lanczos needs fewer fields than edges)")
+                              "(Lanczos needs fewer fields than edges); ask for fewer fields")
     values, vectors, shifts, solves = [], [], [], []
     for b in range(nb):
         r, c, v, size = system.block(b)

@@ -19,6 +19,7 @@ import torch
 
 from .._threads import single_threaded
 from ..errors import SolverError
+from ..mesh.batch import owner_index
 from ..operators.killing import KillingSystem
 from .factor import ShiftedFactor
 
@@ -55,8 +56,7 @@ class EigenResult:
 def relative_residuals(system: KillingSystem, vectors: torch.Tensor, values: torch.Tensor
                        ) -> torch.Tensor:
     """[B, n] residuals of packed S1-normalized ``vectors`` [ΣE, n] for ``values`` [B, n]."""
-    owner = torch.repeat_interleave(torch.arange(system.n_meshes, device=vectors.device),
-                                    system.edge_ptr[1:] - system.edge_ptr[:-1])
+    owner = owner_index(system.edge_ptr.to(vectors.device))
     res = torch.sparse.mm(system.stiffness, vectors) - system.mass[:, None] * vectors * values[owner]
     sq = (res ** 2 / system.mass[:, None])
     out = vectors.new_zeros(values.shape).index_add_(0, owner, sq)
@@ -80,7 +80,8 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
     for b, e in enumerate(sizes):
         if n > e:
-            raise SolverError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges")
+            raise SolverError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges; "
+                              "ask for fewer fields")
     guard = max(8, n // 2) if guard is None else guard
     m = n + guard
     e_max = max(sizes)
