@@ -51,13 +51,11 @@ def write_segmentation(seg, vertices: np.ndarray, faces: np.ndarray, out_dir, st
         written["ply"] = out_dir / f"{stem}.ply"
         write_ply(written["ply"], vertices, faces, seg.labels)
     if "png" in formats:
-        from .render import generator_arrows, render_png
+        from .render import render_png
 
         written["png"] = out_dir / f"{stem}.png"
-        arrows = None
-        if face_vectors is not None:
-            arrows = generator_arrows(vertices, faces, seg.labels, face_vectors, seg.generators)
+        flow = None if face_vectors is None else (face_vectors, seg.generators)
         render_png(written["png"], vertices, faces, seg.labels,
                    title=f"{stem}  k={seg.k}" + (f"  eps={seg.params.get('eps')}" if seg.params.get("eps") else ""),
-                   arrows=arrows)
+                   flow=flow)
     return written
