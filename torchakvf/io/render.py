@@ -275,7 +275,7 @@ def _farthest_points(points: np.ndarray, count: int, seed: int) -> np.ndarray:
     return np.array(pick)
 
 
-def generator_streamlines(vertices, faces, labels, face_vectors, generators, seeds_total: int = 90,
+def generator_streamlines(vertices, faces, labels, face_vectors, generators, seeds_total: int = 150,
                           seed: int = 0, which: int = 0, seed_faces: np.ndarray | None = None,
                           length: float = 3.5) -> list[tuple[int, np.ndarray]]:
     """Streamlines of each part's generator ``generators[p][which]``, on that part only.
@@ -283,10 +283,11 @@ def generator_streamlines(vertices, faces, labels, face_vectors, generators, see
     face_vectors : [F, n, 3] untangled Whitney vectors on the given faces
     (:meth:`~torchakvf.parts.Segmentation.face_vectors`); generators : per part, a list of
     :class:`~torchakvf.parts.generators.SymmetryGenerator`. Seeds are spread evenly over each
-    part (count in proportion to the part's area, 6..40), each line is traced both ways with
+    part (count in proportion to the part's area, 8..60), each line is traced both ways with
     midpoint steps that follow the field of the nearest face on the part, and stops where the
     field fades (< 5% of its 95th percentile on the part), leaves the part or the surface, turns
-    back, or reaches ``length`` seed spacings in all. seed_faces : optional [F] bool, faces
+    back, or reaches ``length`` seed spacings in all; a line shorter than 0.8 seed spacings, or
+    running mostly within 0.35 spacings of a longer one, is dropped. seed_faces : optional [F] bool, faces
     a line may start on (a picture passes the faces it shows, so no seed is wasted on the
     hidden side). Returns [(part, [m, 3] points)].
     """
@@ -311,7 +312,7 @@ def generator_streamlines(vertices, faces, labels, face_vectors, generators, see
         if ref <= 0:
             continue
         part_area = areas[idx].sum()
-        count = int(np.clip(round(seeds_total * part_area / total), 6, 40))
+        count = int(np.clip(round(seeds_total * part_area / total), 8, 60))
         spacing = np.sqrt(part_area / count)
         step = spacing / 8
         n_steps = max(int(round(length * 4)), 2)
@@ -350,13 +351,22 @@ def generator_streamlines(vertices, faces, labels, face_vectors, generators, see
                 x = np.where(alive[:, None], x_new, x)
                 track.append(np.where(alive[:, None], x, np.nan))
             halves.append(np.stack(track, axis=1))                      # [S, n_steps+1, 3]
+        traced = []
         for s in range(len(start)):
-            back = halves[1][s][::-1]
-            fwd = halves[0][s][1:]
-            pts = np.concatenate([back, fwd])
+            pts = np.concatenate([halves[1][s][::-1], halves[0][s][1:]])
             pts = pts[~np.isnan(pts[:, 0])]
-            if len(pts) >= 3:
-                lines.append((p, pts))
+            # a fragment shorter than a seed spacing shows no flow (it stopped at a singularity)
+            if len(pts) >= 3 and np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() > 0.8 * spacing:
+                traced.append(pts)
+        # even spacing: longest lines first, drop a line that mostly runs beside a kept one
+        kept_pts = np.zeros((0, 3))
+        for pts in sorted(traced, key=len, reverse=True):
+            if len(kept_pts):
+                near = cKDTree(kept_pts).query(pts)[0] < 0.35 * spacing
+                if near.mean() > 0.5:
+                    continue
+            lines.append((p, pts))
+            kept_pts = np.concatenate([kept_pts, pts])
     return lines
 
 
