@@ -127,7 +127,7 @@ def cache_key(path: Path) -> str:
     return h.hexdigest()[:24]
 
 
-def compute_all(entries, cache: Path) -> list[dict]:
+def compute_all(entries, cache: Path, cached_only: bool = False) -> list[dict]:
     from torchakvf import TorchAKVFError, load_mesh
     from torchakvf.progress import progress
 
@@ -139,6 +139,9 @@ def compute_all(entries, cache: Path) -> list[dict]:
             hit = cache / f"{e.mesh_id}_{key}.npz"
             t0 = time.perf_counter()
             note = "cached"
+            if not hit.exists() and cached_only:
+                bar.update(1, note=f"{e.mesh_id} not cached")
+                continue
             if not hit.exists():
                 mesh = load_mesh(e.mesh_path)
                 try:
@@ -240,6 +243,8 @@ def main(argv=None) -> int:
                     help="writes <out>.md and <out>.json")
     ap.add_argument("--limit", type=int, default=None, help="first N meshes only (smoke test)")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--cached-only", action="store_true",
+                    help="classify the meshes whose descriptors are cached, compute nothing")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(args.threads)
@@ -247,10 +252,13 @@ def main(argv=None) -> int:
     from torchakvf.evaluate.psb import CATEGORIES, find_psb_meshes
 
     entries = find_psb_meshes(args.psb)
+    # categories interleaved (the 1st mesh of each, then the 2nd, ...): a pass stopped early
+    # has every category about equally represented
+    entries = sorted(entries, key=lambda e: ((e.mesh_id - 1) % 20, e.mesh_id))
     if args.limit:
         entries = entries[:args.limit]
     t0 = time.perf_counter()
-    data = compute_all(entries, Path(args.cache))
+    data = compute_all(entries, Path(args.cache), args.cached_only)
     t_desc = time.perf_counter() - t0
     cats = sorted({d["category"] for d in data}, key=CATEGORIES.index)
     y = np.array([cats.index(d["category"]) for d in data])
@@ -259,6 +267,7 @@ def main(argv=None) -> int:
     for name, vec in (("AKVF (spectrum + feature histograms)", akvf_vector),
                       ("AKVF spectrum only", lambda d: np.log1p(np.maximum(d["eigenvalues"], 0.0))),
                       ("ShapeDNA (cotan Laplacian spectrum)", shapedna_vector),
+                      ("AKVF + ShapeDNA", lambda d: np.concatenate([akvf_vector(d), shapedna_vector(d)])),
                       ("trivial (counts, extents)", trivial_vector)):
         x = np.stack([vec(d) for d in data])
         acc = cross_validate(x, y, folds)
@@ -270,6 +279,7 @@ def main(argv=None) -> int:
               "chance": 1.0 / len(cats), "descriptor_seconds": t_desc,
               "fell_back": [int(d["mesh_id"]) for d in data if bool(d["fell_back"])],
               "excluded": sorted({e.mesh_id for e in entries} - {int(d["mesh_id"]) for d in data}),
+              "per_category": {c: int((y == i).sum()) for i, c in enumerate(cats)},
               "results": rows}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -280,8 +290,11 @@ def main(argv=None) -> int:
              f"~{COARSE_FACES} faces; chance = {1 / len(cats):.3f}. `benchmarks/classify_psb.py`.", "",
              "| descriptor | dims | accuracy (mean ± std over folds) |", "|---|---:|---:|"]
     lines += [f"| {k} | {r['dims']} | {r['mean']:.3f} ± {r['std']:.3f} |" for k, r in rows.items()]
-    lines += ["", f"Excluded meshes (solver failure): {result['excluded'] or 'none'}; "
-              f"solved at full resolution after a failed decimated solve: {result['fell_back'] or 'none'}.",
+    lines += ["", f"Meshes per category: {', '.join(f'{c} {n}' for c, n in result['per_category'].items())}.",
+              f"Meshes left out (solver failure{' or not cached' if args.cached_only else ''}): "
+              + (f"{len(result['excluded'])} (ids in the .json); " if len(result['excluded']) > 20
+                 else f"{result['excluded'] or 'none'}; ")
+              + f"solved at full resolution after a failed decimated solve: {result['fell_back'] or 'none'}.",
               f"Descriptor pass: {t_desc:.0f} s (cached per mesh afterwards)."]
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
