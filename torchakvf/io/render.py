@@ -32,9 +32,10 @@ from .outputs import atomic_write_bytes, label_colors
 DEFAULT_PIXELS = 900
 #: Supersampling factor of the rasterizer (anti-aliasing).
 SUPERSAMPLE = 2
-#: Key and fill light directions in camera coordinates (x right, y up, z toward the viewer).
+#: Key and fill light directions in camera coordinates (x right, y up, z toward the viewer);
+#: the fill is near the view direction, so no face the camera sees is left black.
 KEY_LIGHT = np.array([-0.45, 0.6, 0.66])
-FILL_LIGHT = np.array([0.6, -0.35, 0.72])
+FILL_LIGHT = np.array([0.35, -0.25, 0.9])
 #: Streamline colour (near black, as in the paper's Figure 10).
 FLOW_COLOR = (0.08, 0.08, 0.1)
 
@@ -179,7 +180,7 @@ def shade_faces(normals_cam: np.ndarray, base_rgb: np.ndarray) -> np.ndarray:
     fill = FILL_LIGHT / np.linalg.norm(FILL_LIGHT)
     half = key + np.array([0.0, 0.0, 1.0])
     half /= np.linalg.norm(half)
-    diffuse = 0.22 + 0.68 * np.clip(n @ key, 0, 1) + 0.28 * np.clip(n @ fill, 0, 1)
+    diffuse = 0.2 + 0.55 * np.clip(n @ key, 0, 1) + 0.4 * np.clip(n @ fill, 0, 1)
     spec = 0.12 * np.clip(n @ half, 0, 1) ** 24
     return np.clip(base_rgb * diffuse[:, None] + spec[:, None], 0.0, 1.0)
 
@@ -405,7 +406,7 @@ def _draw_lines(ax, pic: Picture, lines, width_px: float):
         for r in runs:
             if len(r) < 2 or not vis[r[0]]:
                 continue
-            ax.plot(xy[r, 0], xy[r, 1], color="white", lw=lw * 2.2, alpha=0.4, solid_capstyle="round")
+            ax.plot(xy[r, 0], xy[r, 1], color="white", lw=lw * 2.4, alpha=0.6, solid_capstyle="round")
             ax.plot(xy[r, 0], xy[r, 1], color=FLOW_COLOR, lw=lw, solid_capstyle="round")
         mid = len(pts) // 2
         if mid + 1 < len(pts) and vis[mid] and vis[mid + 1]:
