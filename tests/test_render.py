@@ -143,3 +143,24 @@ def test_render_png_with_flow_and_contact_sheet(tmp_path):
     contact_sheet(tmp_path / "sheet.png", [(v, f, labels, "one"), (v, f, labels, "two", flow)], columns=2)
     sheet = _read_png(tmp_path / "sheet.png")
     assert sheet.shape[1] == 2 * 560
+
+
+def test_best_view_stands_a_table_on_its_legs():
+    # a slab (most of the area) on four thin legs below it: the legs point down in the picture
+    import trimesh
+
+    top = trimesh.creation.box(extents=(2.0, 1.2, 0.1))
+    top.apply_translation((0, 0, 1.0))
+    parts = [top]
+    for x in (-0.9, 0.9):
+        for y in (-0.5, 0.5):
+            leg = trimesh.creation.box(extents=(0.06, 0.06, 1.0))
+            leg.apply_translation((x, y, 0.5))
+            parts.append(leg)
+    m = trimesh.util.concatenate(parts)
+    rot = np.linalg.qr(np.random.default_rng(3).standard_normal((3, 3)))[0]
+    v = np.asarray(m.vertices) @ rot.T
+    view = best_view(v, np.asarray(m.faces))
+    up_world = rot @ np.array([0.0, 0.0, 1.0])
+    assert view.rotation[1] @ up_world > 0.2        # legs down in the picture (oblique: not 1)
+    assert view.rotation[2] @ up_world > 0.5        # and the camera is above the top

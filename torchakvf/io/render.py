@@ -6,10 +6,12 @@ What a picture does, and why:
 * **Framing.** The mesh is put on its principal axes (PCA of the area-weighted face
   centroids), and the camera looks from the oblique direction, among a few around each
   principal axis, that shows the largest projected area (``0.5 Σ A_f |n_f · d|``), with the
-  longest visible principal axis horizontal. A reclining human is seen from above at full
-  length, a table from above at an angle rather than edge-on.
+  longest visible principal axis horizontal. Of the two opposite directions it looks from the
+  side the area lies toward, and turns the picture upright (most of the area above the
+  middle). A reclining human is seen from above at full length, a table from above at an angle
+  rather than edge-on, a four-legged animal standing on its legs.
 * **Shading.** Flat per-face Lambert shading with a key light (upper left) and a fill light
-  (lower right), a little ambient and a faint headlight highlight; the part colour is
+  (near the view direction), a little ambient and a faint headlight highlight; the part colour is
   modulated by the shading, so creases and facets read. Depth jumps (silhouettes) and part
   borders are drawn as thin dark lines.
 * **Generators.** Each part's first symmetry generator (``MeshSegmentation.generators[p][0]``)
@@ -110,6 +112,11 @@ def best_view(vertices: np.ndarray, faces: np.ndarray, tilt: float = 0.4) -> Vie
     right = axes[j] - (axes[j] @ d) * d               # longest axis not looked along, in the image plane
     right /= np.linalg.norm(right)
     up = np.cross(d, right)
+    # upright: the bulk of the area above the middle, thin protrusions (legs) below; turning
+    # the picture half a turn about the view direction keeps the camera a rotation
+    h = cent @ up
+    if bulk @ up < 0.5 * (h.max() + h.min()):
+        right, up = -right, -up
     return View(np.stack([right, up, d]), center)
 
 
