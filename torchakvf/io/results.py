@@ -1,4 +1,4 @@
-"""Per-mesh result files of a segmentation: <stem>.seg, .npz, .ply, .png."""
+"""Per-mesh result files of a segmentation: <stem>.seg, .npz, .ply, .png, .glb."""
 from __future__ import annotations
 
 import re
@@ -9,7 +9,7 @@ import numpy as np
 from ..errors import TorchAKVFError
 from .outputs import write_npz, write_ply, write_seg
 
-OUTPUT_FORMATS = ("seg", "npz", "ply", "png")
+OUTPUT_FORMATS = ("seg", "npz", "ply", "png", "glb")
 
 
 def safe_stem(name: str) -> str:
@@ -50,14 +50,17 @@ def write_segmentation(seg, vertices: np.ndarray, faces: np.ndarray, out_dir, st
     if "ply" in formats:
         written["ply"] = out_dir / f"{stem}.ply"
         write_ply(written["ply"], vertices, faces, seg.labels)
+    if "glb" in formats:
+        from .glb import write_glb
+
+        written["glb"] = out_dir / f"{stem}.glb"
+        write_glb(written["glb"], vertices, faces, seg.labels)
     if "png" in formats:
-        from .render import generator_arrows, render_png
+        from .render import render_png
 
         written["png"] = out_dir / f"{stem}.png"
-        arrows = None
-        if face_vectors is not None:
-            arrows = generator_arrows(vertices, faces, seg.labels, face_vectors, seg.generators)
+        flow = None if face_vectors is None else (face_vectors, seg.generators)
         render_png(written["png"], vertices, faces, seg.labels,
                    title=f"{stem}  k={seg.k}" + (f"  eps={seg.params.get('eps')}" if seg.params.get("eps") else ""),
-                   arrows=arrows)
+                   flow=flow)
     return written

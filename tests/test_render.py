@@ -1,0 +1,166 @@
+"""Pictures: framing (principal axes, view of largest area), the rasterizer, streamlines that
+stay on their part and follow the field, and the files render_png / contact_sheet write."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from torchakvf import shapes
+from torchakvf.io.render import (DEFAULT_PIXELS, best_view, contact_sheet, generator_streamlines,
+                                 principal_axes, projected_area, rasterize, render_png, render_view)
+from torchakvf.parts.generators import SymmetryGenerator
+
+
+def _read_png(path):
+    import matplotlib.image
+
+    return matplotlib.image.imread(str(path))
+
+
+def _normals_areas(v, f):
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    a = np.linalg.norm(n, axis=1)
+    return n / a[:, None], a / 2
+
+
+def test_principal_axes_of_an_ellipsoid_are_its_semi_axes():
+    s = shapes.ellipsoid(axes=(1.0, 1.3, 1.7), level=3)
+    rot = np.linalg.qr(np.random.default_rng(1).standard_normal((3, 3)))[0]
+    v = s.vertices @ rot.T + np.array([3.0, -2.0, 1.0])
+    center, axes = principal_axes(v, s.faces)
+    np.testing.assert_allclose(center, [3.0, -2.0, 1.0], atol=1e-6)
+    # largest extent first: the 1.7 axis (z before rotation), then 1.3 (y), then 1.0 (x)
+    expected = rot.T[[2, 1, 0]]
+    np.testing.assert_allclose(np.abs(np.sum(axes * expected, axis=1)), 1.0, atol=1e-3)
+
+
+def test_projected_area_of_a_sphere_is_its_disc():
+    s = shapes.icosphere(level=4)
+    n, a = _normals_areas(s.vertices, s.faces)
+    for d in (np.array([0, 0, 1.0]), np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])):
+        assert projected_area(n, a, d) == pytest.approx(np.pi, rel=0.01)
+
+
+def test_best_view_looks_at_a_flat_patch_face_on():
+    s = shapes.square_patch(n=12, jitter=0.0)
+    view = best_view(s.vertices, s.faces, tilt=0.4)
+    normal = np.array([0.0, 0.0, 1.0])
+    # the main axis of the oblique view is the patch normal: |d·n| = 1/sqrt(1 + 2·0.4²)
+    assert abs(view.rotation[2] @ normal) == pytest.approx(1 / np.sqrt(1.32), abs=1e-6)
+    np.testing.assert_allclose(view.rotation @ view.rotation.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(view.rotation) == pytest.approx(1.0)
+
+
+def test_best_view_puts_the_long_axis_across_the_picture():
+    s = shapes.ellipsoid(axes=(1.0, 1.3, 3.0), level=3)
+    view = best_view(s.vertices, s.faces)
+    p = view.apply(s.vertices)
+    ext = np.ptp(p, axis=0)
+    assert ext[0] > 1.8 * ext[1]             # the 3.0 axis is horizontal
+
+
+def test_rasterize_coverage_and_occlusion():
+    # a square of two triangles over 0..40 px, and a nearer triangle over its lower-left half
+    xy = np.array([[0, 0], [40, 0], [40, 40], [0, 40], [0, 0], [40, 40], [0, 40]], dtype=float)
+    depth = np.array([0, 0, 0, 0, 1, 1, 1], dtype=float)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6]])
+    ids, z = rasterize(xy, depth, faces, 50, 50)
+    assert (ids >= 0).sum() == 40 * 40                          # pixel centres inside the square
+    assert (ids == 2).sum() == pytest.approx(40 * 41 / 2, abs=41)   # the nearer triangle wins
+    assert (ids == 1).sum() == 0                                 # face 1 is entirely behind face 2
+    np.testing.assert_allclose(z[ids == 2], 1.0, rtol=1e-12)
+    assert np.all(np.isinf(z[ids < 0]))
+
+
+def test_sphere_fills_its_picture(tmp_path):
+    s = shapes.icosphere(level=3)
+    labels = np.zeros(len(s.faces), dtype=np.int64)
+    view = best_view(s.vertices, s.faces)
+    pic = render_view(s.vertices, s.faces, labels, view, 300, 300, margin=0.04)
+    covered = (pic.image.sum(axis=2) < 2.95).mean()
+    assert covered == pytest.approx(np.pi / 4 * 0.92 ** 2, abs=0.03)
+    # shading: the lit side is brighter than the side away from the key light
+    img = pic.image.sum(axis=2)
+    assert img[100, 100] > img[200, 200] + 0.2
+
+
+def test_render_png_default_size_and_legacy_arguments(tmp_path):
+    s = shapes.dumbbell(n_around=32)
+    labels = s.part_labels
+    render_png(tmp_path / "a.png", s.vertices, s.faces, labels, title="dumbbell")
+    img = _read_png(tmp_path / "a.png")
+    assert img.shape[1] >= 800 and img.shape[1] == DEFAULT_PIXELS
+    render_png(tmp_path / "b.png", s.vertices, s.faces, labels, size=3.0, views=2)
+    assert _read_png(tmp_path / "b.png").shape[1] == 600
+    with pytest.raises(ValueError):
+        render_png(tmp_path / "c.png", s.vertices, s.faces, labels, views=3)
+
+
+def _rotation_field(v, f, axis=np.array([0.0, 0.0, 1.0])):
+    c = v[f].mean(axis=1)
+    return np.cross(axis, c)[:, None, :]                         # [F, 1, 3]
+
+
+def test_streamlines_follow_a_rotation_and_stay_on_their_part():
+    s = shapes.icosphere(level=4)
+    v, f = s.vertices, s.faces
+    c = v[f].mean(axis=1)
+    labels = np.where(c[:, 2] > 0.0, 0, -1)                      # part 0: the upper hemisphere
+    gens = [[SymmetryGenerator(0, 1.0, 0.0)]]
+    lines = generator_streamlines(v, f, labels, _rotation_field(v, f), gens)
+    assert len(lines) >= 6
+    for part, pts in lines:
+        assert part == 0
+        r = np.linalg.norm(pts, axis=1)
+        assert np.all(np.abs(r - 1.0) < 0.02)                    # on the surface
+        assert np.all(pts[:, 2] > -0.03)                        # on part 0 only
+        # a rotation about z has circles of latitude as streamlines: the height stays put
+        assert np.ptp(pts[:, 2]) < 0.08 + 0.05 * np.ptp(pts[:, :2], axis=0).max()
+        assert np.ptp(pts[:, :2], axis=0).max() > 0.05           # and the line goes somewhere
+
+
+def test_streamlines_skip_parts_without_generators_and_respect_seed_faces():
+    s = shapes.icosphere(level=3)
+    v, f = s.vertices, s.faces
+    labels = np.zeros(len(f), dtype=np.int64)
+    assert generator_streamlines(v, f, labels, _rotation_field(v, f), [[]]) == []
+    none = np.zeros(len(f), dtype=bool)
+    gens = [[SymmetryGenerator(0, 1.0, 0.0)]]
+    assert generator_streamlines(v, f, labels, _rotation_field(v, f), gens, seed_faces=none) == []
+
+
+def test_render_png_with_flow_and_contact_sheet(tmp_path):
+    s = shapes.icosphere(level=3)
+    v, f = s.vertices, s.faces
+    labels = np.zeros(len(f), dtype=np.int64)
+    flow = (_rotation_field(v, f), [[SymmetryGenerator(0, 1.0, 0.0)]])
+    render_png(tmp_path / "flow.png", v, f, labels, flow=flow)
+    render_png(tmp_path / "plain.png", v, f, labels)
+    a, b = _read_png(tmp_path / "flow.png"), _read_png(tmp_path / "plain.png")
+    assert a.shape == b.shape
+    dark = lambda img: (img[..., :3].sum(axis=2) < 0.5).sum()    # noqa: E731  streamline ink
+    assert dark(a) > dark(b) + 500
+    contact_sheet(tmp_path / "sheet.png", [(v, f, labels, "one"), (v, f, labels, "two", flow)], columns=2)
+    sheet = _read_png(tmp_path / "sheet.png")
+    assert sheet.shape[1] == 2 * 560
+
+
+def test_best_view_stands_a_table_on_its_legs():
+    # a slab (most of the area) on four thin legs below it: the legs point down in the picture
+    import trimesh
+
+    top = trimesh.creation.box(extents=(2.0, 1.2, 0.1))
+    top.apply_translation((0, 0, 1.0))
+    parts = [top]
+    for x in (-0.9, 0.9):
+        for y in (-0.5, 0.5):
+            leg = trimesh.creation.box(extents=(0.06, 0.06, 1.0))
+            leg.apply_translation((x, y, 0.5))
+            parts.append(leg)
+    m = trimesh.util.concatenate(parts)
+    rot = np.linalg.qr(np.random.default_rng(3).standard_normal((3, 3)))[0]
+    v = np.asarray(m.vertices) @ rot.T
+    view = best_view(v, np.asarray(m.faces))
+    up_world = rot @ np.array([0.0, 0.0, 1.0])
+    assert view.rotation[1] @ up_world > 0.2        # legs down in the picture (oblique: not 1)
+    assert view.rotation[2] @ up_world > 0.5        # and the camera is above the top

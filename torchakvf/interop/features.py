@@ -1,0 +1,65 @@
+"""Per-face AKVF features of one mesh on its input faces: the library-free core of the
+interop transforms."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass
+class FaceFeatures:
+    """AKVF descriptors of one mesh, on the faces as given (input order and count).
+
+    features : [F, n] |X_i(f)| of the untangled fields (the paper's φ(f)); 0 on faces
+        dropped as degenerate
+    akvf_norms : [F, n] |X_i(f)| of the raw AKVFs
+    eigenvalues : [n] Killing eigenvalues λ·area of the raw AKVFs, ascending
+    energies : [n] Killing energy λ·area of each untangled field
+    """
+
+    features: np.ndarray
+    akvf_norms: np.ndarray
+    eigenvalues: np.ndarray
+    energies: np.ndarray
+
+
+def _on_input_faces(batch, b: int, values: np.ndarray) -> np.ndarray:
+    coarse = batch.coarse_of(b)
+    if coarse is not None:           # the coarse face under each fine barycenter
+        values = coarse.face_values(values)
+    return batch.input_mesh(b).to_input_faces(values)
+
+
+def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = None,
+                  restarts: int = 8, tol: float = 1e-6) -> list[FaceFeatures]:
+    """:class:`FaceFeatures` of every mesh of ``batch`` (a :class:`~torchakvf.MeshBatch`,
+    optionally built with ``coarse_faces``: the fields are computed on the decimated mesh and
+    reported on the input's faces). ``remedy`` defaults to the segmentation's
+    (:data:`torchakvf.parts.segment.DEFAULT_REMEDY`); the other arguments are
+    :func:`~torchakvf.akvf`'s and :func:`~torchakvf.untangle`'s."""
+    from ..fields import untangle
+    from ..fields.akvf import akvf_falling_back
+    from ..parts.segment import DEFAULT_REMEDY
+
+    fields, _ = akvf_falling_back(batch, n=n, seed=seed, tol=tol,
+                                  remedy=DEFAULT_REMEDY if remedy is None else remedy)
+    unt = untangle(fields, seed=seed, restarts=restarts)
+    batch = fields.batch              # the fallback may have re-packed meshes at full resolution
+    raw = fields.face_vectors.norm(dim=-1)
+    out = []
+    for b in range(len(batch)):
+        f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+        out.append(FaceFeatures(
+            features=_on_input_faces(batch, b, unt.features[f0:f1].detach().cpu().numpy()),
+            akvf_norms=_on_input_faces(batch, b, raw[f0:f1].detach().cpu().numpy()),
+            eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
+            energies=unt.energies[b].detach().cpu().numpy()))
+    return out
+
+
+def as_tensor_like(values: np.ndarray, like: torch.Tensor) -> torch.Tensor:
+    """``values`` as a tensor on ``like``'s device, in its dtype when floating (else float32)."""
+    dtype = like.dtype if like.is_floating_point() else torch.float32
+    return torch.as_tensor(np.ascontiguousarray(values), dtype=dtype, device=like.device)
