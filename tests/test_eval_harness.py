@@ -73,6 +73,26 @@ def test_end_to_end_files_and_rows(tiny_psb, run_by_seg):
     assert any("batch" in ln for ln in lines)                   # progress was reported
 
 
+def test_gallery_shows_prediction_beside_a_human_at_the_same_k(tiny_psb, run_by_seg):
+    from torchakvf.evaluate import psb as P
+    from torchakvf.evaluate.metrics import rand_index_error
+    from torchakvf.evaluate.plan import plan_meshes, find_entries
+    from torchakvf.evaluate.report import _gallery_item
+
+    root, d = tiny_psb
+    out, summary, _ = run_by_seg
+    assert summary.galleries == {"Human": "gallery/Human.png"}        # Table has no score
+    assert (out / "gallery" / "Human.png").stat().st_size > 10_000
+    assert "[Human](gallery/Human.png)" in (out / "summary.md").read_text()
+    plan = plan_meshes(find_entries(root)[0], out, "by-segmentation", False, 6)[0]
+    title, v, f, pred, human, err = _gallery_item(plan, summary.row(1))
+    # the first human (2 parts) beside the prediction made for k = 2
+    assert title == "1 (k=2)" and len(f) == len(d.faces)
+    np.testing.assert_array_equal(human, d.part_labels)
+    np.testing.assert_array_equal(pred, P.read_seg(out / "pred" / "1" / "1_k2.seg"))
+    assert err == rand_index_error(pred, d.part_labels) and 0.0 <= err < 0.05
+
+
 def test_dumbbell_two_part_human_is_matched(tiny_psb, run_by_seg):
     root, d = tiny_psb
     out, summary, _ = run_by_seg

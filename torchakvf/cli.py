@@ -28,7 +28,7 @@ def _run_demo(args) -> int:
 
     from . import shapes
     from .evaluate.metrics import matched_agreement
-    from .io import write_segmentation
+    from .io import OUTPUT_FORMATS, write_segmentation
     from .io.render import contact_sheet
     from .mesh import Mesh, MeshBatch
     from .parts import segment
@@ -40,13 +40,15 @@ def _run_demo(args) -> int:
     sheet = []
     for b, (name, shape, ms) in enumerate(zip(names, built, seg.meshes)):
         write_segmentation(ms, shape.vertices, shape.faces, args.out, name, face_vectors=seg.face_vectors(b))
-        sheet.append((shape.vertices, shape.faces, ms.labels, f"{name} (k={ms.k})"))
+        sheet.append((shape.vertices, shape.faces, ms.labels, f"{name} (k={ms.k})",
+                      (seg.face_vectors(b), ms.generators)))
         gens = ", ".join(f"part {p}: {len(g)} fields" for p, g in enumerate(ms.generators))
         print(f"{name:24s} faces={len(shape.faces):6d} k={ms.k}  "
               f"true parts matched on {100 * matched_agreement(ms.labels, shape.part_labels):.1f}% of faces  "
               f"λ·area[:4]={np.round(ms.eigenvalues[:4], 3).tolist()}  generators: {gens}")
     contact_sheet(f"{args.out}/contact_sheet.png", sheet)
-    print(f"wrote {len(names)} shapes (.seg .npz .ply .png) and contact_sheet.png to {args.out}/")
+    print(f"wrote {len(names)} shapes ({' '.join('.' + f for f in OUTPUT_FORMATS)}) and "
+          f"contact_sheet.png to {args.out}/")
     unconverged = [ms.name for ms in seg.meshes if not ms.converged]
     if unconverged:   # results are written, but flagged: the exit code says something failed
         log.error("eigensolve did not converge (residual above tolerance) on: %s", ", ".join(unconverged))

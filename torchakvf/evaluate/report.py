@@ -1,5 +1,5 @@
-"""The reports of an evaluation: scores.csv, summary.md, rand_index.png and the
-:class:`EvalSummary` returned."""
+"""The reports of an evaluation: scores.csv, summary.md, rand_index.png, gallery/<Category>.png
+and the :class:`EvalSummary` returned."""
 from __future__ import annotations
 
 import csv
@@ -10,11 +10,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io import load_mesh
 from ..io.outputs import atomic_write_bytes
 from . import psb as P
+from .gallery import write_gallery
+from .metrics import rand_index_error
 from .score import METRIC_GROUPS, METRICS, mean_dicts
 
-__all__ = ["EvalSummary", "REFERENCES", "write_reports"]
+__all__ = ["EvalSummary", "REFERENCES", "write_reports", "write_galleries"]
 
 _SHORT = {"rand_index_error": "1-RI", "hamming_distance": "HD", "hamming_missing_rate": "Rm",
           "hamming_false_alarm_rate": "Rf", "gce": "GCE", "lce": "LCE", "cut_discrepancy": "CD"}
@@ -48,6 +51,7 @@ class EvalSummary:
     out_dir: Path
     k_auto: dict | None = None
     problems: list = field(default_factory=list)
+    galleries: dict = field(default_factory=dict)
 
     @property
     def failed(self) -> bool:
@@ -136,7 +140,8 @@ def _fmt(v, digits=4) -> str:
 
 def write_reports(out, rows_by_id, plans, protocol, groups, auto, wall, pred_settings,
                   run_settings, plot, problems=()) -> EvalSummary:
-    """Writes scores.csv, summary.md (and with ``plot`` rand_index.png) from the rows so far."""
+    """Writes scores.csv, summary.md (and with ``plot`` rand_index.png and the galleries) from
+    the rows so far."""
     rows = [rows_by_id[p.mesh_id] for p in plans if p.mesh_id in rows_by_id]
     cols = [c for g in groups for c in METRIC_GROUPS[g]]
     # scores.csv
@@ -166,10 +171,53 @@ def write_reports(out, rows_by_id, plans, protocol, groups, auto, wall, pred_set
                           wall_seconds=wall, predict_seconds=float("nan"),
                           score_seconds=float("nan"), out_dir=out, k_auto=kstats,
                           problems=list(problems))
+    if plot:
+        summary.galleries = write_galleries(out, plans, rows)
     atomic_write_bytes(out / "summary.md", _summary_md(summary, cats, cols, protocol, auto).encode())
     if plot:
         _plot(out / "rand_index.png", summary, cats, protocol, auto)
     return summary
+
+
+def _gallery_item(plan, row):
+    """(title, V, F, prediction, human, 1-RI) of one scored mesh: its first human segmentation
+    with a prediction at that human's segment count (by-segmentation), else the first human
+    beside the prediction at the mesh's own k (by-model, k auto)."""
+    ks = [k for k in row.ks if plan.pred_path(k).is_file()]
+    if not ks:
+        return None
+    humans = [P.read_seg(s) for s in plan.entry.seg_paths]
+    counts = [len(np.unique(h)) for h in humans]
+    pick = next((i for i, c in enumerate(counts) if c in ks), 0)
+    k = counts[pick] if counts[pick] in ks else ks[0]
+    pred, human = P.read_seg(plan.pred_path(k)), humans[pick]
+    mesh = load_mesh(plan.entry.mesh_path)
+    if not (len(pred) == len(human) == mesh.n_faces):
+        return None
+    return (f"{plan.mesh_id} (k={k})", mesh.vertices, mesh.faces, pred, human,
+            rand_index_error(pred, human))
+
+
+def write_galleries(out: Path, plans, rows) -> dict:
+    """``gallery/<Category>.png`` per category with scored meshes: each mesh's prediction next to
+    one human segmentation at the same k, with its 1-RI (:func:`~torchakvf.evaluate.gallery.
+    write_gallery`). Returns {category: path relative to ``out``}."""
+    by_id = {r.mesh_id: r for r in rows}
+    items: dict = {}
+    for p in plans:
+        r = by_id.get(p.mesh_id)
+        if r is None or not r.scored:
+            continue
+        item = _gallery_item(p, r)
+        if item is not None:
+            items.setdefault(r.category, []).append(item)
+    written = {}
+    for cat, its in items.items():
+        rel = Path("gallery") / f"{cat}.png"
+        mean = float(np.mean([it[5] for it in its]))
+        write_gallery(out / rel, its, title=f"{cat}: prediction | human, 1-RI per mesh (mean {mean:.3f})")
+        written[cat] = rel.as_posix()
+    return written
 
 
 def _summary_md(s: EvalSummary, cats, cols, protocol, auto) -> str:
@@ -263,6 +311,10 @@ def _summary_md(s: EvalSummary, cats, cols, protocol, auto) -> str:
         L.append("Scored, but their AKVFs did not reach the solver's residual tolerance (see "
                  "max_residual in pred/<id>/<id>_meta.json): "
                  + ", ".join(f"{r.mesh_id} ({r.category})" for r in unconverged))
+    if s.galleries:
+        L.append("\n## Galleries\n")
+        L.append("Each mesh's prediction beside one human segmentation at the same k, with its 1-RI: "
+                 + ", ".join(f"[{c}]({rel})" for c, rel in s.galleries.items()))
     if s.problems:
         L.append("\n## Input problems\n")
         L.extend(f"- {line}" for line in s.problems)
