@@ -19,6 +19,7 @@ from torch.utils.data import Dataset
 
 from ..errors import TorchAKVFError
 from ..io.manifest import read_manifest
+from ..mesh.batch import owner_index
 
 #: Per-face arrays of a feature file, packed along faces by :func:`collate_packed`.
 FACE_KEYS = ("features", "akvf_norms", "face_vectors")
@@ -155,7 +156,7 @@ def collate_packed(items: list[dict]) -> dict:
         "faces": torch.cat([it["faces"].to(torch.int64) + vert_ptr[b] for b, it in enumerate(items)]),
         "vert_ptr": vert_ptr,
         "face_ptr": face_ptr,
-        "face_to_mesh": torch.repeat_interleave(torch.arange(len(items)), nf),
+        "face_to_mesh": owner_index(face_ptr),
         "eigenvalues": torch.stack([it["eigenvalues"] for it in items]),
         "residuals": torch.stack([it["residuals"] for it in items]),
         "names": [it["name"] for it in items],

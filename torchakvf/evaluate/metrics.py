@@ -55,6 +55,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse.csgraph import dijkstra
 
 from ..errors import ParameterError
+# (imported under a private name: several metrics take a face_areas= argument)
+from ..mesh.clean import face_areas as _face_areas
 
 __all__ = [
     "matched_agreement",
@@ -390,11 +392,6 @@ def mesh_face_areas(vertices, faces) -> np.ndarray:
     """
     v, f = _as_mesh(vertices, faces)
     return _face_areas(v, f)
-
-
-def _face_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    return 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
 
 
 def average_radius(vertices, faces) -> float:

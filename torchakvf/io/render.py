@@ -28,6 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..mesh.clean import face_cross_products
 from .outputs import atomic_write_bytes, label_colors
 
 #: Default picture width in pixels (a picture with several views is wider).
@@ -58,7 +59,7 @@ class View:
 
 def _face_geometry(v: np.ndarray, f: np.ndarray):
     tri = v[f]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n = face_cross_products(v, f)
     area2 = np.linalg.norm(n, axis=1)
     return tri.mean(axis=1), n / np.maximum(area2, 1e-300)[:, None], 0.5 * area2
 
