@@ -19,12 +19,17 @@ from .boundaries import (RefinedMesh, face_margins, isoline_face_labels, refine_
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import SymmetryGenerator, part_generators
+from .merge import MergeWeights, merge_parts, merged_distances, oversegment_k
 from .topology import face_adjacency
 
 #: Mesh-quality remedy used by default (see torchakvf.operators.killing); chosen by the
 #: PSB measurements in the README.
 DEFAULT_REMEDY = "smooth"
 BOUNDARIES = ("isoline", "faces")
+#: "paper": k-means into k parts (the paper's output); "merge": k-means into k' > k parts, then
+#: adjacent parts merged by symmetry, concavity and size (:mod:`torchakvf.parts.merge`).
+METHODS = ("paper", "merge")
+DEFAULT_METHOD = "paper"
 #: Random orthogonal starts of Algorithm 1 besides the identity (the best is kept).
 UNTANGLE_RESTARTS = 8
 
@@ -159,7 +164,8 @@ def _per_mesh(value, nb: int, what: str) -> list[int]:
 def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             remedy: str = DEFAULT_REMEDY, kmeans_restarts: int = 20, untangle_restarts: int = UNTANGLE_RESTARTS,
             boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
-            untangled: UntangledFields | None = None, coarse_faces: int | None = None) -> Segmentation:
+            untangled: UntangledFields | None = None, coarse_faces: int | None = None,
+            method: str = DEFAULT_METHOD, merge: MergeWeights | None = None) -> Segmentation:
     """Segment each mesh into k parts (ε = 0) or discover parts with a connecting region (ε > 0).
 
     Parameters
@@ -185,9 +191,17 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     coarse_faces : solve on meshes decimated to about this many faces and report on the
         given ones (see :mod:`torchakvf.mesh.coarse`); only with Mesh inputs (a batch built with
         ``MeshBatch.from_meshes(..., coarse_faces=...)`` carries its own)
+    method : "paper" (k-means into k parts) or "merge" (over-segment into k' = ceil(ratio k)
+        parts and merge adjacent parts down to k, :func:`~torchakvf.parts.merge.merge_parts`;
+        ε = 0 only, part discovery keeps the paper's k)
+    merge : the :class:`~torchakvf.parts.merge.MergeWeights` of method "merge" (default: the
+        cross-validated ones)
     """
     if boundary not in BOUNDARIES:
         raise ParameterError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
+    if method not in METHODS:
+        raise ParameterError(f"method must be one of {METHODS}, got {method!r}")
+    merge = MergeWeights() if merge is None else merge
     if not (eps >= 0):
         raise ParameterError(f"eps must be >= 0, got {eps!r}")
     if coarse_faces is not None and isinstance(meshes, (AKVFResult, MeshBatch)):
@@ -217,7 +231,10 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
                              f"other AKVFs; these k need n = {ns} of the AKVFs passed")
     unt = untangled
     xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
-    km = spherical_kmeans(xpad, mask, ks, restarts=kmeans_restarts, seed=seed)
+    merging = method == "merge" and eps == 0
+    n_faces = [int(batch.face_ptr[b + 1] - batch.face_ptr[b]) for b in range(nb)]
+    ks_km = [oversegment_k(kb, merge.ratio, n_faces[b]) if merging else kb for b, kb in enumerate(ks)]
+    km = spherical_kmeans(xpad, mask, ks_km, restarts=kmeans_restarts, seed=seed)
 
     geo = fields.system.geometry
     out = []
@@ -226,7 +243,7 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
         f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
         feats = unt.mesh_features(b).detach().cpu().numpy()
         area = geo.face_area[f0:f1].detach().cpu().numpy()
-        centers = km.centers[b, :ks[b], :ns[b]].detach().cpu().numpy()
+        centers = km.centers[b, :ks_km[b], :ns[b]].detach().cpu().numpy()
         labels = km.labels[b, :f1 - f0].detach().cpu().numpy()
         vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
         coarse = batch.coarse_of(b)
@@ -246,6 +263,10 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             labels = absorb_single_neighbour_regions(labels, adjacency)
         else:
             labels = remove_small_parts(labels, adjacency, area, min_part_fraction, into_connecting=False)
+            if merging:
+                before = labels
+                labels = merge_parts(labels, clean.faces, clean.vertices, feats, area, ks[b], merge)
+                vdist = merged_distances(vdist, before, labels)   # the refined cut: merged parts only
         gens = part_generators(labels, feats, area, unt.energies[b, :ns[b]].detach().cpu().numpy(), ks[b])
         out.append(MeshSegmentation(
             name=clean.name, k=ks[b], labels=clean.labels_to_input_faces(labels),
@@ -255,10 +276,11 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             cost=float(km.cost[b]),
             params=dict(k=ks[b], eps=eps, seed=seed, n_fields=ns[b], remedy=remedy, boundary=boundary,
                         kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
-                        min_part_fraction=min_part_fraction,
+                        min_part_fraction=min_part_fraction, method=method,
+                        **({"merge": dict(vars(merge)), "k_oversegment": ks_km[b]} if merging else {}),
                         coarse_faces=0 if coarse is None else len(coarse.coarse.faces))))
     return Segmentation(out, untangled=unt)
 
 
 __all__ = ["segment", "Segmentation", "MeshSegmentation", "SymmetryGenerator", "default_n_fields",
-           "field_counts", "DEFAULT_REMEDY"]
+           "field_counts", "DEFAULT_REMEDY", "METHODS", "DEFAULT_METHOD"]
