@@ -99,17 +99,23 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     return RegionGraph(lab, area, mean, length + length.T, concave + concave.T)
 
 
-def merge_costs(graph: RegionGraph, weights: MergeWeights) -> np.ndarray:
-    """[K, K] cost of merging each pair of parts; +inf where not adjacent (and on the diagonal)."""
-    m = graph.mean
-    mn = np.linalg.norm(m, axis=1)
-    cos = (m @ m.T) / np.maximum(np.outer(mn, mn), 1e-300)
-    adjacent = graph.length > 0
-    kappa = np.divide(graph.concave, graph.length, out=np.zeros_like(graph.concave), where=adjacent)
-    small = np.minimum.outer(graph.area, graph.area) / max(graph.area.sum(), 1e-300)
+def _pair_costs(mean, area, length, concave, rows, weights: MergeWeights) -> np.ndarray:
+    """[len(rows), K] merge costs of parts ``rows`` with every part (+inf where not adjacent)."""
+    mn = np.linalg.norm(mean, axis=1)
+    cos = (mean[rows] @ mean.T) / np.maximum(np.outer(mn[rows], mn), 1e-300)
+    adjacent = length[rows] > 0
+    kappa = np.divide(concave[rows], length[rows], out=np.zeros(adjacent.shape), where=adjacent)
+    small = np.minimum.outer(area[rows], area) / max(area.sum(), 1e-300)
     cost = (weights.symmetry * (1.0 - np.clip(cos, -1.0, 1.0)) + weights.concavity * kappa
             + weights.size * small)
     cost[~adjacent] = np.inf
+    return cost
+
+
+def merge_costs(graph: RegionGraph, weights: MergeWeights) -> np.ndarray:
+    """[K, K] cost of merging each pair of parts; +inf where not adjacent (and on the diagonal)."""
+    cost = _pair_costs(graph.mean, graph.area, graph.length, graph.concave,
+                       np.arange(graph.n_parts), weights)
     np.fill_diagonal(cost, np.inf)
     return cost
 
@@ -117,22 +123,20 @@ def merge_costs(graph: RegionGraph, weights: MergeWeights) -> np.ndarray:
 def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.ndarray, list]:
     """Merge the cheapest adjacent pair until k parts remain (or no adjacent pair is left).
 
-    Returns (part [K] -> new id in 0..k_out-1, ordered by first face; the cost of each merge
-    done). Ties go to the pair with the smaller (i, j), so the result is deterministic.
+    Returns (part [K] -> new id in 0..k_out-1, in the order of the parts' smallest old id; the
+    cost of each merge done). Ties go to the first pair in row-major order, so the result is
+    deterministic. The merged part keeps the smaller id; only its row of costs changes (the
+    size term's total area does not change either).
     """
     if k < 1:
         raise ParameterError(f"k must be >= 1, got {k!r}")
     K = graph.n_parts
     area, mean = graph.area.copy(), graph.mean.copy()
     length, concave = graph.length.copy(), graph.concave.copy()
-    alive = np.ones(K, dtype=bool)
+    cost = merge_costs(graph, weights)
     owner = np.arange(K)
     history = []
-    work = RegionGraph(graph.labels, area, mean, length, concave)
     for _ in range(K - k):
-        cost = merge_costs(work, weights)
-        cost[~alive, :] = np.inf
-        cost[:, ~alive] = np.inf
         flat = int(np.argmin(cost))
         i, j = divmod(flat, K)
         if not np.isfinite(cost[i, j]):
@@ -142,14 +146,17 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
         tot = area[i] + area[j]
         mean[i] = (area[i] * mean[i] + area[j] * mean[j]) / max(tot, 1e-300)
         area[i], area[j] = tot, 0.0
-        length[i, :] += length[j, :]
-        length[:, i] += length[:, j]
-        concave[i, :] += concave[j, :]
-        concave[:, i] += concave[:, j]
-        length[i, i] = concave[i, i] = 0.0
-        length[j, :] = length[:, j] = concave[j, :] = concave[:, j] = 0.0
-        alive[j] = False
+        mean[j] = 0.0
+        for mat in (length, concave):
+            mat[i, :] += mat[j, :]
+            mat[:, i] = mat[i, :]
+            mat[i, i] = 0.0
+            mat[j, :] = mat[:, j] = 0.0
         owner[owner == j] = i
+        row = _pair_costs(mean, area, length, concave, np.array([i]), weights)[0]
+        row[i] = np.inf
+        cost[i, :] = cost[:, i] = row
+        cost[j, :] = cost[:, j] = np.inf
     roots = np.unique(owner)
     return np.searchsorted(roots, owner), history
 
