@@ -14,7 +14,8 @@ from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.merge import (MergeWeights, RegionGraph, greedy_merge, merge_costs, merge_parts,
-                                   merged_distances, oversegment_k, region_graph)
+                                   merged_distances, oversegment_k, partition_cost,
+                                   region_graph)
 from torchakvf.parts.topology import face_adjacency
 
 
@@ -165,3 +166,11 @@ def test_failure_shapes_come_out_part_for_part(failure_shapes, name):
     # Same seed, same labels.
     again = ta.segment(fields, k=s.n_parts, seed=0, method="merge", refine=False)[0]
     np.testing.assert_array_equal(seg.labels, again.labels)
+
+
+def test_partition_cost_by_hand():
+    # Part 0: rows (1,0) and (0,1) -> center (1,1)/√2, cost 2 (1 - 1/√2); part 1: one row, cost 0.
+    feats = np.array([[2.0, 0.0], [0.0, 3.0], [1.0, 1.0]])
+    np.testing.assert_allclose(partition_cost(np.array([4, 4, 7]), feats), 2 * (1 - 1 / np.sqrt(2)))
+    # One part of identical directions costs nothing.
+    assert partition_cost(np.zeros(3, dtype=int), np.ones((3, 2))) == pytest.approx(0.0, abs=1e-12)

@@ -182,6 +182,23 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
     return out.astype(np.asarray(labels).dtype, copy=False)
 
 
+def partition_cost(labels: np.ndarray, features: np.ndarray) -> float:
+    """Spherical k-means cost Σ_f (1 - cos(x_f, c_p)) of a given partition, each part's center
+    c_p the normalized sum of its unit feature rows (the optimal one): the k-means objective
+    of the merged parts, comparable across k (k auto reads it). Faces labelled < 0 are left out.
+    labels : [F]; features : [F, n]."""
+    labels = np.asarray(labels)
+    keep = labels >= 0
+    x = np.asarray(features, dtype=np.float64)[keep]
+    norm = np.linalg.norm(x, axis=1, keepdims=True)
+    unit = np.divide(x, norm, out=np.zeros_like(x), where=norm > 0)
+    lab = np.unique(labels[keep], return_inverse=True)[1]
+    centers = np.zeros((int(lab.max()) + 1 if lab.size else 0, x.shape[1]))
+    np.add.at(centers, lab, unit)
+    centers /= np.maximum(np.linalg.norm(centers, axis=1, keepdims=True), 1e-300)
+    return float(np.sum(1.0 - np.einsum("ij,ij->i", unit, centers[lab])))
+
+
 def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarray) -> np.ndarray:
     """[V, k] distance of each vertex to each merged part: the least over the parts it unites.
 
@@ -199,5 +216,5 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     return out
 
 
-__all__ = ["MergeWeights", "merged_distances", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
+__all__ = ["MergeWeights", "merged_distances", "partition_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
            "greedy_merge", "merge_parts"]

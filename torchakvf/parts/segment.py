@@ -19,7 +19,7 @@ from .boundaries import (RefinedMesh, face_margins, isoline_face_labels, refine_
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import SymmetryGenerator, part_generators
-from .merge import MergeWeights, merge_parts, merged_distances, oversegment_k
+from .merge import MergeWeights, merge_parts, merged_distances, oversegment_k, partition_cost
 from .topology import face_adjacency
 
 #: Mesh-quality remedy used by default (see torchakvf.operators.killing); chosen by the
@@ -76,7 +76,8 @@ class MeshSegmentation:
     generators : per part, the :class:`SymmetryGenerator` s localized on it
     refined : the mesh cut along the part boundaries (cleaned-mesh vertices, full resolution),
         or None
-    cost : spherical k-means cost Σ(1 - cos) of the clustering kept
+    cost : spherical k-means cost Σ(1 - cos) of the clustering kept (method "merge": of the
+        merged parts, :func:`~torchakvf.parts.merge.partition_cost`, scaled to the solved faces)
     """
 
     name: str
@@ -245,6 +246,7 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
         area = geo.face_area[f0:f1].detach().cpu().numpy()
         centers = km.centers[b, :ks_km[b], :ns[b]].detach().cpu().numpy()
         labels = km.labels[b, :f1 - f0].detach().cpu().numpy()
+        cost = float(km.cost[b])
         vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
         coarse = batch.coarse_of(b)
         if coarse is not None:
@@ -267,13 +269,15 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
                 before = labels
                 labels = merge_parts(labels, clean.faces, clean.vertices, feats, area, ks[b], merge)
                 vdist = merged_distances(vdist, before, labels)   # the refined cut: merged parts only
+                # k-means cost of the k merged parts, in units of the solved mesh's faces
+                cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
         gens = part_generators(labels, feats, area, unt.energies[b, :ns[b]].detach().cpu().numpy(), ks[b])
         out.append(MeshSegmentation(
             name=clean.name, k=ks[b], labels=clean.labels_to_input_faces(labels),
             features=clean.to_input_faces(feats), eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
             generators=gens,
             refined=refine_along_isolines(clean.vertices, clean.faces, vdist) if refine else None,
-            cost=float(km.cost[b]),
+            cost=cost,
             params=dict(k=ks[b], eps=eps, seed=seed, n_fields=ns[b], remedy=remedy, boundary=boundary,
                         kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
                         min_part_fraction=min_part_fraction, method=method,
