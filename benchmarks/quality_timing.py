@@ -5,7 +5,7 @@ paper pipeline per mesh = AKVFs (load, clean, decimate, solve) + untangling + se
 human k; added = segment at k' = ceil(ratio k) minus segment at k (k-means and isolines with more
 centers) + merge_parts at every k (dual graph, region graph, greedy merges).
 
-    PYTHONPATH=$PWD python benchmarks/quality_timing.py --ratio 2 --weights 1,8,0
+    PYTHONPATH=$PWD python benchmarks/quality_timing.py --ratio 3 --weights 1,16,0
 """
 from __future__ import annotations
 
@@ -25,8 +25,8 @@ from torchakvf.parts.merge import MergeWeights, merge_parts
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cache", default="/tmp/quality_cache")
-    ap.add_argument("--ratio", type=float, default=2.0)
-    ap.add_argument("--weights", default="1,8,0", help="symmetry,concavity,size")
+    ap.add_argument("--ratio", type=float, default=3.0)
+    ap.add_argument("--weights", default="1,16,0", help="symmetry,concavity,size")
     a = ap.parse_args()
     w = MergeWeights(*[float(x) for x in a.weights.split(",")], ratio=a.ratio)
     entries = {e.mesh_id: e for e in P.find_psb_meshes(P.default_psb_root())}

@@ -29,7 +29,8 @@ BOUNDARIES = ("isoline", "faces")
 #: "paper": k-means into k parts (the paper's output); "merge": k-means into k' > k parts, then
 #: adjacent parts merged by symmetry, concavity and size (:mod:`torchakvf.parts.merge`).
 METHODS = ("paper", "merge")
-DEFAULT_METHOD = "paper"
+#: Chosen by cross-validation across PSB categories (benchmarks/results/quality_cv.md).
+DEFAULT_METHOD = "merge"
 #: Random orthogonal starts of Algorithm 1 besides the identity (the best is kept).
 UNTANGLE_RESTARTS = 8
 
@@ -192,9 +193,9 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     coarse_faces : solve on meshes decimated to about this many faces and report on the
         given ones (see :mod:`torchakvf.mesh.coarse`); only with Mesh inputs (a batch built with
         ``MeshBatch.from_meshes(..., coarse_faces=...)`` carries its own)
-    method : "paper" (k-means into k parts) or "merge" (over-segment into k' = ceil(ratio k)
-        parts and merge adjacent parts down to k, :func:`~torchakvf.parts.merge.merge_parts`;
-        ε = 0 only, part discovery keeps the paper's k)
+    method : "merge" (default: over-segment into k' = ceil(ratio k) parts and merge adjacent
+        parts down to k, :func:`~torchakvf.parts.merge.merge_parts`; ε = 0 only, part discovery
+        keeps the paper's k) or "paper" (k-means into k parts: the paper's output)
     merge : the :class:`~torchakvf.parts.merge.MergeWeights` of method "merge" (default: the
         cross-validated ones)
     """
