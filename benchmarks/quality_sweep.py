@@ -85,13 +85,16 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cache", default="/tmp/quality_cache")
     ap.add_argument("--out", default="benchmarks/results/quality_cv.md")
+    ap.add_argument("--ratios", default=",".join(f"{r:g}" for r in RATIOS),
+                    help="over-segmentation ratios allowed in the choice (e.g. those within the time budget)")
     a = ap.parse_args()
+    ratios = tuple(float(r) for r in a.ratios.split(","))
     t0 = time.perf_counter()
     meshes = load_cache(Path(a.cache))
     cats = sorted({category_of(i) for i in meshes}, key=lambda c: min(i for i in meshes if category_of(i) == c))
     paper = category_table(meshes, None)
     grid = [MergeWeights(symmetry=s, concavity=c, size=z, ratio=r)
-            for r, s, c, z in itertools.product(RATIOS, SYMMETRY, CONCAVITY, SIZE)
+            for r, s, c, z in itertools.product(ratios, SYMMETRY, CONCAVITY, SIZE)
             if (s, c, z) != (0.0, 0.0, 0.0)]
     tables = {w: category_table(meshes, w) for w in grid}
     print(f"{len(grid)} settings swept in {time.perf_counter() - t0:.0f} s", flush=True)
@@ -114,7 +117,7 @@ def main():
              f"- cache: {a.cache}, {len(meshes)} meshes ({', '.join(f'{c} {sum(category_of(i) == c for i in meshes)}' for c in cats)})",
              "- protocol: by-segmentation, 1-RI faces counted; mesh = mean over humans, category = mean "
              "over its meshes, overall = mean over categories",
-             f"- grid: ratio {RATIOS}, w_sym {SYMMETRY}, w_cav {CONCAVITY}, w_size {SIZE} ({len(grid)} settings)",
+             f"- grid: ratio {ratios}, w_sym {SYMMETRY}, w_cav {CONCAVITY}, w_size {SIZE} ({len(grid)} settings)",
              f"- folds (category i in PSB order -> fold i mod {N_FOLDS}): " +
              "; ".join(f"{f}: {', '.join(t)}" for f, t in enumerate(folds)), "",
              "## Cross-validation", "",
@@ -138,7 +141,7 @@ def main():
                 ("w_cav = 0", MergeWeights(chosen.symmetry, 0.0, chosen.size, chosen.ratio)),
                 ("w_size = 0", MergeWeights(chosen.symmetry, chosen.concavity, 0.0, chosen.ratio))]
     variants += [(f"ratio {r:g}", MergeWeights(chosen.symmetry, chosen.concavity, chosen.size, r))
-                 for r in RATIOS if r != chosen.ratio]
+                 for r in RATIOS if r != chosen.ratio]   # all cached ratios, also those not allowed
     lines.append(f"| paper (no merging) | {overall(paper, cats):.4f} | " + " | ".join(f"{paper[c]:.3f}" for c in cats) + " |")
     for name, w in variants:
         t = tables.get(w) or category_table(meshes, w)
