@@ -282,7 +282,8 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             params=dict(k=ks[b], eps=eps, seed=seed, n_fields=ns[b], remedy=remedy, boundary=boundary,
                         kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
                         min_part_fraction=min_part_fraction, method=method,
-                        **({"merge": dict(vars(merge)), "k_oversegment": ks_km[b]} if merging else {}),
+                        **({f"merge_{name}": float(v) for name, v in vars(merge).items()} if merging else {}),
+                        **({"k_oversegment": ks_km[b]} if merging else {}),
                         coarse_faces=0 if coarse is None else len(coarse.coarse.faces))))
     return Segmentation(out, untangled=unt)
 
