@@ -242,7 +242,8 @@ def test_segment_task_records_convergence_for_the_manifest(batch_seg):
     assert task.manifest_fields((ms, None)) == {"converged": True, "max_residual": ms.max_residual}
     ms_bad = type(ms)(**{**ms.__dict__, "converged": False, "max_residual": 3e-4})
     assert task.manifest_fields((ms_bad, None)) == {"converged": False, "max_residual": 3e-4}
-    assert task.params["solver"] == "lanczos" and task.params["method"] == "paper"
+    assert task.params["solver"] == "lanczos" and task.params["method"] == "merge"   # the default
+    assert SegmentTask(3, method="paper").params["method"] == "paper"
     with pytest.raises(ta.ParameterError, match="method"):
         SegmentTask(3, method="greedy")
     with pytest.raises(ta.ParameterError, match="solver"):

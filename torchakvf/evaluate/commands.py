@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..errors import TorchAKVFError
 from ..mesh.coarse import DEFAULT_COARSE_FACES
+from ..parts.engine import METHODS
 from ..pipeline.commands import _device as parse_device
 from ..pipeline.commands import _int as parse_int
 from ..pipeline.parallel import default_workers
@@ -104,8 +105,9 @@ def add_eval_arguments(p) -> None:
                    help=f"parts for meshes without human segmentations (default {DEFAULT_K_NO_GT})")
     p.add_argument("--solver", default=None, choices=["auto", "lanczos", "lobpcg"],
                    help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
-    p.add_argument("--method", default=None, choices=["paper"],
-                   help="segmentation method (default and only one today: paper)")
+    p.add_argument("--method", default=None, choices=list(METHODS),
+                   help="segmentation method: merge (default: over-segment, then merge adjacent "
+                        "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
     p.add_argument("--device", default="cpu",
                    help="torch device of the predictions, e.g. cpu or cuda (default cpu; one "
                         "worker on a GPU)")
@@ -202,8 +204,9 @@ def add_bench_arguments(p) -> None:
                         "core on CPU, at most 8; 1 on a GPU)")
     p.add_argument("--solver", default=None, choices=["auto", "lanczos", "lobpcg"],
                    help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
-    p.add_argument("--method", default=None, choices=["paper"],
-                   help="segmentation method (default and only one today: paper)")
+    p.add_argument("--method", default=None, choices=list(METHODS),
+                   help="segmentation method: merge (default: over-segment, then merge adjacent "
+                        "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
 
 
 def run_bench_command(args) -> int:

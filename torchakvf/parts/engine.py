@@ -8,7 +8,8 @@ automatic-k scan, the bench) goes through here.
         field_counts                fields untangled per mesh for those k (one untangling per
                                     distinct tuple of counts, shared by the rounds that agree)
         spherical_kmeans            all meshes of the round at once
-        cut_parts                   ONE mesh: boundaries, clean-up, generators -> MeshSegmentation
+        cut_parts                   ONE mesh: boundaries, clean-up, (method "merge") merging
+                                    of adjacent parts, generators -> MeshSegmentation
 
 A new stage of the method that works on one mesh's clustering (a merge of parts, a boundary
 refinement) goes in :func:`cut_parts`, and only there.
@@ -31,12 +32,17 @@ from .boundaries import (face_margins, isoline_face_labels, refine_along_isoline
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import part_generators
+from .merge import MergeWeights, merge_parts, merged_distances, oversegment_k, partition_cost
 from .results import MeshSegmentation, Segmentation
 from .topology import face_adjacency
 
 BOUNDARIES = ("isoline", "faces")
-#: Segmentation methods: "paper" = Solomon et al. 2011 as implemented here (the only one today).
-METHODS = ("paper",)
+#: Segmentation methods. "paper": spherical k-means into k parts (Solomon et al. 2011 as
+#: implemented here); "merge": k-means into k' = ceil(ratio k) parts, then adjacent parts merged
+#: down to k by symmetry similarity and boundary concavity (:mod:`torchakvf.parts.merge`).
+METHODS = ("paper", "merge")
+#: Chosen by 3-fold cross-validation across PSB categories (benchmarks/results/quality_cv.md).
+DEFAULT_METHOD = "merge"
 #: Random orthogonal starts of Algorithm 1 besides the identity (the best is kept).
 UNTANGLE_RESTARTS = 8
 #: Eigenvalues closer than this (relative) belong to one cluster, which N must not split.
@@ -129,7 +135,8 @@ class SegmentOptions:
     seed: int = 0
     remedy: str = DEFAULT_REMEDY
     solver: str = "auto"
-    method: str = "paper"
+    method: str = DEFAULT_METHOD
+    merge: MergeWeights = field(default_factory=MergeWeights)
     kmeans_restarts: int = 20
     untangle_restarts: int = UNTANGLE_RESTARTS
     boundary: str = "isoline"
@@ -164,13 +171,26 @@ def solve_quality(fields: AKVFResult, b: int) -> tuple[bool, float]:
     return bool(fields.converged[b]), float(fields.residuals[b].max())
 
 
+def merging(opts: SegmentOptions) -> bool:
+    """Whether parts are merged: method "merge" on plain segmentations (ε = 0; part discovery
+    keeps the paper's k clusters)."""
+    return opts.method == "merge" and opts.eps == 0
+
+
+def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
+    """Clusters k-means makes for a mesh segmented into k parts: k, or k' = ceil(ratio k) (at
+    most its faces) when the parts are merged afterwards."""
+    return oversegment_k(k, opts.merge.ratio, n_faces) if merging(opts) else int(k)
+
+
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
               opts: SegmentOptions) -> MeshSegmentation:
     """Mesh b's parts from its clustering: boundaries, (ε > 0) connecting region, clean-up of
     small pieces and symmetry generators, on the input's faces.
 
     batch : the batch that was solved (``fields.batch``); km : the
-    :class:`~torchakvf.cluster.spherical_kmeans.KMeansResult` of the round, k : mesh b's k in it.
+    :class:`~torchakvf.cluster.spherical_kmeans.KMeansResult` of the round (with
+    :func:`cluster_count` clusters for mesh b), k : mesh b's k in it.
     """
     unt = untangled
     n_b = int(unt.n_fields[b])
@@ -178,7 +198,9 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
     f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
     feats = unt.mesh_features(b).detach().cpu().numpy()
     area = fields.system.geometry.face_area[f0:f1].detach().cpu().numpy()
-    centers = km.centers[b, :k, :n_b].detach().cpu().numpy()
+    k_cluster = cluster_count(k, f1 - f0, opts)
+    centers = km.centers[b, :k_cluster, :n_b].detach().cpu().numpy()
+    cost = float(km.cost[b])
     labels = km.labels[b, :f1 - f0].detach().cpu().numpy()
     vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
     coarse = batch.coarse_of(b)
@@ -198,6 +220,12 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         labels = absorb_single_neighbour_regions(labels, adjacency)
     else:
         labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=False)
+        if merging(opts):
+            over = labels
+            labels = merge_parts(over, clean.faces, clean.vertices, feats, area, k, opts.merge)
+            vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
+            # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
+            cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
     gens = part_generators(labels, feats, area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
     converged, residual = solve_quality(fields, b)
     return MeshSegmentation(
@@ -205,12 +233,14 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         features=clean.to_input_faces(feats), eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
         generators=gens,
         refined=refine_along_isolines(clean.vertices, clean.faces, vdist) if opts.refine else None,
-        cost=float(km.cost[b]),
+        cost=cost,
         params=dict(k=k, eps=opts.eps, seed=opts.seed, n_fields=n_b, remedy=opts.remedy,
                     boundary=opts.boundary, kmeans_restarts=opts.kmeans_restarts,
                     untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
                     coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
-                    solver=opts.solver, method=opts.method),
+                    solver=opts.solver, method=opts.method,
+                    **({"k_oversegment": k_cluster, **{f"merge_{name}": float(v) for name, v in
+                                                       vars(opts.merge).items()}} if merging(opts) else {})),
         converged=converged, max_residual=residual)
 
 
@@ -285,7 +315,9 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         unt = cache[ns]
         t1 = time.perf_counter()
         xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
-        km = spherical_kmeans(xpad, mask, round_ks, restarts=opts.kmeans_restarts, seed=opts.seed)
+        n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
+        km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
+        km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed)
         meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts) if b in active else None
                   for b in range(nb)]
         t2 = time.perf_counter()
@@ -321,7 +353,8 @@ class SegmentEachK:
 
 
 def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None,
-                   remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = "paper",
+                   remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = DEFAULT_METHOD,
+                   merge: MergeWeights | None = None,
                    kmeans_restarts: int = 20, untangle_restarts: int = UNTANGLE_RESTARTS,
                    boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
                    coarse_faces: int | None = None, device=None, n_akvf: int | None = None,
@@ -338,6 +371,7 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
     the rest : as in :func:`~torchakvf.parts.segment`
     """
     opts = SegmentOptions(eps=eps, seed=seed, remedy=remedy, solver=solver, method=method,
+                          merge=MergeWeights() if merge is None else merge,
                           kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
                           boundary=boundary, min_part_fraction=min_part_fraction, refine=refine)
     if coarse_faces is not None and isinstance(meshes, (AKVFResult, MeshBatch)):
@@ -365,5 +399,5 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
            "field_counts", "akvf_count", "default_n_fields", "cluster_safe_n", "per_mesh",
-           "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS",
+           "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
            "UNTANGLE_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]

@@ -1,22 +1,25 @@
 """Segmentation and part discovery: the paper's method end to end over a batch.
 
 AKVFs -> untangled fields (Algorithm 1) -> per-face features -> spherical k-means -> labels
-with smooth boundaries -> (ε > 0) connecting region -> symmetry generators per part.
+with smooth boundaries -> (method "merge") adjacent parts merged down to k -> (ε > 0)
+connecting region -> symmetry generators per part.
 :func:`segment` is one k per mesh of :func:`torchakvf.parts.engine.segment_each_k`, which does
 the work for every caller.
 """
 from __future__ import annotations
 
 from ..fields.untangle import UntangledFields
-from .engine import (BOUNDARIES, CLUSTER_GAP, DEFAULT_REMEDY, METHODS, SPARE_FIELDS,  # noqa: F401
-                     UNTANGLE_RESTARTS, cluster_safe_n, default_n_fields, field_counts, per_mesh,
-                     segment_each_k)
+from .engine import (BOUNDARIES, CLUSTER_GAP, DEFAULT_METHOD, DEFAULT_REMEDY, METHODS,  # noqa: F401
+                     SPARE_FIELDS, UNTANGLE_RESTARTS, cluster_safe_n, default_n_fields,
+                     field_counts, per_mesh, segment_each_k)
+from .merge import MergeWeights
 from .generators import SymmetryGenerator
 from .results import MeshSegmentation, Segmentation
 
 
 def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
-            remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = "paper",
+            remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = DEFAULT_METHOD,
+            merge: MergeWeights | None = None,
             kmeans_restarts: int = 20, untangle_restarts: int = UNTANGLE_RESTARTS,
             boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
             untangled: UntangledFields | None = None, coarse_faces: int | None = None,
@@ -36,7 +39,12 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     remedy : mesh-quality remedy of the Killing operator ("none" = the paper's)
     solver : the eigensolver of the AKVFs: "auto", "lanczos" or "lobpcg"
         (:func:`torchakvf.fields.akvf.akvf`)
-    method : the segmentation method: "paper" (Solomon et al. 2011; the only one today)
+    method : "merge" (default: k-means into k' = ceil(ratio k) parts, then adjacent parts merged
+        down to k by symmetry similarity and boundary concavity, :func:`~torchakvf.parts.merge.
+        merge_parts`; ε = 0 only, part discovery keeps k clusters) or "paper" (k-means into k
+        parts: the paper's method, the output of torchakvf 0.1)
+    merge : the :class:`~torchakvf.parts.merge.MergeWeights` of method "merge" (default: the
+        cross-validated ones)
     kmeans_restarts, untangle_restarts : random restarts (the best is kept)
     boundary : "isoline" (labels from the g_ij = 0 isolines of vertex-averaged features,
         smooth part boundaries) or "faces" (raw k-means labels)
@@ -56,7 +64,7 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     (``converged``, ``max_residual``).
     """
     res = segment_each_k(meshes, k, eps=eps, seed=seed, n_fields=n_fields, remedy=remedy,
-                         solver=solver, method=method, kmeans_restarts=kmeans_restarts,
+                         solver=solver, method=method, merge=merge, kmeans_restarts=kmeans_restarts,
                          untangle_restarts=untangle_restarts, boundary=boundary,
                          min_part_fraction=min_part_fraction, refine=refine,
                          coarse_faces=coarse_faces, device=device, untangled=untangled)
@@ -64,4 +72,4 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
 
 
 __all__ = ["segment", "Segmentation", "MeshSegmentation", "SymmetryGenerator", "default_n_fields",
-           "field_counts", "DEFAULT_REMEDY"]
+           "field_counts", "DEFAULT_REMEDY", "METHODS", "DEFAULT_METHOD", "MergeWeights"]

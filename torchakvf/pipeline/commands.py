@@ -11,6 +11,7 @@ import logging
 from pathlib import Path
 
 from ..errors import TorchAKVFError
+from ..parts.engine import DEFAULT_METHOD, METHODS
 
 log = logging.getLogger("torchakvf")
 
@@ -155,8 +156,9 @@ def _add_segment(sub) -> None:
                         "resolution)")
     p.add_argument("--solver", default="auto", choices=["auto", "lanczos", "lobpcg"],
                    help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
-    p.add_argument("--method", default="paper", choices=["paper"],
-                   help="segmentation method (default and only one today: paper)")
+    p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS),
+                   help="segmentation method: merge (default: over-segment, then merge adjacent "
+                        "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
     p.set_defaults(func=run_segment)
 
 

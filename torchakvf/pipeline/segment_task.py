@@ -15,7 +15,7 @@ from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
 from ..mesh.batch import mesh_edges
 from ..fields.akvf import SOLVERS
-from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, default_n_fields,
+from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, default_n_fields,
                             segment_each_k)
 
 
@@ -37,7 +37,7 @@ class SegmentTask:
     def __init__(self, k: int, *, eps: float = 0.0, seed: int = 0, n_fields: int | None = None,
                  remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = 8,
                  kmeans_restarts: int = 20, coarse_faces: int | None = None, solver: str = "auto",
-                 method: str = "paper"):
+                 method: str = DEFAULT_METHOD):
         self.k, self.eps, self.seed = int(k), float(eps), int(seed)
         self.solver, self.method = str(solver), str(method)
         if self.solver not in SOLVERS:

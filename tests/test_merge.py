@@ -1,0 +1,176 @@
+"""Part merging (issue 12): concavity, the merge cost by hand, adjacency-only merges, and the
+two failure-mode shapes (table, mug) part for part."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+import torchakvf as ta
+from torchakvf import shapes
+from torchakvf.errors import ParameterError
+from torchakvf.evaluate.metrics import matched_agreement
+from torchakvf.mesh.clean import face_areas
+from torchakvf.parts.concavity import dual_edges
+from torchakvf.parts.merge import (MergeWeights, RegionGraph, greedy_merge, merge_costs, merge_parts,
+                                   merged_distances, oversegment_k, partition_cost,
+                                   region_graph)
+from torchakvf.parts.topology import face_adjacency
+
+
+def hinge(fold: float):
+    """Two unit right triangles sharing the edge (0,0,0)-(1,0,0); the first lies in z = 0 with
+    normal +z, the second is rotated about the x axis by ``fold`` (> 0 folds it up: a valley)."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, -1, 0], [0, np.cos(fold), np.sin(fold)]], dtype=float)
+    f = np.array([[1, 0, 2], [0, 1, 3]])   # both counter-clockwise seen from +z when flat
+    return v, f
+
+
+@pytest.mark.parametrize("fold,expected", [(np.pi / 2, np.pi / 2), (-np.pi / 3, -np.pi / 3), (0.0, 0.0)])
+def test_hinge_dihedral_sign_and_angle(fold, expected):
+    v, f = hinge(fold)
+    # The first face points up (+z), the fold sign convention relies on it.
+    n0 = np.cross(v[f[0, 1]] - v[f[0, 0]], v[f[0, 2]] - v[f[0, 0]])
+    assert n0[2] > 0
+    d = dual_edges(v, f)
+    assert d.pairs.tolist() == [[0, 1]]
+    np.testing.assert_allclose(d.length, [1.0], rtol=1e-12)
+    np.testing.assert_allclose(d.dihedral, [expected], atol=1e-12)
+    np.testing.assert_allclose(d.concavity, [max(expected, 0.0) / np.pi], atol=1e-12)
+
+
+def test_closed_convex_surface_is_convex_everywhere_and_pairs_match_adjacency():
+    s = shapes.icosphere(2)
+    d = dual_edges(s.vertices, s.faces)
+    np.testing.assert_array_equal(d.pairs, face_adjacency(s.faces))
+    assert (d.dihedral < 0).all() and d.concavity.max() == 0.0
+    # Concavity flips with the orientation (inside-out sphere: every crease is a valley).
+    assert (dual_edges(s.vertices, s.faces[:, ::-1]).dihedral > 0).all()
+
+
+def test_region_graph_of_the_hinge_by_hand():
+    v, f = hinge(np.pi / 2)
+    g = region_graph(np.array([5, 2]), dual_edges(v, f), np.array([[3.0, 4.0], [0.0, 2.0]]),
+                     np.array([0.5, 0.5]))
+    np.testing.assert_array_equal(g.labels, [1, 0])               # compacted in label order
+    np.testing.assert_allclose(g.area, [0.5, 0.5])
+    np.testing.assert_allclose(g.mean, [[0.0, 1.0], [0.6, 0.8]])  # unit feature rows
+    np.testing.assert_allclose(g.length, [[0, 1], [1, 0]])
+    np.testing.assert_allclose(g.concave, [[0, 0.5], [0.5, 0]])   # 1 x (π/2)/π
+
+
+def test_merge_cost_and_order_by_hand():
+    g = RegionGraph(labels=np.array([0, 1, 2]), area=np.array([1.0, 1.0, 2.0]),
+                    mean=np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
+                    length=np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]], dtype=float),
+                    concave=np.array([[0, 1, 0.5], [1, 0, 0], [0.5, 0, 0]], dtype=float))
+    w = MergeWeights(symmetry=1.0, concavity=2.0, size=1.0, ratio=2.0)
+    cost = merge_costs(g, w)
+    # (0,1): same features, κ = 1/2 -> 0 + 2 (1/2) + 1/4; (0,2): orthogonal -> 1 + 1 + 1/4.
+    np.testing.assert_allclose(cost[0, 1], 1.25)
+    np.testing.assert_allclose(cost[0, 2], 2.25)
+    assert np.isinf(cost[1, 2]) and np.isinf(cost[2, 1]) and np.isinf(np.diag(cost)).all()
+    new_id, history = greedy_merge(g, 1, w)
+    # After (0,1) merge: area 2, mean (1,0); its boundary with 2 is length 1, concave 0.5 ->
+    # 1 + 2 (0.5) + 1 * min(2, 2) / 4 = 2.5.
+    np.testing.assert_allclose(history, [1.25, 2.5])
+    np.testing.assert_array_equal(new_id, [0, 0, 0])
+    np.testing.assert_array_equal(greedy_merge(g, 2, w)[0], [0, 0, 1])
+
+
+def _adjacent_label_pairs(labels, faces):
+    adj = face_adjacency(faces)
+    a, b = labels[adj[:, 0]], labels[adj[:, 1]]
+    return {(int(x), int(y)) for x, y in zip(a, b) if x != y}
+
+
+@pytest.mark.parametrize("k", [1, 2, 4])
+def test_merging_only_joins_adjacent_parts(k):
+    s = shapes.icosphere(3)
+    rng = np.random.default_rng(0)
+    # 12 parts: faces by nearest of 12 random directions (connected caps), features random
+    # per part, so the merge order is not just geometric.
+    centers = rng.normal(size=(12, 3))
+    bary = s.vertices[s.faces].mean(1)
+    labels = np.argmax(bary @ centers.T, axis=1)
+    feats = np.abs(rng.normal(size=(12, 6)))[labels] + 0.01 * rng.random((len(labels), 6))
+    out = merge_parts(labels, s.faces, s.vertices, feats, face_areas(s.vertices, s.faces), k,
+                      MergeWeights(symmetry=1.0, concavity=1.0, size=1.0))
+    assert len(np.unique(out)) == k
+    # Every merged part is a union of old parts connected in the old region graph.
+    old_adj = _adjacent_label_pairs(labels, s.faces)
+    for p in np.unique(out):
+        members = np.unique(labels[out == p])
+        idx = {m: i for i, m in enumerate(members)}
+        edges = [(idx[x], idx[y]) for x, y in old_adj if x in idx and y in idx]
+        graph = sp.coo_matrix((np.ones(len(edges)), tuple(np.array(edges).T)) if edges else
+                              ([], ([], [])), shape=(len(members),) * 2)
+        assert connected_components(graph, directed=False)[0] == 1
+    # An old part is never split.
+    for lab in np.unique(labels):
+        assert len(np.unique(out[labels == lab])) == 1
+
+
+def test_disconnected_parts_are_never_merged():
+    s = shapes.torus_chain(n=3, n_major=36)
+    feats = np.ones((len(s.faces), 4))   # identical features: only adjacency stops a merge
+    out = merge_parts(s.part_labels, s.faces, s.vertices, feats, face_areas(s.vertices, s.faces), 1)
+    assert matched_agreement(out, s.part_labels) == 1.0
+
+
+def test_merged_distances_take_the_least_over_united_parts():
+    d = np.array([[0.1, 0.5, 0.9], [0.7, 0.2, 0.4]])
+    before, after = np.array([0, 1, 2, 2]), np.array([0, 0, 1, 1])
+    np.testing.assert_allclose(merged_distances(d, before, after), [[0.1, 0.9], [0.2, 0.4]])
+
+
+def test_oversegment_k_and_parameter_errors():
+    assert oversegment_k(5, 2.0, 10 ** 6) == 10 and oversegment_k(3, 1.5, 10 ** 6) == 5
+    assert oversegment_k(4, 3.0, 7) == 7 and oversegment_k(4, 1.0, 100) == 4
+    with pytest.raises(ParameterError):
+        MergeWeights(concavity=-1.0)
+    with pytest.raises(ParameterError):
+        MergeWeights(ratio=0.5)
+    s = shapes.table()
+    with pytest.raises(ParameterError, match="method"):
+        ta.segment(ta.Mesh(s.vertices, s.faces), k=5, method="nope")
+
+
+def test_table_and_mug_shapes_are_closed_and_labelled():
+    for s, parts in ((shapes.table(), 5), (shapes.mug(), 2)):
+        assert s.n_parts == parts and set(np.unique(s.part_labels)) == set(range(parts))
+        # closed, manifold, consistently oriented: every edge in exactly two faces, opposite ways
+        directed = np.concatenate([s.faces[:, [0, 1]], s.faces[:, [1, 2]], s.faces[:, [2, 0]]])
+        assert len({tuple(e) for e in directed.tolist()}) == len(directed)
+        assert {tuple(e) for e in directed.tolist()} == {tuple(e) for e in directed[:, ::-1].tolist()}
+        assert face_areas(s.vertices, s.faces).min() > 0
+
+
+@pytest.fixture(scope="module")
+def failure_shapes():
+    out = {}
+    for s in (shapes.table(), shapes.mug()):
+        m = ta.Mesh(s.vertices, s.faces, name=s.name)
+        out[s.name] = (s, ta.akvf(m, n=s.n_parts * 2 + 16, remedy="smooth"))
+    return out
+
+
+@pytest.mark.parametrize("name", ["table", "mug"])
+def test_failure_shapes_come_out_part_for_part(failure_shapes, name):
+    s, fields = failure_shapes[name]
+    seg = ta.segment(fields, k=s.n_parts, seed=0, method="merge", refine=False)[0]
+    agree = matched_agreement(seg.labels, s.part_labels, face_areas(s.vertices, s.faces))
+    assert agree >= 0.98, f"{name}: area agreement {agree:.4f} after merging"
+    assert seg.params["method"] == "merge" and seg.params["k_oversegment"] > s.n_parts
+    # Same seed, same labels.
+    again = ta.segment(fields, k=s.n_parts, seed=0, method="merge", refine=False)[0]
+    np.testing.assert_array_equal(seg.labels, again.labels)
+
+
+def test_partition_cost_by_hand():
+    # Part 0: rows (1,0) and (0,1) -> center (1,1)/√2, cost 2 (1 - 1/√2); part 1: one row, cost 0.
+    feats = np.array([[2.0, 0.0], [0.0, 3.0], [1.0, 1.0]])
+    np.testing.assert_allclose(partition_cost(np.array([4, 4, 7]), feats), 2 * (1 - 1 / np.sqrt(2)))
+    # One part of identical directions costs nothing.
+    assert partition_cost(np.zeros(3, dtype=int), np.ones((3, 2))) == pytest.approx(0.0, abs=1e-12)
