@@ -5,7 +5,9 @@ Submodules (import them directly; this package imports nothing on its own so tha
 
 * :mod:`torchakvf.evaluate.metrics`     - the benchmark's four segmentation metrics
 * :mod:`torchakvf.evaluate.psb`         - PSB data set access (meshes, human segmentations)
-* :mod:`torchakvf.evaluate.psb_archive` - safe extraction / conversion of the official archive
+* :mod:`torchakvf.evaluate.archive`     - safe extraction of untrusted zip / tar archives
+* :mod:`torchakvf.evaluate.psb_archive` - preparing the PSB from its official archive (file or URL):
+  conversion of the benchmark's layout into ours
 * :mod:`torchakvf.evaluate.harness`     - ``evaluate_psb``: plan, predict, score, report
   (:mod:`~torchakvf.evaluate.plan`, :mod:`~torchakvf.evaluate.predict`,
   :mod:`~torchakvf.evaluate.score`, :mod:`~torchakvf.evaluate.report`)

@@ -1,0 +1,28 @@
+"""Headless pictures of segmentations: a small numpy z-buffer rasterizer shown with matplotlib's
+Agg backend (no display, no OpenGL, no GPU).
+
+One job a module:
+
+* :mod:`~torchakvf.io.render.camera`  - framing: principal axes, the view showing the largest
+  projected area, upright and from the side the area lies toward (:func:`best_view`);
+* :mod:`~torchakvf.io.render.raster`  - the supersampled z-buffer rasterizer, flat two-light
+  shading, silhouette and part-border lines (:func:`render_view` -> :class:`Picture`);
+* :mod:`~torchakvf.io.render.flow`    - each part's symmetry generator as streamlines on that
+  part only (:func:`generator_streamlines`), or arrows;
+* :mod:`~torchakvf.io.render.figures` - the PNG files: one mesh in one or two views
+  (:func:`render_png`), a grid of meshes (:func:`contact_sheet`), streamlines drawn where visible.
+
+Every name is importable from ``torchakvf.io.render`` as before the split.
+"""
+from .camera import View, best_view, face_geometry, opposite_view, principal_axes, projected_area, view_aspect
+from .figures import DEFAULT_PIXELS, FLOW_COLOR, contact_sheet, new_figure, render_png, save_figure
+from .flow import generator_arrows, generator_streamlines
+from .raster import FILL_LIGHT, KEY_LIGHT, SUPERSAMPLE, Picture, rasterize, render_view, shade_faces
+
+# the names these helpers had before they were public (torchakvf.io.render was one module)
+_aspect, _figure, _save, _face_geometry = view_aspect, new_figure, save_figure, face_geometry
+
+__all__ = ["render_png", "contact_sheet", "generator_streamlines", "generator_arrows", "best_view",
+           "principal_axes", "projected_area", "render_view", "rasterize", "View", "Picture",
+           "DEFAULT_PIXELS", "opposite_view", "view_aspect", "face_geometry", "shade_faces",
+           "new_figure", "save_figure", "SUPERSAMPLE", "KEY_LIGHT", "FILL_LIGHT", "FLOW_COLOR"]
