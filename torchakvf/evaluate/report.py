@@ -194,7 +194,7 @@ def _gallery_item(plan, row):
     mesh = load_mesh(plan.entry.mesh_path)
     if not (len(pred) == len(human) == mesh.n_faces):
         return None
-    return (f"{plan.mesh_id} (k={k})", mesh.vertices, mesh.faces, pred, human,
+    return (str(plan.mesh_id), mesh.vertices, mesh.faces, pred, human,
             rand_index_error(pred, human))
 
 
