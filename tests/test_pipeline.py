@@ -382,7 +382,7 @@ def test_segment_end_to_end(tmp_path, capsys):
     assert (out / "dumb.ply").exists() and not (out / "dumb.png").exists()
     rec = manifest_by_stem(out)["dumb"]
     assert rec["status"] == "ok" and set(rec["seconds"]) == {"load", "akvf", "untangle", "cluster", "write"}
-    assert rec["params"]["solver"] == "auto" and rec["params"]["method"] == "paper"
+    assert rec["params"]["solver"] == "auto" and rec["params"]["method"] == "merge"   # the defaults
     rc, stdout, _ = run_cli(["segment", str(src), "-k", "2", "--out", str(out), "--n-fields", "8",
                              "--formats", "seg,npz,ply"], capsys)
     assert rc == 0 and "1 skipped" in stdout
