@@ -22,20 +22,14 @@ from torchakvf.operators import batch_geometry, d0
 
 from torchakvf import scipy_reference as ref
 
+from threads import one_torch_thread  # noqa: F401 - autouse fixture
+
 #: "near zero" as in akvf-math.md's tables: below this, with the next eigenvalue above GAP.
 ZERO, GAP = 0.1, 5.0
 #: The paper's operator (no mesh-quality remedy): the tables and the scipy reference are its.
 PAPER = "none"
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """Small sparse problems: one intra-op thread is as fast on an idle machine and avoids
-    OpenMP spin-waiting (measured 20-40x slowdowns) when the cores are oversubscribed."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 def mesh_of(shape, name=None) -> ta.Mesh:

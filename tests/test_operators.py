@@ -2,14 +2,12 @@
 numpy/scipy reference (torchakvf/scipy_reference.py) on closed and open meshes."""
 from __future__ import annotations
 
-import importlib.util
 import math
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 import torch
-from scipy.spatial import Delaunay
 
 import torchakvf as ta
 from torchakvf import shapes
@@ -18,31 +16,10 @@ from torchakvf.operators import (angle_defect, angle_sum, batch_geometry, d0, d1
 
 from torchakvf import scipy_reference as ref
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """Small sparse problems: one intra-op thread is as fast on an idle machine and avoids
-    OpenMP spin-waiting (measured 20-40x slowdowns) when the cores are oversubscribed."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+from planar_meshes import golden_disk
+from threads import one_torch_thread  # noqa: F401 - autouse fixture
 
 
-def golden_disk(n_rings: int = 12):
-    """Unit disk from concentric rings rotated by golden-angle steps: no cocircular quads, so every
-    cotan weight is clearly positive (shapes.flat_disk has exact right angles, star1 ~ -1e-15)."""
-    pts = [np.zeros((1, 2))]
-    for r in range(1, n_rings + 1):
-        a = np.arange(6 * r) * (2 * np.pi / (6 * r)) + r * 2.399963
-        pts.append(np.c_[np.cos(a), np.sin(a)] * (r / n_rings))
-    pts = np.concatenate(pts)
-    F = Delaunay(pts).simplices.copy()
-    V = np.c_[pts, np.zeros(len(pts))]
-    P = V[F]
-    flip = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, 2] < 0
-    F[flip] = F[flip][:, ::-1]
-    return V, F
 
 
 SHAPES = {

@@ -36,14 +36,7 @@ from torchakvf.evaluate.psb_archive import ArchiveError, prepare_psb, safe_extra
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "datasets_scripts" / "prepare_psb.py"
 
-
-def psb_root() -> Path | None:
-    """The real data set: $TORCHAKVF_PSB, else <repo>/../shared/psb; None if neither exists."""
-    env = os.environ.get("TORCHAKVF_PSB")
-    for cand in ([Path(env)] if env else []) + [REPO.parent / "shared" / "psb"]:
-        if (cand / "meshes").is_dir():
-            return cand
-    return None
+from conftest import psb_root  # noqa: E402 - the one place that says where the PSB lives
 
 
 needs_psb = pytest.mark.skipif(

@@ -3,7 +3,6 @@ errors, exit codes that say whether anything failed."""
 from __future__ import annotations
 
 import errno
-import json
 import os
 import subprocess
 import sys
@@ -18,7 +17,6 @@ from torchakvf.errors import TorchAKVFError
 from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest, read_manifest_records
 from torchakvf.pipeline import outdir
 from torchakvf.pipeline.features import FeaturesTask
-from torchakvf.pipeline.inputs import discover_inputs
 from torchakvf.pipeline.runner import run_corpus
 from torchakvf.pipeline.segment_task import SegmentTask
 from faketask import FakeTask, assert_one_line_error

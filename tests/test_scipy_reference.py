@@ -4,15 +4,15 @@ The reference is the oracle for the torch implementation, so it is itself checke
 of akvf-math.md section 3 and against exact identities (rotation fields, Whitney exactness, Gauss-Bonnet).
 """
 
-import importlib.util
 import warnings
 
 import numpy as np
 import pytest
 import trimesh
-from scipy.spatial import Delaunay
 
 from torchakvf import scipy_reference as ref
+
+from planar_meshes import golden_disk
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -26,22 +26,8 @@ def ico3():
 
 
 def flat_disk(n_rings=14):
-    """Unit disk: Delaunay triangulation of concentric rings (6r points on ring r), ~1200 faces for 14 rings.
-
-    Each ring is rotated by a golden-angle multiple: aligned rings produce cocircular quads, i.e. exact right
-    angles and star1 = 0 on their diagonals.
-    """
-    pts = [np.zeros((1, 2))]
-    for r in range(1, n_rings + 1):
-        a = np.arange(6 * r) * (2 * np.pi / (6 * r)) + r * 2.399963
-        pts.append(np.c_[np.cos(a), np.sin(a)] * (r / n_rings))
-    pts = np.concatenate(pts)
-    F = Delaunay(pts).simplices.copy()
-    V = np.c_[pts, np.zeros(len(pts))]
-    P = V[F]
-    flip = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, 2] < 0
-    F[flip] = F[flip][:, ::-1]  # ccw seen from +z: consistent orientation, interior left of the boundary
-    return V, F
+    """Unit disk, ~1200 faces for 14 rings (see planar_meshes.golden_disk)."""
+    return golden_disk(n_rings)
 
 
 @pytest.fixture(scope="module")

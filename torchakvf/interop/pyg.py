@@ -10,7 +10,6 @@ features are computed once and stored with the processed dataset.
 """
 from __future__ import annotations
 
-import torch
 from torch_geometric.data import Data
 from torch_geometric.transforms import BaseTransform
 
