@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -91,6 +92,14 @@ def test_gallery_shows_prediction_beside_a_human_at_the_same_k(tiny_psb, run_by_
     np.testing.assert_array_equal(human, d.part_labels)
     np.testing.assert_array_equal(pred, P.read_seg(out / "pred" / "1" / "1_k2.seg"))
     assert err == rand_index_error(pred, d.part_labels) and 0.0 <= err < 0.05
+
+
+def test_predictions_of_another_method_are_not_resumed(tiny_psb, run_by_seg):
+    root, _ = tiny_psb
+    out, summary, _ = run_by_seg             # made with the default method, "merge"
+    assert json.loads((out / "settings.json").read_text())["prediction"]["method"] == "merge"
+    with pytest.raises(TorchAKVFError, match="method"):
+        evaluate_psb(root, out, progress=False, method="paper", **FAST)
 
 
 def test_dumbbell_two_part_human_is_matched(tiny_psb, run_by_seg):

@@ -173,7 +173,10 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     out = Path(out_dir)
     pred_settings = dict(seed=int(seed), remedy=remedy, n_fields=n_fields, k_mode=k_mode,
                          k_range=list(k_range) if auto else None, k_rule=k_rule if auto else None,
-                         default_k=int(default_k), segment_kwargs=dict(sorted(segment_kwargs.items())))
+                         default_k=int(default_k), segment_kwargs=dict(sorted(segment_kwargs.items())),
+                         # always recorded (also when left to its default): predictions of
+                         # another method, e.g. an older default, must not be resumed as these
+                         method=seg_options.method)
     settings_guard(out, pred_settings)
     run_settings = dict(psb_root=str(root), protocol=protocol, categories=categories if categories is None
                         else sorted({e.category for e in entries}), ids=ids if ids is None else
