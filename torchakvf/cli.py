@@ -48,7 +48,7 @@ def _run_demo(args) -> int:
               f"λ·area[:4]={np.round(ms.eigenvalues[:4], 3).tolist()}  generators: {gens}")
     contact_sheet(f"{args.out}/contact_sheet.png", sheet)
     print(f"wrote {len(names)} shapes ({' '.join('.' + f for f in OUTPUT_FORMATS)}) and "
-          f"contact_sheet.png to {args.out}/")
+          f"contact_sheet.png to {str(args.out).rstrip('/')}/")
     unconverged = [ms.name for ms in seg.meshes if not ms.converged]
     if unconverged:   # results are written, but flagged: the exit code says something failed
         log.error("eigensolve did not converge (residual above tolerance) on: %s", ", ".join(unconverged))
