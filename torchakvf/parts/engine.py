@@ -32,6 +32,7 @@ from .boundaries import (face_margins, isoline_face_labels, refine_along_isoline
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import part_generators
+from .concavity import dual_edges
 from .merge import MergeWeights, merge_parts, merged_distances, oversegment_k, partition_cost
 from .results import MeshSegmentation, Segmentation
 from .topology import face_adjacency
@@ -184,14 +185,17 @@ def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
 
 
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
-              opts: SegmentOptions) -> MeshSegmentation:
+              opts: SegmentOptions, mesh_cache: dict | None = None) -> MeshSegmentation:
     """Mesh b's parts from its clustering: boundaries, (ε > 0) connecting region, clean-up of
     small pieces and symmetry generators, on the input's faces.
 
     batch : the batch that was solved (``fields.batch``); km : the
     :class:`~torchakvf.cluster.spherical_kmeans.KMeansResult` of the round (with
     :func:`cluster_count` clusters for mesh b), k : mesh b's k in it.
+    mesh_cache : a dict kept for mesh b across the rounds of one solve: what depends on its
+        mesh alone (face adjacency, dual edges) is computed once, not once per k.
     """
+    cache = {} if mesh_cache is None else mesh_cache
     unt = untangled
     n_b = int(unt.n_fields[b])
     clean = batch.meshes[b]
@@ -212,7 +216,9 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         area = coarse.fine_area
     if opts.boundary == "isoline":
         labels = isoline_face_labels(clean.faces, vdist)
-    adjacency = face_adjacency(clean.faces)
+    if "adjacency" not in cache:
+        cache["adjacency"] = face_adjacency(clean.faces)
+    adjacency = cache["adjacency"]
     if opts.eps > 0:
         labels = connecting_region(labels, face_margins(clean.faces, vdist), opts.eps)
         labels = absorb_single_neighbour_regions(labels, adjacency)
@@ -222,7 +228,10 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=False)
         if merging(opts):
             over = labels
-            labels = merge_parts(over, clean.faces, clean.vertices, feats, area, k, opts.merge)
+            if "dual" not in cache:
+                cache["dual"] = dual_edges(clean.vertices, clean.faces)
+            labels = merge_parts(over, clean.faces, clean.vertices, feats, area, k, opts.merge,
+                                 dual=cache["dual"])
             vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
             # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
             cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
@@ -300,6 +309,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
     ks = check_ks(batch, ks)
     nb = len(batch)
     cache = {}
+    mesh_caches = [{} for _ in range(nb)]
     if untangled is not None:
         cache[tuple(int(v) for v in untangled.n_fields)] = untangled
     for r in range(max(len(kb) for kb in ks)):
@@ -318,8 +328,8 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
         km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
         km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed)
-        meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts) if b in active else None
-                  for b in range(nb)]
+        meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
+                  if b in active else None for b in range(nb)]
         t2 = time.perf_counter()
         yield KRound(ks=round_ks, active=active, meshes=meshes, untangled=unt,
                      seconds={"untangle": t1 - t0, "cluster": t2 - t1})
