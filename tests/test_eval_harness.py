@@ -102,6 +102,16 @@ def test_predictions_of_another_method_are_not_resumed(tiny_psb, run_by_seg):
         evaluate_psb(root, out, progress=False, method="paper", **FAST)
 
 
+def test_merge_weights_are_recorded_in_the_settings(tiny_psb, tmp_path):
+    from torchakvf.parts.merge import MergeWeights
+
+    root, _ = tiny_psb
+    evaluate_psb(root, tmp_path, progress=False, metrics="rand", plot=False, ids="1",
+                 merge=MergeWeights(concavity=8.0), **FAST)
+    rec = json.loads((tmp_path / "settings.json").read_text())["prediction"]["segment_kwargs"]
+    assert rec["merge"] == {"symmetry": 1.0, "concavity": 8.0, "size": 0.0, "ratio": 2.0}
+
+
 def test_dumbbell_two_part_human_is_matched(tiny_psb, run_by_seg):
     root, d = tiny_psb
     out, summary, _ = run_by_seg

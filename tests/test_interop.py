@@ -49,7 +49,8 @@ def test_pyg_transform_round_trip():
     face = torch.tensor(s.faces.T.copy(), dtype=torch.long)
     data = Data(pos=pos.clone(), face=face.clone(), y=torch.tensor([3]))
     out = AKVFFeatures(n=N, raw_norms=True)(data)
-    # untouched inputs, new attributes with PyG shapes, on pos's dtype
+    # untouched inputs (the caller's Data gets no new attributes), new attributes with PyG shapes
+    assert out is not data and not hasattr(data, "akvf_face_features")
     assert torch.equal(out.pos, pos) and torch.equal(out.face, face) and int(out.y) == 3
     assert out.akvf_face_features.shape == (len(s.faces), N)
     assert out.akvf_face_features.dtype == torch.float32

@@ -85,7 +85,9 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     # iteration that changes nothing): the fixed point reached, and so the labels, is a float64
     # one, whatever round-off the float32 similarities had on this BLAS, thread count or padding.
     phases = [iteration_dtype] if iteration_dtype == torch.float64 else [iteration_dtype, torch.float64]
+    sim_buf = x_it = None
     for phase in phases:
+        sim_buf = x_it = None   # free the previous phase's buffers before this phase allocates its own
         active = torch.ones(nb, r, dtype=torch.bool, device=dev)
         # The similarities [B, N, R·k] are the largest array (260 MB at k = 81 on a 20k-face
         # mesh): one buffer for every iteration, since allocating it afresh costs as much as the GEMM.

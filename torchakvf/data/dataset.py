@@ -18,7 +18,7 @@ import torch
 from torch.utils.data import Dataset
 
 from ..errors import TorchAKVFError
-from ..io.manifest import read_manifest
+from ..io.manifest import MANIFEST, read_manifest
 from ..mesh.batch import owner_index
 
 #: Per-face arrays of a feature file, packed along faces by :func:`collate_packed`.
@@ -96,8 +96,8 @@ class FeatureDataset(Dataset):
         self.files = self._list_files()
 
     def _list_files(self) -> list[Path]:
-        last = read_manifest(self.root)
-        if last:
+        if (self.root / MANIFEST).exists():   # a manifest, even one with only torn lines, decides
+            last = read_manifest(self.root)
             stems = sorted({r["stem"] for r in last.values()
                             if r.get("status") == "ok" and r.get("task", "features") == "features"})
             files = [self.root / f"{s}.npz" for s in stems]

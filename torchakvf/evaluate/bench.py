@@ -47,7 +47,6 @@ and ``<out>/report.md`` (:mod:`torchakvf.evaluate.bench_report`); the runs thems
 (``unconverged``).
 """
 from __future__ import annotations
-from __future__ import annotations
 
 import logging
 import shutil

@@ -15,10 +15,10 @@ import numpy as np
 
 from .. import shapes
 from ..io import load_mesh
-from ..io.outputs import write_seg
+from ..io.outputs import OutputSpaceError, write_seg
 from ..mesh import Mesh, MeshBatch, clean_mesh
 from ..parts.engine import SegmentOptions, segment_each_k
-from ..pipeline.parallel import map_batches
+from ..pipeline.parallel import error_text, is_programming_error, map_batches
 from ..progress import progress
 from .plan import PredictionPlan, make_batches, solved_face_counts
 from .predict import PredictSettings, predict_in_worker
@@ -150,7 +150,7 @@ def run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: st
     solved = solved_face_counts(faces_of, segment_kwargs.get("coarse_faces"))
     settings = predict_settings(device, seed, remedy, n_fields, segment_kwargs)
     for res in map_batches(make_batches(order, solved, int(batch_faces)), predict_in_worker,
-                           (settings,), workers=workers):
+                           (settings,), workers=workers, fatal=(OutputSpaceError,)):
         batch = res.batch
         if res.split:
             log.warning("bench %s: batch of %d meshes failed (%s); retrying them one by one",
@@ -248,8 +248,10 @@ def run_scipy(ref, meshes, work: Path, *, seed: int, n_akvf: int) -> dict:
             _scipy_segment_mesh(ref, m, pred_dir, seed, n_akvf, mine, by_k)
         except KeyboardInterrupt:
             raise
-        except Exception as exc:  # noqa: BLE001
-            run["failed"][m.mesh_id] = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:300]
+        except Exception as exc:  # noqa: BLE001 - a bad mesh fails alone; a bug surfaces
+            if is_programming_error(exc):
+                raise
+            run["failed"][m.mesh_id] = error_text(exc)
             log.warning("bench %s: mesh %d failed: %s", name, m.mesh_id, run["failed"][m.mesh_id])
         dt = time.perf_counter() - t0
         for key, val in mine.items():

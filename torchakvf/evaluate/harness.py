@@ -55,6 +55,7 @@ the time spent scoring it in this run.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -63,7 +64,7 @@ import numpy as np
 
 from ..errors import TorchAKVFError
 from ..fields.akvf import SOLVERS
-from ..io.outputs import atomic_write_bytes
+from ..io.outputs import OutputSpaceError, atomic_write_bytes
 from ..operators import REMEDIES
 from ..parts.engine import DEFAULT_REMEDY, SegmentOptions
 from ..pipeline.parallel import map_batches
@@ -173,7 +174,9 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     out = Path(out_dir)
     pred_settings = dict(seed=int(seed), remedy=remedy, n_fields=n_fields, k_mode=k_mode,
                          k_range=list(k_range) if auto else None, k_rule=k_rule if auto else None,
-                         default_k=int(default_k), segment_kwargs=dict(sorted(segment_kwargs.items())),
+                         default_k=int(default_k),
+                         segment_kwargs={k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
+                                         for k, v in sorted(segment_kwargs.items())},
                          # always recorded (also when left to its default): predictions of
                          # another method, e.g. an older default, must not be resumed as these
                          method=seg_options.method)
@@ -235,8 +238,9 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
                                coarse_faces=segment_kwargs.get("coarse_faces"), options=seg_options,
                                device=str(device))
     n_batch = 0
+    # A full output disk ends the run (as in the corpus runner) instead of failing every mesh.
     for res in map_batches(batches, predict_in_worker, (settings,),
-                           workers=1 if workers is None else int(workers)):
+                           workers=1 if workers is None else int(workers), fatal=(OutputSpaceError,)):
         batch = res.batch
         if res.split:
             tell(f"a batch failed ({res.error}); retrying its {len(batch)} meshes one by one")

@@ -142,7 +142,8 @@ def _scan_and_write(batch, fields, settings: PredictSettings, costs: list) -> li
     scan = scan_k(fields, settings.k_range, rule=settings.k_rule, seed=o.seed, remedy=o.remedy,
                   n_fields=settings.n_fields, keep=True, eps=o.eps, solver=o.solver, method=o.method,
                   kmeans_restarts=o.kmeans_restarts, untangle_restarts=o.untangle_restarts,
-                  boundary=o.boundary, min_part_fraction=o.min_part_fraction, refine=o.refine)
+                  boundary=o.boundary, min_part_fraction=o.min_part_fraction, refine=o.refine,
+                  merge=o.merge)
     extra = []
     for b, p in enumerate(batch):
         k = scan.chosen[b]

@@ -10,6 +10,8 @@ features are computed once and stored with the processed dataset.
 """
 from __future__ import annotations
 
+import copy
+
 from torch_geometric.data import Data
 from torch_geometric.transforms import BaseTransform
 
@@ -61,8 +63,10 @@ class AKVFFeatures(BaseTransform):
             data.akvf_norms = as_tensor_like(ff.akvf_norms, pos)
         return data
 
-    def __call__(self, data: Data) -> Data:      # torch_geometric < 2.4 has no forward()
-        return self.forward(data)
+    def __call__(self, data: Data) -> Data:
+        # A shallow copy, as BaseTransform.__call__ does in torch_geometric >= 2.4 (older ones
+        # have no forward()): the caller's Data gets no new attributes.
+        return self.forward(copy.copy(data))
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(n={self.n}, coarse_faces={self.coarse_faces})"

@@ -22,7 +22,8 @@ class MeshSegmentation:
         localized on it
     refined : the mesh cut along the part boundaries (cleaned-mesh vertices, full resolution),
         or None
-    cost : spherical k-means cost Σ(1 - cos) of the clustering kept
+    cost : spherical k-means cost Σ(1 - cos) of the clustering kept; with method "merge", that of
+        the merged parts (:func:`~torchakvf.parts.merge.partition_cost`, in solved-mesh faces)
     converged : whether every eigenpair of the mesh's AKVF solve reached the solve's residual
         tolerance; a False result is usable but not the converged answer (flag it, do not use it
         silently)
