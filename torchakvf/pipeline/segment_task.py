@@ -13,8 +13,7 @@ from pathlib import Path
 from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
-from ..mesh.batch import mesh_edges
-from ..fields.akvf import SOLVERS
+from .batches import require_edges
 from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, default_n_fields,
                             segment_each_k)
 
@@ -40,9 +39,8 @@ class SegmentTask:
                  method: str = DEFAULT_METHOD):
         self.k, self.eps, self.seed = int(k), float(eps), int(seed)
         self.solver, self.method = str(solver), str(method)
-        if self.solver not in SOLVERS:
-            raise ParameterError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
-        SegmentOptions(eps=self.eps, method=self.method)   # one-line errors before any work
+        # one-line errors before any work
+        SegmentOptions(eps=self.eps, solver=self.solver, method=self.method)
         # None: segment's own choice (2k in [16, 32], moved off degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
         self.n_fields = int(n_fields) if n_fields is not None else None
@@ -68,10 +66,7 @@ class SegmentTask:
         n_faces = len(item.clean.faces)
         if self.k > n_faces:
             raise ParameterError(f"{item.path}: -k {self.k} is larger than the mesh's {n_faces} faces")
-        n_edges = len(mesh_edges(item.clean.faces)[0])
-        if self.n_akvf > n_edges:
-            raise ParameterError(f"{item.path}: {self.n_akvf} fields needed but the mesh has only "
-                                 f"{n_edges} edges")
+        require_edges(item, self.n_akvf, f"{self.n_akvf} fields needed")
 
     def process(self, items, device):
         t0 = time.perf_counter()
