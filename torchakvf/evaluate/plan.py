@@ -18,6 +18,7 @@ from ..errors import MeshError, ParameterError, TorchAKVFError
 from ..io import load_mesh, peek_face_count
 from ..mesh.coarse import DECIMATE_ABOVE
 from ..pipeline.runner import default_batch_faces
+from ..pipeline.batches import cut_by_budget
 from . import psb as P
 
 PROTOCOLS = ("by-segmentation", "by-model")
@@ -258,14 +259,4 @@ def solved_face_counts(faces_of: dict, coarse_faces) -> dict:
 def make_batches(plans, faces_of: dict, budget: int) -> list:
     """Consecutive plans grouped into batches of at most ``budget`` faces (``faces_of``: by
     mesh id); a mesh larger than the budget is a batch alone."""
-    batches, cur, cur_faces = [], [], 0
-    for p in plans:
-        f = faces_of[p.mesh_id]
-        if cur and cur_faces + f > budget:
-            batches.append(cur)
-            cur, cur_faces = [], 0
-        cur.append(p)
-        cur_faces += f
-    if cur:
-        batches.append(cur)
-    return batches
+    return cut_by_budget(plans, lambda p: faces_of[p.mesh_id], budget)

@@ -52,22 +52,28 @@ class Item:
         return self.faces if self.faces is not None else 0
 
 
-def plan_batches(items: Sequence[Item], batch_faces: int) -> list[list[Item]]:
-    """Sort by face count (then path) and cut into batches under ``batch_faces`` faces;
-    a mesh above the budget is a batch alone."""
-    order = sorted(items, key=lambda it: (it.cost, it.key))
-    batches: list[list[Item]] = []
-    cur: list[Item] = []
+def cut_by_budget(items: Sequence, cost, budget: int) -> list[list]:
+    """Consecutive ``items`` grouped into batches of at most ``budget`` (``cost(item)`` each, in
+    faces); an item above the budget is a batch alone. The order is kept."""
+    batches: list[list] = []
+    cur: list = []
     total = 0
-    for it in order:
-        if cur and total + it.cost > batch_faces:
+    for it in items:
+        c = cost(it)
+        if cur and total + c > budget:
             batches.append(cur)
             cur, total = [], 0
         cur.append(it)
-        total += it.cost
+        total += c
     if cur:
         batches.append(cur)
     return batches
+
+
+def plan_batches(items: Sequence[Item], batch_faces: int) -> list[list[Item]]:
+    """Sort by face count (then path) and cut into batches under ``batch_faces`` faces;
+    a mesh above the budget is a batch alone."""
+    return cut_by_budget(sorted(items, key=lambda it: (it.cost, it.key)), lambda it: it.cost, batch_faces)
 
 
 def base_record(item: Item, task, seed: int) -> dict:
