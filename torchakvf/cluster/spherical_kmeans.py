@@ -37,7 +37,8 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     x : [B, N_max, d] padded feature rows (normalized here); mask : [B, N_max] bool
     k : int or sequence of B ints (each 1 <= k_b <= number of rows of mesh b)
     restarts : independent k-means++ starts per mesh; the lowest cost is kept
-    seed : each mesh's random draws come from ``torch.Generator().manual_seed(seed)`` alone
+    seed : each mesh's random draws come from ``torch.Generator().manual_seed(seed)`` alone, so
+        a mesh gets the same clustering in any batch (with any other meshes and k's)
     weights : optional [B, N_max] row weights of the cost (e.g. face areas); default 1 per row
     iteration_dtype : float type of the similarities [B, N, R·k] of the Lloyd iterations (the
         largest products). With float32, Lloyd iterations go on in float64 from where the
@@ -60,9 +61,12 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     kvec = torch.tensor(ks, device=dev)
     center_ok = torch.arange(k_max, device=dev)[None, :] < kvec[:, None]          # [B, k_max]
 
-    # Uniform draws for seeding, per mesh from its own generator.
-    draws = torch.stack([torch.rand(r, k_max, generator=torch.Generator().manual_seed(seed), dtype=dt)
-                         for _ in range(nb)]).to(dev)                             # [B, R, k_max]
+    # Uniform draws for seeding, per mesh from its own generator and of its own k (padded), so a
+    # mesh's clustering does not depend on the k's of the meshes beside it in the batch.
+    draws = torch.zeros(nb, r, k_max, dtype=dt)
+    for b in range(nb):
+        draws[b, :, :ks[b]] = torch.rand(r, ks[b], generator=torch.Generator().manual_seed(seed), dtype=dt)
+    draws = draws.to(dev)                                                          # [B, R, k_max]
     centers = _kmeanspp(x, w, draws, center_ok)                                    # [B, R, k_max, d]
 
     if dev.type == "cpu":
