@@ -125,11 +125,10 @@ def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = 8, seed:
 
     A mesh's rotation depends on its own fields, n_b and the seed alone, so a caller can keep
     them per (mesh, n) and untangle only the meshes whose n is new (the engine's rounds do).
-    The scaled forms are padded to the whole batch's largest edge count whichever meshes are
-    asked for, so the products, and the bits of the answer, do not depend on the selection.
-    On CPU each mesh iterates alone: batched, every live mesh computes as many restarts as the
-    slowest one still has (measured 1.4x slower for 5 PSB meshes at n = 16); on other devices
-    meshes sharing n_b run as one batch.
+    On CPU each mesh iterates alone on its own edges: batched, every live mesh computes as many
+    restarts as the slowest one still has (measured 1.4x slower for 5 PSB meshes at n = 16), and
+    without the batch's padding rows the bits are those of the mesh untangled by itself. On other
+    devices the meshes sharing n_b run as one batch, padded to the batch's largest edge count.
     """
     batch = fields.batch
     if not ns:
@@ -139,15 +138,17 @@ def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = 8, seed:
     phi = fields.forms[:, :n_max].to(torch.float64)
     y = phi * fields.system.mass.to(torch.float64).sqrt()[:, None]
     ypad, _ = pad_packed(y, batch.edge_ptr)                          # [B, Emax, n_max]
+    edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
     if dev.type == "cpu":
-        groups = [(ns[b], [b]) for b in sorted(ns)]
+        groups = [(ns[b], [b], edges[b]) for b in sorted(ns)]
     else:
-        groups = [(g, [b for b in sorted(ns) if ns[b] == g]) for g in sorted(set(ns.values()))]
+        groups = [(g, [b for b in sorted(ns) if ns[b] == g], ypad.shape[1]) for g in sorted(set(ns.values()))]
     out = {}
-    for group_n, members in groups:
+    for group_n, members, rows in groups:
         # Meshes sharing n run together; fields beyond a mesh's n are not part of its problem.
         sel = torch.tensor(members, device=dev)
-        ag, sg, ig, scores = _orthomax(ypad[sel][..., :group_n], restarts, seed, tol, max_iter, iteration_dtype)
+        ag, sg, ig, scores = _orthomax(ypad[sel][:, :rows, :group_n], restarts, seed, tol, max_iter,
+                                       iteration_dtype)
         for j, b in enumerate(members):
             out[b] = MeshRotation(rotation=ag[j], score=float(sg[j]), iterations=int(ig[j]),
                                   restart_scores=scores[j])
