@@ -19,12 +19,14 @@ _NEG = -4.0   # below any cosine: marks centers that do not exist for a mesh
 class KMeansResult:
     """labels : [B, N_max] per padded row (rows as given to :func:`spherical_kmeans`, -1 on
     padding); centers : [B, k_max, d] unit vectors (0 when unused); cost : [B] Σ w (1 - cos) of
-    the restart kept; iterations : [B] Lloyd iterations (float32 and float64 phases together)."""
+    the restart kept; iterations : [B] Lloyd iterations (float32 and float64 phases together);
+    restart_costs : [B, R] the cost every restart ended at (the kept one is the lowest)."""
 
     labels: torch.Tensor
     centers: torch.Tensor
     cost: torch.Tensor
     iterations: torch.Tensor
+    restart_costs: torch.Tensor | None = None
 
 
 def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 20,
@@ -35,7 +37,8 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     x : [B, N_max, d] padded feature rows (normalized here); mask : [B, N_max] bool
     k : int or sequence of B ints (each 1 <= k_b <= number of rows of mesh b)
     restarts : independent k-means++ starts per mesh; the lowest cost is kept
-    seed : each mesh's random draws come from ``torch.Generator().manual_seed(seed)`` alone
+    seed : each mesh's random draws come from ``torch.Generator().manual_seed(seed)`` alone, so
+        a mesh gets the same clustering in any batch (with any other meshes and k's)
     weights : optional [B, N_max] row weights of the cost (e.g. face areas); default 1 per row
     iteration_dtype : float type of the similarities [B, N, R·k] of the Lloyd iterations (the
         largest products). With float32, Lloyd iterations go on in float64 from where the
@@ -57,17 +60,57 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     w = (mask.to(dt) if weights is None else weights.to(dt) * mask)
     kvec = torch.tensor(ks, device=dev)
     center_ok = torch.arange(k_max, device=dev)[None, :] < kvec[:, None]          # [B, k_max]
-    # The R restarts' centers sit side by side, [B, R·k_max, d], so one GEMM against the rows
-    # serves every restart and the rows are never copied R times (R x the features' memory).
-    absent = ~center_ok[:, None, None, :]                                          # [B, 1, 1, k_max]
 
-    # Uniform draws for seeding, per mesh from its own generator.
-    draws = torch.stack([torch.rand(r, k_max, generator=torch.Generator().manual_seed(seed), dtype=dt)
-                         for _ in range(nb)]).to(dev)                             # [B, R, k_max]
+    # Uniform draws for seeding, per mesh from its own generator and of its own k (padded), so a
+    # mesh's clustering does not depend on the k's of the meshes beside it in the batch.
+    draws = torch.zeros(nb, r, k_max, dtype=dt)
+    for b in range(nb):
+        draws[b, :, :ks[b]] = torch.rand(r, ks[b], generator=torch.Generator().manual_seed(seed), dtype=dt)
+    draws = draws.to(dev)                                                          # [B, R, k_max]
     centers = _kmeanspp(x, w, draws, center_ok)                                    # [B, R, k_max, d]
 
-    ragged = bool((kvec != k_max).any())
+    if dev.type == "cpu":
+        # On CPU each mesh iterates alone with its own k: no padded centers (computed, masked and
+        # searched by max on every iteration when the k's differ), and no mesh computes as many
+        # restarts as the slowest one in the batch still has. The draws, and so the answer, are
+        # those of the batched run.
+        # Rows past a mesh's last one are padding (weight 0; the same label on every iteration).
+        ends = [int(torch.nonzero(mask[b]).max()) + 1 for b in range(nb)]
+        parts = [_lloyd(x[b:b + 1, :ends[b]], w[b:b + 1, :ends[b]], centers[b:b + 1, :, :ks[b]], max_iter,
+                        iteration_dtype) for b in range(nb)]
+        labels = torch.full((nb, n_max, r), -1, dtype=torch.long, device=dev)
+        cost = torch.cat([p[1] for p in parts])
+        iters = torch.cat([p[2] for p in parts])
+        centers = torch.zeros(nb, r, k_max, d, dtype=dt, device=dev)
+        for b, p in enumerate(parts):
+            labels[b, :ends[b]] = p[0][0]
+            centers[b, :, :ks[b]] = p[3]
+    else:
+        labels, cost, iters, centers = _lloyd(x, w, centers, max_iter, iteration_dtype, center_ok)
+    pick = cost.argmin(dim=1)
+    ar = torch.arange(nb, device=dev)
+    labels = labels[ar, :, pick].masked_fill(~mask, -1)
+    return KMeansResult(labels=labels, centers=centers[ar, pick] * center_ok[..., None],
+                        cost=cost.min(dim=1).values, iterations=iters[ar, pick], restart_costs=cost)
 
+
+def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+           iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
+    """Lloyd iterations of every restart from seeded centers, then the final float64 assignment.
+
+    x : [B, N, d] unit rows (0 on padding); w : [B, N] weights (0 on padding)
+    centers : [B, R, k, d] seeds; center_ok : [B, k] which centers exist (None: all of them)
+    Returns labels [B, N, R], cost [B, R] = Σ w (1 - cos), iterations [B, R], centers [B, R, k, d].
+    """
+    nb, n_max, d = x.shape
+    r, k_max = centers.shape[1], centers.shape[2]
+    dev, dt = x.device, x.dtype
+    centers = centers.clone()
+    ragged = center_ok is not None and not bool(center_ok.all())
+    absent = None if center_ok is None else ~center_ok[:, None, None, :]          # [B, 1, 1, k]
+
+    # The R restarts' centers sit side by side, [B, R·k, d], so one GEMM against the rows
+    # serves every restart and the rows are never copied R times (R x the features' memory).
     def assign(xb, cb, absent_b, out=None):
         """Labels [b, N, q] and cosine to the assigned center [b, N, q] for centers [b, q, k, d]."""
         m, q = cb.shape[:2]
@@ -108,7 +151,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
             valid = torch.gather(act, 1, slot)                                          # [m, q]
             rows = torch.arange(m, device=dev)[:, None]
             cl = centers[live][rows, slot]                                              # [m, q, k, d]
-            new = assign(x_it[live], cl, absent[live], sim_buf)[1]                     # [m, N, q]
+            new = assign(x_it[live], cl, None if absent is None else absent[live], sim_buf)[1]                     # [m, N, q]
             lab = labels[live]
             idx = slot[:, None, :].expand(m, n_max, q)
             old = torch.gather(lab, 2, idx)
@@ -138,11 +181,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     for j in range(r):
         best_sim, labels[:, :, j] = (t[..., 0] for t in assign(x, centers[:, j:j + 1], absent))
         cost[:, j] = ((1 - best_sim) * w).sum(1)                                    # [B]
-    pick = cost.argmin(dim=1)
-    ar = torch.arange(nb, device=dev)
-    labels = labels[ar, :, pick].masked_fill(~mask, -1)
-    return KMeansResult(labels=labels, centers=centers[ar, pick] * center_ok[..., None],
-                        cost=cost.min(dim=1).values, iterations=iters[ar, pick])
+    return labels, cost, iters, centers
 
 
 def _kmeanspp(x: torch.Tensor, w: torch.Tensor, u: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:

@@ -5,8 +5,8 @@ automatic-k scan, the bench) goes through here.
     segment_each_k(meshes, ks)      one solve, every k of every mesh   -> :class:`SegmentEachK`
       solve_akvfs                   the AKVFs of the batch, once
       segment_rounds                round r: every mesh at its r-th k  -> :class:`KRound` s
-        field_counts                fields untangled per mesh for those k (one untangling per
-                                    distinct tuple of counts, shared by the rounds that agree)
+        field_counts                fields untangled per mesh for those k (each mesh untangled
+                                    once per distinct count, only the meshes whose count is new)
         spherical_kmeans            all meshes of the round at once
         cut_parts                   ONE mesh: boundaries, clean-up, (method "merge") merging
                                     of adjacent parts, generators -> MeshSegmentation
@@ -24,7 +24,7 @@ import numpy as np
 from ..cluster import spherical_kmeans
 from ..errors import ParameterError
 from ..fields.akvf import SOLVERS, AKVFResult, akvf, akvf_falling_back, as_batch
-from ..fields.untangle import UntangledFields, untangle
+from ..fields.untangle import UntangledFields, orthomax_rotations, untangled_from_rotations
 from ..mesh import MeshBatch
 from ..mesh.batch import pad_packed
 from ..operators.killing import DEFAULT_REMEDY
@@ -44,8 +44,15 @@ BOUNDARIES = ("isoline", "faces")
 METHODS = ("paper", "merge")
 #: Chosen by 3-fold cross-validation across PSB categories (benchmarks/results/quality_cv.md).
 DEFAULT_METHOD = "merge"
-#: Random orthogonal starts of Algorithm 1 besides the identity (the best is kept).
-UNTANGLE_RESTARTS = 8
+#: Random orthogonal starts of Algorithm 1 besides the identity (the best is kept). One: on 68
+#: (mesh, n) problems of 30 PSB meshes the identity and the first random start reach the best of
+#: 1 + 8 starts to 1.7e-5 of the objective on average (the optima are near-equal); the PSB
+#: score did not get worse with fewer (benchmarks/results/segment_profile.md; it was 8).
+UNTANGLE_RESTARTS = 1
+#: k-means++ restarts per k (the lowest cost is kept). Three: the cost's winner among 20 is
+#: spread evenly over the restart indices (many near-equal local optima), and on 30 PSB meshes
+#: 3 restarts scored no worse than 20 (benchmarks/results/segment_profile.md; it was 20).
+KMEANS_RESTARTS = 3
 #: Eigenvalues closer than this (relative) belong to one cluster, which N must not split.
 CLUSTER_GAP = 1e-2
 #: AKVFs computed beyond the default N when the engine solves them itself, so that a degenerate
@@ -138,7 +145,7 @@ class SegmentOptions:
     solver: str = "auto"
     method: str = DEFAULT_METHOD
     merge: MergeWeights = field(default_factory=MergeWeights)
-    kmeans_restarts: int = 20
+    kmeans_restarts: int = KMEANS_RESTARTS
     untangle_restarts: int = UNTANGLE_RESTARTS
     boundary: str = "isoline"
     min_part_fraction: float = 0.01
@@ -308,21 +315,23 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
     batch = fields.batch
     ks = check_ks(batch, ks)
     nb = len(batch)
-    cache = {}
+    rotations = {}      # (mesh, n) -> MeshRotation: a mesh is untangled once per field count
+    assembled = {}      # tuple of per-mesh counts -> UntangledFields shared by the rounds that agree
     mesh_caches = [{} for _ in range(nb)]
     if untangled is not None:
-        cache[tuple(int(v) for v in untangled.n_fields)] = untangled
+        assembled[tuple(int(v) for v in untangled.n_fields)] = untangled
     for r in range(max(len(kb) for kb in ks)):
         t0 = time.perf_counter()
         active = [b for b in range(nb) if r < len(ks[b])]
         round_ks = [ks[b][r] if r < len(ks[b]) else PAD_K for b in range(nb)]
-        ns = tuple(field_counts(fields, round_ks, n_fields))
-        if untangled is not None and (untangled.source is not fields or ns not in cache):
-            raise ParameterError(f"the untangled fields given are for n = {list(untangled.n_fields)} "
-                                 f"of other AKVFs; these k need n = {list(ns)} of the AKVFs passed")
-        if ns not in cache:
-            cache[ns] = untangle(fields, n=list(ns), seed=opts.seed, restarts=opts.untangle_restarts)
-        unt = cache[ns]
+        ns = field_counts(fields, round_ks, n_fields)
+        if untangled is not None:
+            if untangled.source is not fields or any(int(untangled.n_fields[b]) != ns[b] for b in active):
+                raise ParameterError(f"the untangled fields given are for n = {list(untangled.n_fields)} "
+                                     f"of other AKVFs; these k need n = {list(ns)} of the AKVFs passed")
+            unt = untangled
+        else:
+            unt = _round_untangled(fields, ns, active, rotations, assembled, opts)
         t1 = time.perf_counter()
         xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
         n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
@@ -333,6 +342,31 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         t2 = time.perf_counter()
         yield KRound(ks=round_ks, active=active, meshes=meshes, untangled=unt,
                      seconds={"untangle": t1 - t0, "cluster": t2 - t1})
+
+
+def _round_untangled(fields: AKVFResult, ns: list, active: list, rotations: dict, assembled: dict,
+                     opts: SegmentOptions) -> UntangledFields:
+    """The untangled fields of one round: each active mesh b at ns[b], from ``rotations``
+    {(b, n): MeshRotation} where known, the others untangled now (together) and added to it.
+
+    A mesh sitting out the round is clustered with PAD_K and not cut, so any of its known
+    rotations serves (the smallest n, which keeps the round's arrays narrow); only a mesh with
+    none yet is untangled, at its ns[b]. A mesh's rotation depends on its own fields, n and the
+    seed alone (:func:`~torchakvf.fields.untangle.orthomax_rotations`), so this gives the bits
+    an untangling of the whole batch at these counts gives.
+    """
+    counts = list(ns)
+    for b in range(len(ns)):
+        known = sorted(n for (mb, n) in rotations if mb == b)
+        if b not in active and known and (b, ns[b]) not in rotations:
+            counts[b] = known[0]
+    key = tuple(counts)
+    if key not in assembled:
+        missing = {b: counts[b] for b in range(len(counts)) if (b, counts[b]) not in rotations}
+        new = orthomax_rotations(fields, missing, seed=opts.seed, restarts=opts.untangle_restarts)
+        rotations.update({(b, counts[b]): rot for b, rot in new.items()})
+        assembled[key] = untangled_from_rotations(fields, [rotations[(b, counts[b])] for b in range(len(counts))])
+    return assembled[key]
 
 
 @dataclass
@@ -365,7 +399,7 @@ class SegmentEachK:
 def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None,
                    remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = DEFAULT_METHOD,
                    merge: MergeWeights | None = None,
-                   kmeans_restarts: int = 20, untangle_restarts: int = UNTANGLE_RESTARTS,
+                   kmeans_restarts: int = KMEANS_RESTARTS, untangle_restarts: int = UNTANGLE_RESTARTS,
                    boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
                    coarse_faces: int | None = None, device=None, n_akvf: int | None = None,
                    untangled: UntangledFields | None = None) -> SegmentEachK:
@@ -410,4 +444,4 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
            "field_counts", "akvf_count", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
-           "UNTANGLE_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]
+           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]

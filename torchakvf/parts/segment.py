@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from ..fields.untangle import UntangledFields
 from .engine import (BOUNDARIES, CLUSTER_GAP, DEFAULT_METHOD, DEFAULT_REMEDY, METHODS,  # noqa: F401
-                     SPARE_FIELDS, UNTANGLE_RESTARTS, cluster_safe_n, default_n_fields,
+                     SPARE_FIELDS, UNTANGLE_RESTARTS, KMEANS_RESTARTS, cluster_safe_n, default_n_fields,
                      field_counts, per_mesh, segment_each_k)
 from .merge import MergeWeights
 from .generators import SymmetryGenerator
@@ -20,7 +20,7 @@ from .results import MeshSegmentation, Segmentation
 def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = DEFAULT_METHOD,
             merge: MergeWeights | None = None,
-            kmeans_restarts: int = 20, untangle_restarts: int = UNTANGLE_RESTARTS,
+            kmeans_restarts: int = KMEANS_RESTARTS, untangle_restarts: int = UNTANGLE_RESTARTS,
             boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
             untangled: UntangledFields | None = None, coarse_faces: int | None = None,
             device=None) -> Segmentation:

@@ -14,8 +14,8 @@ from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
 from .batches import require_edges
-from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, default_n_fields,
-                            segment_each_k)
+from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, KMEANS_RESTARTS, SPARE_FIELDS, UNTANGLE_RESTARTS,
+                            SegmentOptions, default_n_fields, segment_each_k)
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -34,8 +34,8 @@ class SegmentTask:
     stages = ("akvf", "untangle", "cluster")
 
     def __init__(self, k: int, *, eps: float = 0.0, seed: int = 0, n_fields: int | None = None,
-                 remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = 8,
-                 kmeans_restarts: int = 20, coarse_faces: int | None = None, solver: str = "auto",
+                 remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = UNTANGLE_RESTARTS,
+                 kmeans_restarts: int = KMEANS_RESTARTS, coarse_faces: int | None = None, solver: str = "auto",
                  method: str = DEFAULT_METHOD):
         self.k, self.eps, self.seed = int(k), float(eps), int(seed)
         self.solver, self.method = str(solver), str(method)

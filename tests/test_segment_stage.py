@@ -1,0 +1,112 @@
+"""The segment stage's bookkeeping (issue 13): untangling once per (mesh, field count), the
+rotations of a mesh independent of the meshes beside it, k-means independent of the batch."""
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pytest
+import torch
+
+import torchakvf as ta
+from torchakvf import shapes
+from torchakvf.cluster import spherical_kmeans
+from torchakvf.mesh.batch import pad_packed
+from torchakvf.parts import engine
+
+untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+
+
+@pytest.fixture(scope="module")
+def fields():
+    meshes = [ta.Mesh(s.vertices, s.faces, name=n) for n, s in
+              (("blobs", shapes.three_blobs(n_around=20)), ("dumbbell", shapes.BUILTIN_SHAPES["dumbbell"]()))]
+    return ta.akvf(ta.MeshBatch.from_meshes(meshes), n=24, remedy="smooth")
+
+
+def test_rotations_of_a_subset_are_the_batch_untangling_bits(fields):
+    """orthomax_rotations for one mesh gives the bits untangle gives it in the whole batch
+    (each mesh at its own n), and untangled_from_rotations rebuilds untangle's arrays exactly."""
+    ns = [16, 18]
+    whole = ta.untangle(fields, n=ns, seed=3, restarts=3)
+    rots = {}
+    for b in (1, 0):
+        rots.update(untangle_mod.orthomax_rotations(fields, {b: ns[b]}, seed=3, restarts=3))
+    for b in range(2):
+        assert torch.equal(rots[b].rotation, whole.rotation[b, :ns[b], :ns[b]].double())
+        assert rots[b].score == float(whole.score[b])
+        assert rots[b].restart_scores.shape == (4,)
+        assert rots[b].score == float(rots[b].restart_scores.max())
+        # the mesh's own edges alone (no padding rows of the batch): the same bits
+        e0, e1 = int(fields.batch.edge_ptr[b]), int(fields.batch.edge_ptr[b + 1])
+        y = fields.forms[e0:e1, :ns[b]].double() * fields.system.mass[e0:e1].double().sqrt()[:, None]
+        own = untangle_mod._orthomax(y[None], 3, 3, 1e-6, 500, torch.float32)
+        assert torch.equal(own[0][0], rots[b].rotation)
+    again = untangle_mod.untangled_from_rotations(fields, [rots[0], rots[1]])
+    for name in ("rotation", "forms", "face_vectors", "features", "energies", "score", "iterations"):
+        assert torch.equal(getattr(again, name), getattr(whole, name)), name
+    assert again.n_fields == ns
+
+
+def test_kmeans_of_a_mesh_does_not_depend_on_its_batch(fields):
+    """Mesh b clustered in a batch (other k beside it) and alone: the same labels, centers, cost."""
+    unt = ta.untangle(fields, n=16, seed=0, restarts=2)
+    x, mask = pad_packed(unt.features.double(), fields.batch.face_ptr)
+    both = spherical_kmeans(x, mask, [3, 7], restarts=6, seed=1)
+    assert both.restart_costs.shape == (2, 6)
+    assert torch.equal(both.cost, both.restart_costs.min(dim=1).values)
+    for b, k in enumerate((3, 7)):
+        alone = spherical_kmeans(x[b:b + 1], mask[b:b + 1], k, restarts=6, seed=1)
+        assert torch.equal(alone.labels[0], both.labels[b])
+        assert torch.equal(alone.cost[0], both.cost[b])
+        assert torch.equal(alone.centers[0, :k], both.centers[b, :k])
+        assert bool((both.centers[b, k:] == 0).all())
+    # the batched (padded-center) path that runs off CPU gives the same answer as the per-mesh one
+    km = importlib.import_module("torchakvf.cluster.spherical_kmeans")
+    xn = torch.nn.functional.normalize(x, dim=-1) * mask[..., None]
+    w = mask.double()
+    ok = torch.arange(7)[None, :] < torch.tensor([3, 7])[:, None]
+    draws = torch.zeros(2, 6, 7, dtype=torch.float64)
+    for b, k in enumerate((3, 7)):
+        draws[b, :, :k] = torch.rand(6, k, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    seeds = km._kmeanspp(xn, w, draws, ok)
+    labels, cost, _, _ = km._lloyd(xn, w, seeds, 100, torch.float32, ok)
+    # (padded centers and rows change the float32 GEMM's rounding, not the fixed points reached)
+    torch.testing.assert_close(cost, both.restart_costs, rtol=1e-9, atol=0)
+    pick = cost.argmin(dim=1)
+    for b in range(2):
+        agree = (labels[b, :, pick[b]][mask[b]] == both.labels[b][mask[b]]).double().mean()
+        assert agree >= 0.999, agree
+
+
+def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
+    """Rounds in which one mesh's field count changes untangle that mesh alone, each (mesh, n)
+    once, and give the labels of untangling the whole batch at every round's counts."""
+    calls = []
+    real = engine.orthomax_rotations
+
+    def spy(f, ns, **kw):
+        calls.append(dict(ns))
+        return real(f, ns, **kw)
+
+    monkeypatch.setattr(engine, "orthomax_rotations", spy)
+    ks = [[2, 3, 10, 11], [2, 3]]          # mesh 0: n = 16, 16, 20, 22; mesh 1 sits out rounds 3, 4
+    opts = engine.SegmentOptions(seed=0, refine=False, kmeans_restarts=4, untangle_restarts=2)
+    rounds = list(engine.segment_rounds(fields, ks, opts))
+    pairs = [(b, n) for c in calls for b, n in c.items()]
+    assert len(pairs) == len(set(pairs))                       # no (mesh, n) twice
+    assert {b for b, _ in pairs} == {0, 1} and sum(b == 1 for b, _ in pairs) == 1
+    assert len({id(r.untangled) for r in rounds[:2]}) == 1     # equal counts share one object
+    monkeypatch.setattr(engine, "orthomax_rotations", real)
+    for rnd in rounds:
+        ns = engine.field_counts(fields, rnd.ks)
+        unt = ta.untangle(fields, n=ns, seed=0, restarts=2)
+        x, mask = pad_packed(unt.features.double(), fields.batch.face_ptr)
+        n_faces = (fields.batch.face_ptr[1:] - fields.batch.face_ptr[:-1]).tolist()
+        km_ks = [engine.cluster_count(rnd.ks[b], n_faces[b], opts) if b in rnd.active else 1 for b in range(2)]
+        km = spherical_kmeans(x, mask, km_ks, restarts=4, seed=0)
+        for b in rnd.active:
+            assert rnd.untangled.n_fields[b] == ns[b]
+            ref = engine.cut_parts(fields.batch, fields, unt, km, b, rnd.ks[b], opts)
+            np.testing.assert_array_equal(rnd.meshes[b].labels, ref.labels)
+            assert rnd.meshes[b].cost == ref.cost
