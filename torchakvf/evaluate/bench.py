@@ -55,6 +55,7 @@ import time
 from pathlib import Path
 
 from .. import __version__
+from ..devices import resolve_device
 from ..errors import TorchAKVFError
 from ..parts.engine import DEFAULT_REMEDY
 from ..pipeline.parallel import default_workers
@@ -156,6 +157,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
         raise TorchAKVFError(f"--limit must be an integer >= 1, got {limit}")
     if int(baseline_every) < 0:
         raise TorchAKVFError(f"--baseline-every must be an integer >= 0, got {baseline_every}")
+    device = str(resolve_device(device))
     segment_kwargs = dict(segment_kwargs or {})
     workers = default_workers(device) if workers is None else int(workers)
     if batch_faces is None:
