@@ -62,6 +62,8 @@ def test_missing_psb_folder_is_one_line(tmp_path, capsys):
     ("--device", "tpu9", "--device"),
     ("--categories", "Robots", "unknown PSB category 'Robots'"),
     ("--categories", "Spring", "has no meshes"),
+    ("--budgets", "4000,lots", "--budgets must be integers >= 1"),
+    ("--budgets", "0", "--budgets must be integers >= 1"),
 ])
 def test_bad_options_are_one_line(fake_psb, tmp_path, capsys, flag, value, words):
     root, _ = fake_psb
@@ -151,3 +153,43 @@ def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys, one_t
     assert r["runs"]["batched"]["meshes_ok"] == 1 and r["selection"]["ks"] == {"1": [2, 3]}
     assert r["settings"]["segment_kwargs"]["solver"] == "lanczos"
     assert "1_2.seg" in (tmp_path / "b" / "report.md").read_text()
+
+
+def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_thread):
+    """--budgets: the same meshes once one per batch and once per budget, in one run; per
+    budget the ratio one-at-a-time seconds / batched seconds (what issue 13 asks >= 1 of)."""
+    root, n_faces = fake_psb
+    out = tmp_path / "b"
+    assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "0",
+                 "--workers", "1", "--coarse-faces", "0", "--budgets", "100000,300,300"]) == 0
+    stdout = capsys.readouterr().out
+    r = json.loads((out / "report.json").read_text())
+    assert r["settings"]["budgets"] == [300, 100000]                   # sorted, distinct
+    assert set(r["runs"]) == {"batched", "one_at_a_time", "budget_300", "budget_100000"}
+    sweep = r["budget_sweep"]
+    assert sweep["mesh_ids"] == [1, 21] and sweep["faces"] == n_faces   # every mesh: no baselines
+    one = r["runs"]["one_at_a_time"]
+    assert one["batches"] == 2 and one["batch_faces"] == 1
+    # 252 + 312 faces: a budget of 300 holds one mesh a batch, 100000 both.
+    assert [(row["budget"], row["batches"]) for row in sweep["rows"]] == [(300, 2), (100000, 1)]
+    for row in sweep["rows"]:
+        run = r["runs"][row["run"]]
+        assert run["mesh_ids"] == one["mesh_ids"] and run["meshes_ok"] == 2 and row["comparable"]
+        assert row["seconds"] == run["wall_seconds"] > 0
+        assert abs(row["ratio"] - one["wall_seconds"] / run["wall_seconds"]) < 1e-12
+        assert row["stage_ratios"]["akvf"] > 0 and row["stage_ratios"]["segment"] > 0
+    md = (out / "report.md").read_text()
+    assert "## Batched vs one at a time, by face budget" in md and "| 100,000 | 1 |" in md
+    assert "by face budget: 300: " in stdout and "100000: " in stdout
+
+
+def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path, one_thread):
+    """With baselines on, the sweep runs on their subset and reuses run one_at_a_time."""
+    root, _ = fake_psb
+    fast = dict(n_fields=16, segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
+    r = bench.run_bench(root, tmp_path / "b", baseline_every=2, budgets=[5000], workers=1, **fast)
+    assert r["budget_sweep"]["mesh_ids"] == [1] == r["runs"]["one_at_a_time"]["mesh_ids"]
+    assert r["runs"]["budget_5000"]["mesh_ids"] == [1]
+    assert r["budget_sweep"]["rows"][0]["one_at_a_time_seconds"] == r["runs"]["one_at_a_time"]["wall_seconds"]
+    r0 = bench.run_bench(root, tmp_path / "b0", baseline_every=0, workers=1, **fast)
+    assert "budget_sweep" not in r0 and r0["settings"]["budgets"] == []

@@ -35,6 +35,14 @@ faces = the face count of the input file; memory in MiB = 2**20 bytes):
   is faster): the baseline's per-mesh seconds summed over the compared meshes (for a baseline
   on several workers, its wall time split over its meshes by their seconds), divided by the wall
   seconds of run (a'); also per stage ("akvf", "segment": summed stage seconds, i.e. per core).
+* **Face budgets** (``--budgets B1,B2,...``, off by default): "batched against one at a
+  time" at several budgets, on the same meshes in the same run: the baseline subset (every
+  ``--baseline-every``-th mesh; every mesh with ``--baseline-every 0``) once one mesh per batch
+  (run (b), also run for the sweep when the baselines are off) and once per budget B (runs
+  ``budget_B``: batches of <= B solved faces, i.e. decimated faces under ``--coarse-faces``).
+  Per budget: one-at-a-time seconds / budget_B seconds (>= 1: batching at least as fast), and
+  the same per stage; a budget whose run had other failures than run (b) is flagged not
+  comparable.
 * **Workers.** Runs (a), (b), (a') predict on ``--workers`` processes (one thread each; default
   one per CPU core on CPU); the scipy baseline is one process. Decimation (``--coarse-faces``,
   default 4000) is on for every torchakvf run, as in ``torchakvf eval``.
@@ -128,13 +136,64 @@ def _compare(base: dict, ours: dict, ids: list) -> dict:
     return out
 
 
+def _check_budgets(budgets) -> list:
+    """Budgets as a sorted list of distinct ints >= 1 (a comma string or a sequence; None: [])."""
+    if budgets is None:
+        return []
+    if isinstance(budgets, str):
+        budgets = [b for b in budgets.split(",") if b.strip()]
+    out = []
+    for b in budgets:
+        try:
+            v = int(str(b).strip())
+        except ValueError:
+            raise TorchAKVFError(f"--budgets must be integers >= 1 separated by commas, got {b!r}") from None
+        if v < 1:
+            raise TorchAKVFError(f"--budgets must be integers >= 1 separated by commas, got {v}")
+        out.append(v)
+    return sorted(set(out))
+
+
+def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: Path, common: dict,
+                  notes: list) -> dict:
+    """Batched against one at a time at each face budget, on the same meshes (see the module
+    notes). Adds the runs ``budget_B`` (and ``one_at_a_time`` if the baselines did not run it)
+    to ``runs``; returns the report's ``budget_sweep``."""
+    subset = meshes[::baseline_every] if baseline_every else list(meshes)
+    if "one_at_a_time" not in runs:
+        runs["one_at_a_time"] = run_torchakvf("one_at_a_time", subset, work, batch_faces=1, **common)
+    one = runs["one_at_a_time"]
+    sweep = {"mesh_ids": [m.mesh_id for m in subset], "meshes": len(subset),
+             "faces": sum(m.faces for m in subset), "baseline_run": "one_at_a_time",
+             "ratio": "one_at_a_time seconds / budget_B seconds (>= 1: batching at least as fast)",
+             "rows": []}
+    for budget in budgets:
+        name = f"budget_{budget}"
+        run = runs[name] = run_torchakvf(name, subset, work, batch_faces=budget, **common)
+        comparable = set(run["failed"]) == set(one["failed"])
+        if not comparable:
+            notes.append(f"run {name} failed on other meshes than one_at_a_time: its ratio is not comparable")
+        row = {"budget": budget, "run": name, "batches": run["batches"],
+               "seconds": run["wall_seconds"], "one_at_a_time_seconds": one["wall_seconds"],
+               "ratio": one["wall_seconds"] / run["wall_seconds"] if run["wall_seconds"] > 0 else None,
+               "stage_ratios": {}, "comparable": comparable}
+        for stage in ("akvf", "segment"):
+            t = run["stage_seconds"][stage]
+            row["stage_ratios"][stage] = one["stage_seconds"][stage] / t if t > 0 else None
+        sweep["rows"].append(row)
+        log.info("bench: budget %d: %d batches, %.2f s; one at a time %.2f s: %.2fx", budget,
+                 run["batches"], run["wall_seconds"], one["wall_seconds"], row["ratio"] or 0.0)
+    return sweep
+
+
 # ---- the bench ----------------------------------------------------------------------------
 
 def run_bench(psb_root, out_dir, *, limit: int | None = None,
               baseline_every: int = DEFAULT_BASELINE_EVERY, device: str = "cpu", seed: int = 0,
               categories=None, batch_faces: int | None = None, remedy: str | None = None,
               n_fields: int | None = None, segment_kwargs: dict | None = None,
-              options: dict | None = None, workers: int | None = None) -> dict:
+              options: dict | None = None, workers: int | None = None,
+              budgets=None) -> dict:
     """Run the bench (see the module notes) and write ``<out>/report.json`` and ``report.md``.
 
     psb_root : folder with ``meshes/N.off[.gz]`` and ``gt/N/N_k.seg[.gz]``
@@ -150,6 +209,8 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     workers : processes of the torchakvf runs (a), (b), (a'), one thread each (None: one per
         CPU core on CPU, 1 on a GPU); the scipy baseline runs in this process
     options : the command-line options as given, recorded in the report
+    budgets : face budgets of the "batched vs one at a time" sweep (ints >= 1; None or empty:
+        no sweep), see the module notes; the report's ``budget_sweep``
 
     Returns the report as a dict (what ``report.json`` holds; ``problems``: inputs left out).
     """
@@ -165,6 +226,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     batch_faces = int(batch_faces)
     if batch_faces < 1:
         raise TorchAKVFError(f"--batch-faces must be an integer >= 1, got {batch_faces}")
+    budgets = _check_budgets(budgets)
     remedy = DEFAULT_REMEDY if remedy is None else remedy
     segment_kwargs.setdefault("refine", False)
     # The evaluation's AKVF count: the largest default field count plus the engine's spares.
@@ -180,6 +242,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     plan_seconds = time.perf_counter() - t0
     report = report_header(__version__, psb_root, out, device, seed, batch_faces, baseline_every, limit,
                      categories, remedy, n_akvf, n_fields, segment_kwargs, options)
+    report["settings"]["budgets"] = budgets
     report["selection"] = {
         "meshes": len(meshes), "faces": sum(m.faces for m in meshes),
         "predictions": sum(len(m.ks) for m in meshes),
@@ -242,6 +305,9 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
             if ref is None:
                 comp["ratios"]["scipy"] = None
             report["comparison"] = comp
+        if budgets:
+            report["budget_sweep"] = _budget_sweep(meshes, int(baseline_every), budgets, runs, work,
+                                                   common, notes)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     bounds = [r["total_rss_bound_mib"] for r in report["runs"].values() if r.get("total_rss_bound_mib")]
