@@ -170,8 +170,11 @@ def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_t
     assert sweep["mesh_ids"] == [1, 21] and sweep["faces"] == n_faces   # every mesh: no baselines
     one = r["runs"]["one_at_a_time"]
     assert one["batches"] == 2 and one["batch_faces"] == 1
-    # 252 + 312 faces: a budget of 300 holds one mesh a batch, 100000 both.
-    assert [(row["budget"], row["batches"]) for row in sweep["rows"]] == [(300, 2), (100000, 1)]
+    # 252 + 312 faces: a budget of 300 holds one mesh a batch, 100000 both; the default budget
+    # (run batched, the same meshes here) is a row too, not run again.
+    default = r["settings"]["batch_faces"]
+    assert [(row["budget"], row["batches"], row["run"]) for row in sweep["rows"]] == sorted(
+        [(300, 2, "budget_300"), (100000, 1, "budget_100000"), (default, 1, "batched")])
     for row in sweep["rows"]:
         run = r["runs"][row["run"]]
         assert run["mesh_ids"] == one["mesh_ids"] and run["meshes_ok"] == 2 and row["comparable"]

@@ -398,3 +398,17 @@ def test_device_spellings():
     assert resolve_device(2, check_available=False) == torch.device("cuda", 2)   # torch's int
     with pytest.raises(ta.ParameterError, match="must be a str or torch.device"):
         resolve_device(1.5)
+
+
+@pytest.mark.parametrize("script", ["device_check.sh", "device_prepare.sh"])
+def test_device_scripts_parse(script):
+    """The GPU check runs once on a lent machine: a syntax error there costs the whole loan."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    if shutil.which("bash") is None:
+        pytest.skip("no bash")
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / script
+    run = subprocess.run(["bash", "-n", str(path)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
