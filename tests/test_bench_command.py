@@ -64,6 +64,7 @@ def test_missing_psb_folder_is_one_line(tmp_path, capsys):
     ("--categories", "Spring", "has no meshes"),
     ("--budgets", "4000,lots", "--budgets must be integers >= 1"),
     ("--budgets", "0", "--budgets must be integers >= 1"),
+    ("--repeats", "0", "--repeats must be an integer >= 1"),
 ])
 def test_bad_options_are_one_line(fake_psb, tmp_path, capsys, flag, value, words):
     root, _ = fake_psb
@@ -190,9 +191,20 @@ def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path, one_thread)
     """With baselines on, the sweep runs on their subset and reuses run one_at_a_time."""
     root, _ = fake_psb
     fast = dict(n_fields=16, segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
-    r = bench.run_bench(root, tmp_path / "b", baseline_every=2, budgets=[5000], workers=1, **fast)
-    assert r["budget_sweep"]["mesh_ids"] == [1] == r["runs"]["one_at_a_time"]["mesh_ids"]
+    r = bench.run_bench(root, tmp_path / "b", baseline_every=2, budgets=[5000, 1], workers=1,
+                        repeats=2, **fast)
+    sweep = r["budget_sweep"]
+    assert sweep["mesh_ids"] == [1] == r["runs"]["one_at_a_time"]["mesh_ids"]
     assert r["runs"]["budget_5000"]["mesh_ids"] == [1]
-    assert r["budget_sweep"]["rows"][0]["one_at_a_time_seconds"] == r["runs"]["one_at_a_time"]["wall_seconds"]
+    # Budget 1 is the one-at-a-time run itself: no row. Repeats: interleaved, the fastest counts;
+    # the first one-at-a-time repetition is the baselines' own run.
+    (row,) = sweep["rows"]
+    assert row["budget"] == 5000 and len(row["seconds_each"]) == 2 and sweep["repeats"] == 2
+    each = sweep["one_at_a_time_seconds_each"]
+    assert len(each) == 2 and each[0] == r["runs"]["one_at_a_time"]["wall_seconds"]
+    assert row["seconds"] == min(row["seconds_each"]) and row["one_at_a_time_seconds"] == min(each)
+    assert row["seconds_each"][0] == r["runs"]["budget_5000"]["wall_seconds"]
+    assert abs(row["ratio"] - min(each) / min(row["seconds_each"])) < 1e-12
+    assert "2 repetitions, interleaved" in (tmp_path / "b" / "report.md").read_text()
     r0 = bench.run_bench(root, tmp_path / "b0", baseline_every=0, workers=1, **fast)
     assert "budget_sweep" not in r0 and r0["settings"]["budgets"] == []

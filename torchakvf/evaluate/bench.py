@@ -43,7 +43,10 @@ faces = the face count of the input file; memory in MiB = 2**20 bytes):
   when the subset is every mesh, run (a) is the row of the default budget (not run again).
   Per budget: one-at-a-time seconds / budget_B seconds (>= 1: batching at least as fast), and
   the same per stage; a budget whose run had other failures than run (b) is flagged not
-  comparable.
+  comparable. ``--repeats R`` runs the sweep R times, interleaved (one at a time, B1, B2, ...,
+  then again), and times each run by its fastest repetition: on a shared machine one
+  repetition's ratios moved by +-30 % (two one-mesh-per-batch runs of the same 6 meshes,
+  32.7 s and 38.5 s against 47.8 s).
 * **Workers.** Runs (a), (b), (a') predict on ``--workers`` processes (one thread each; default
   one per CPU core on CPU); the scipy baseline is one process. Decimation (``--coarse-faces``,
   default 4000) is on for every torchakvf run, as in ``torchakvf eval``.
@@ -156,38 +159,60 @@ def _check_budgets(budgets) -> list:
 
 
 def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: Path, common: dict,
-                  notes: list) -> dict:
+                  notes: list, repeats: int = 1) -> dict:
     """Batched against one at a time at each face budget, on the same meshes (see the module
     notes). Adds the runs ``budget_B`` (and ``one_at_a_time`` if the baselines did not run it)
-    to ``runs``; returns the report's ``budget_sweep``."""
+    to ``runs``; returns the report's ``budget_sweep``.
+
+    repeats : the one-at-a-time run and every budget's run are repeated, interleaved (one,
+        B1, B2, ..., one, B1, ...), and each is timed by its fastest repetition (the least
+        disturbed by other load); ``runs`` keeps the first repetition."""
     subset = meshes[::baseline_every] if baseline_every else list(meshes)
-    if "one_at_a_time" not in runs:
-        runs["one_at_a_time"] = run_torchakvf("one_at_a_time", subset, work, batch_faces=1, **common)
-    one = runs["one_at_a_time"]
+    everything = len(subset) == len(meshes)
+    default = runs["batched"]["batch_faces"]
+    # budget 1 is the one-at-a-time run itself
+    rows_budgets = sorted((set(budgets) | ({default} if everything else set())) - {1})
+    seconds = {b: [] for b in [1] + rows_budgets}        # 1: the one-at-a-time run
+    stage_s = {b: [] for b in seconds}
+    failed = {b: set() for b in seconds}
+    names = {1: "one_at_a_time"}
+    for rep in range(int(repeats)):
+        for budget in [1] + rows_budgets:
+            if rep == 0 and budget == 1 and "one_at_a_time" in runs:
+                run = runs["one_at_a_time"]       # the baselines' own run, on these meshes
+            elif rep == 0 and budget == default and everything:
+                names[budget], run = "batched", runs["batched"]   # no rerun of run (a)
+            else:
+                name = names.setdefault(budget, "one_at_a_time" if budget == 1 else f"budget_{budget}")
+                run = run_torchakvf(name if rep == 0 else f"{name} (repeat {rep + 1})", subset, work,
+                                    batch_faces=budget, **common)
+                if rep == 0:
+                    runs[name] = run
+            seconds[budget].append(run["wall_seconds"])
+            stage_s[budget].append(run["stage_seconds"])
+            failed[budget] |= set(run["failed"])
+    one_s = min(seconds[1])
     sweep = {"mesh_ids": [m.mesh_id for m in subset], "meshes": len(subset),
              "faces": sum(m.faces for m in subset), "baseline_run": "one_at_a_time",
-             "ratio": "one_at_a_time seconds / budget_B seconds (>= 1: batching at least as fast)",
-             "rows": []}
-    batched = runs["batched"]
-    for budget in sorted(set(budgets) | ({batched["batch_faces"]} if len(subset) == len(meshes) else set())):
-        if budget == batched["batch_faces"] and len(subset) == len(meshes):
-            name, run = "batched", batched      # the same meshes at the default budget: no rerun
-        else:
-            name = f"budget_{budget}"
-            run = runs[name] = run_torchakvf(name, subset, work, batch_faces=budget, **common)
-        comparable = set(run["failed"]) == set(one["failed"])
+             "repeats": int(repeats),
+             "ratio": ("one_at_a_time seconds / budget_B seconds (>= 1: batching at least as fast); "
+                       "each the fastest of its repeats"),
+             "one_at_a_time_seconds_each": seconds[1], "rows": []}
+    for budget in rows_budgets:
+        name = names[budget]
+        comparable = failed[budget] == failed[1]
         if not comparable:
             notes.append(f"run {name} failed on other meshes than one_at_a_time: its ratio is not comparable")
-        row = {"budget": budget, "run": name, "batches": run["batches"],
-               "seconds": run["wall_seconds"], "one_at_a_time_seconds": one["wall_seconds"],
-               "ratio": one["wall_seconds"] / run["wall_seconds"] if run["wall_seconds"] > 0 else None,
-               "stage_ratios": {}, "comparable": comparable}
+        sec = min(seconds[budget])
+        row = {"budget": budget, "run": name, "batches": runs[name]["batches"], "seconds": sec,
+               "seconds_each": seconds[budget], "one_at_a_time_seconds": one_s,
+               "ratio": one_s / sec if sec > 0 else None, "stage_ratios": {}, "comparable": comparable}
         for stage in ("akvf", "segment"):
-            t = run["stage_seconds"][stage]
-            row["stage_ratios"][stage] = one["stage_seconds"][stage] / t if t > 0 else None
+            t = min(x[stage] for x in stage_s[budget])
+            row["stage_ratios"][stage] = min(x[stage] for x in stage_s[1]) / t if t > 0 else None
         sweep["rows"].append(row)
         log.info("bench: budget %d: %d batches, %.2f s; one at a time %.2f s: %.2fx", budget,
-                 run["batches"], run["wall_seconds"], one["wall_seconds"], row["ratio"] or 0.0)
+                 row["batches"], sec, one_s, row["ratio"] or 0.0)
     return sweep
 
 
@@ -198,7 +223,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
               categories=None, batch_faces: int | None = None, remedy: str | None = None,
               n_fields: int | None = None, segment_kwargs: dict | None = None,
               options: dict | None = None, workers: int | None = None,
-              budgets=None) -> dict:
+              budgets=None, repeats: int = 1) -> dict:
     """Run the bench (see the module notes) and write ``<out>/report.json`` and ``report.md``.
 
     psb_root : folder with ``meshes/N.off[.gz]`` and ``gt/N/N_k.seg[.gz]``
@@ -216,6 +241,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     options : the command-line options as given, recorded in the report
     budgets : face budgets of the "batched vs one at a time" sweep (ints >= 1; None or empty:
         no sweep), see the module notes; the report's ``budget_sweep``
+    repeats : repetitions of the sweep's runs, interleaved; each timed by its fastest (>= 1)
 
     Returns the report as a dict (what ``report.json`` holds; ``problems``: inputs left out).
     """
@@ -232,6 +258,8 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     if batch_faces < 1:
         raise TorchAKVFError(f"--batch-faces must be an integer >= 1, got {batch_faces}")
     budgets = _check_budgets(budgets)
+    if int(repeats) < 1:
+        raise TorchAKVFError(f"--repeats must be an integer >= 1, got {repeats}")
     remedy = DEFAULT_REMEDY if remedy is None else remedy
     segment_kwargs.setdefault("refine", False)
     # The evaluation's AKVF count: the largest default field count plus the engine's spares.
@@ -248,6 +276,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     report = report_header(__version__, psb_root, out, device, seed, batch_faces, baseline_every, limit,
                      categories, remedy, n_akvf, n_fields, segment_kwargs, options)
     report["settings"]["budgets"] = budgets
+    report["settings"]["repeats"] = int(repeats)
     report["selection"] = {
         "meshes": len(meshes), "faces": sum(m.faces for m in meshes),
         "predictions": sum(len(m.ks) for m in meshes),
@@ -312,7 +341,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
             report["comparison"] = comp
         if budgets:
             report["budget_sweep"] = _budget_sweep(meshes, int(baseline_every), budgets, runs, work,
-                                                   common, notes)
+                                                   common, notes, repeats)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     bounds = [r["total_rss_bound_mib"] for r in report["runs"].values() if r.get("total_rss_bound_mib")]

@@ -75,14 +75,19 @@ def _budget_lines(sweep: dict) -> list:
     L.append(f"{sweep['meshes']} meshes ({sweep['faces']:,} faces; ids "
              f"{', '.join(map(str, sweep['mesh_ids']))}), each run once one mesh per batch "
              f"(run {sweep['baseline_run']}) and once per budget (runs budget_B; a budget counts "
-             "the faces solved, i.e. decimated faces under coarse_faces).\n")
-    L.append("| face budget | batches | batched s | one at a time s | ratio | akvf ratio | segment ratio |")
-    L.append("|---:|---:|---:|---:|---:|---:|---:|")
+             "the faces solved, i.e. decimated faces under coarse_faces)"
+             + (f"; {sweep['repeats']} repetitions, interleaved, each run timed by its fastest"
+                if sweep.get("repeats", 1) > 1 else "") + ".\n")
+    L.append("| face budget | batches | batched s | one at a time s | ratio | akvf ratio | segment ratio | batched s, each repeat |")
+    L.append("|---:|---:|---:|---:|---:|---:|---:|---|")
     for row in sweep["rows"]:
         flag = "" if row["comparable"] else " (not comparable: other failures)"
         L.append(f"| {row['budget']:,} | {row['batches']} | {_f(row['seconds'])} | "
                  f"{_f(row['one_at_a_time_seconds'])} | **{_f(row['ratio'])}**{flag} | "
-                 f"{_f(row['stage_ratios'].get('akvf'))} | {_f(row['stage_ratios'].get('segment'))} |")
+                 f"{_f(row['stage_ratios'].get('akvf'))} | {_f(row['stage_ratios'].get('segment'))} | "
+                 f"{', '.join(_f(x) for x in row.get('seconds_each', []))} |")
+    if sweep.get("one_at_a_time_seconds_each"):
+        L.append(f"\none at a time s, each repeat: {', '.join(_f(x) for x in sweep['one_at_a_time_seconds_each'])}")
     L.append("\nratio = one-at-a-time seconds / batched seconds (>= 1: batching at least as fast); "
              "stage ratios compare summed stage seconds.")
     return L
