@@ -108,6 +108,8 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
         assert {k: v["predictions"] for k, v in run["segment_seconds_by_k"].items()} == \
             {"2": 1, "3": 1, "6": 1}
         assert run["ru_maxrss_mib"] > 0
+        if run["kind"] == "torchakvf":   # CPU time of this process and of its finished workers
+            assert run["cpu_seconds"] > 0.1 * run["stage_seconds"]["akvf"], (name, run["cpu_seconds"])
     assert r["runs"]["batched"]["batches"] == 1            # 564 faces: one batch at the default budget
     assert r["runs"]["one_at_a_time"]["batches"] == 2 and r["runs"]["one_at_a_time"]["batch_faces"] == 1
     c = r["comparison"]
@@ -182,6 +184,8 @@ def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_t
         assert row["seconds"] == run["wall_seconds"] > 0
         assert abs(row["ratio"] - one["wall_seconds"] / run["wall_seconds"]) < 1e-12
         assert row["stage_ratios"]["akvf"] > 0 and row["stage_ratios"]["segment"] > 0
+        assert row["cpu_seconds_each"] == [run["cpu_seconds"]] and run["cpu_seconds"] > 0
+        assert abs(row["cpu_ratio"] - one["cpu_seconds"] / run["cpu_seconds"]) < 1e-12
     md = (out / "report.md").read_text()
     assert "## Batched vs one at a time, by face budget" in md and "| 100,000 | 1 |" in md
     assert "by face budget: 300: " in stdout and "100000: " in stdout

@@ -41,8 +41,10 @@ faces = the face count of the input file; memory in MiB = 2**20 bytes):
   (run (b), also run for the sweep when the baselines are off) and once per budget B (runs
   ``budget_B``: batches of <= B solved faces, i.e. decimated faces under ``--coarse-faces``);
   when the subset is every mesh, run (a) is the row of the default budget (not run again).
-  Per budget: one-at-a-time seconds / budget_B seconds (>= 1: batching at least as fast), and
-  the same per stage; a budget whose run had other failures than run (b) is flagged not
+  Per budget: one-at-a-time seconds / budget_B seconds (>= 1: batching at least as fast), the
+  same with CPU seconds (``resource.getrusage`` of this process and its finished workers: what
+  other processes' load on a shared machine does not inflate; on CUDA the wall ratio is the one
+  that counts), and per stage; a budget whose run had other failures than run (b) is flagged not
   comparable. ``--repeats R`` runs the sweep R times, interleaved (one at a time, B1, B2, ...,
   then again), and times each run by its fastest repetition: on a shared machine one
   repetition's ratios moved by +-30 % (two one-mesh-per-batch runs of the same 6 meshes,
@@ -173,6 +175,7 @@ def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: 
     # budget 1 is the one-at-a-time run itself
     rows_budgets = sorted((set(budgets) | ({default} if everything else set())) - {1})
     seconds = {b: [] for b in [1] + rows_budgets}        # 1: the one-at-a-time run
+    cpu = {b: [] for b in seconds}
     stage_s = {b: [] for b in seconds}
     failed = {b: set() for b in seconds}
     names = {1: "one_at_a_time"}
@@ -189,6 +192,7 @@ def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: 
                 if rep == 0:
                     runs[name] = run
             seconds[budget].append(run["wall_seconds"])
+            cpu[budget].append(run.get("cpu_seconds"))
             stage_s[budget].append(run["stage_seconds"])
             failed[budget] |= set(run["failed"])
     one_s = min(seconds[1])
@@ -197,7 +201,10 @@ def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: 
              "repeats": int(repeats),
              "ratio": ("one_at_a_time seconds / budget_B seconds (>= 1: batching at least as fast); "
                        "each the fastest of its repeats"),
-             "one_at_a_time_seconds_each": seconds[1], "rows": []}
+             "cpu_ratio": ("the same with CPU seconds (this process and its workers): what "
+                           "other processes' load does not inflate"),
+             "one_at_a_time_seconds_each": seconds[1], "one_at_a_time_cpu_seconds_each": cpu[1],
+             "rows": []}
     for budget in rows_budgets:
         name = names[budget]
         comparable = failed[budget] == failed[1]
@@ -207,12 +214,15 @@ def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: 
         row = {"budget": budget, "run": name, "batches": runs[name]["batches"], "seconds": sec,
                "seconds_each": seconds[budget], "one_at_a_time_seconds": one_s,
                "ratio": one_s / sec if sec > 0 else None, "stage_ratios": {}, "comparable": comparable}
+        c1, cb = cpu[1], cpu[budget]
+        row["cpu_seconds_each"] = cb
+        row["cpu_ratio"] = (min(c1) / min(cb) if None not in c1 + cb and min(cb) > 0 else None)
         for stage in ("akvf", "segment"):
             t = min(x[stage] for x in stage_s[budget])
             row["stage_ratios"][stage] = min(x[stage] for x in stage_s[1]) / t if t > 0 else None
         sweep["rows"].append(row)
-        log.info("bench: budget %d: %d batches, %.2f s; one at a time %.2f s: %.2fx", budget,
-                 row["batches"], sec, one_s, row["ratio"] or 0.0)
+        log.info("bench: budget %d: %d batches, %.2f s; one at a time %.2f s: %.2fx (CPU time %.2fx)",
+                 budget, row["batches"], sec, one_s, row["ratio"] or 0.0, row["cpu_ratio"] or 0.0)
     return sweep
 
 

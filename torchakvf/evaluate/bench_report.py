@@ -78,17 +78,21 @@ def _budget_lines(sweep: dict) -> list:
              "the faces solved, i.e. decimated faces under coarse_faces)"
              + (f"; {sweep['repeats']} repetitions, interleaved, each run timed by its fastest"
                 if sweep.get("repeats", 1) > 1 else "") + ".\n")
-    L.append("| face budget | batches | batched s | one at a time s | ratio | akvf ratio | segment ratio | batched s, each repeat |")
-    L.append("|---:|---:|---:|---:|---:|---:|---:|---|")
+    L.append("| face budget | batches | batched s | one at a time s | ratio | CPU-time ratio | akvf ratio | "
+             "segment ratio | batched s, each repeat |")
+    L.append("|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     for row in sweep["rows"]:
         flag = "" if row["comparable"] else " (not comparable: other failures)"
         L.append(f"| {row['budget']:,} | {row['batches']} | {_f(row['seconds'])} | "
                  f"{_f(row['one_at_a_time_seconds'])} | **{_f(row['ratio'])}**{flag} | "
+                 f"{_f(row.get('cpu_ratio'))} | "
                  f"{_f(row['stage_ratios'].get('akvf'))} | {_f(row['stage_ratios'].get('segment'))} | "
                  f"{', '.join(_f(x) for x in row.get('seconds_each', []))} |")
     if sweep.get("one_at_a_time_seconds_each"):
         L.append(f"\none at a time s, each repeat: {', '.join(_f(x) for x in sweep['one_at_a_time_seconds_each'])}")
     L.append("\nratio = one-at-a-time seconds / batched seconds (>= 1: batching at least as fast); "
+             "CPU-time ratio: the same with the CPU seconds of this process and its workers (other "
+             "processes' load does not inflate them; on a GPU the wall ratio is the one that counts); "
              "stage ratios compare summed stage seconds.")
     return L
 
@@ -250,7 +254,8 @@ def summary_lines(report: dict, out: Path) -> list:
     sweep = report.get("budget_sweep")
     if sweep:
         L.append(f"  one at a time / batched on {sweep['meshes']} meshes, by face budget: "
-                 + ", ".join(f"{row['budget']}: {_f(row['ratio'])}x" for row in sweep["rows"]))
+                 + ", ".join(f"{row['budget']}: {_f(row['ratio'])}x (CPU time {_f(row.get('cpu_ratio'))}x)"
+                             for row in sweep["rows"]))
     for note in report["notes"]:
         L.append(f"  note: {note}")
     L.append(f"  wrote {out / REPORT_MD} and {out / REPORT_JSON}")
