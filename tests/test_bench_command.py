@@ -211,4 +211,29 @@ def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path, one_thread)
     assert abs(row["ratio"] - min(each) / min(row["seconds_each"])) < 1e-12
     assert "2 repetitions, interleaved" in (tmp_path / "b" / "report.md").read_text()
     r0 = bench.run_bench(root, tmp_path / "b0", baseline_every=0, workers=1, **fast)
-    assert "budget_sweep" not in r0 and r0["settings"]["budgets"] == []
+    assert "budget_sweep" not in r0 and r0["settings"]["budgets"] == [] and r0["partial"] is False
+
+
+def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeypatch, one_thread):
+    """The report is written after every run (partial), so a bench stopped at a time limit
+    (benchmarks/device_check.sh) keeps what it measured."""
+    root, _ = fake_psb
+    real, calls = bench.run_torchakvf, []
+
+    def stop_at_the_second(name, *args, **kwargs):
+        calls.append(name)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(bench, "run_torchakvf", stop_at_the_second)
+    out = tmp_path / "b"
+    with pytest.raises(KeyboardInterrupt):
+        bench.run_bench(root, out, baseline_every=0, budgets=[300], workers=1, n_fields=16,
+                        segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
+    assert calls == ["batched", "one_at_a_time"]
+    r = json.loads((out / "report.json").read_text())
+    assert r["partial"] is True and set(r["runs"]) == {"batched"}
+    assert r["runs"]["batched"]["meshes_ok"] == 2 and r["wall_seconds"] > 0
+    assert "Partial report" in (out / "report.md").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "report.md"]   # scratch gone

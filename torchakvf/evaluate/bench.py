@@ -161,14 +161,15 @@ def _check_budgets(budgets) -> list:
 
 
 def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: Path, common: dict,
-                  notes: list, repeats: int = 1) -> dict:
+                  notes: list, repeats: int = 1, checkpoint=lambda: None) -> dict:
     """Batched against one at a time at each face budget, on the same meshes (see the module
     notes). Adds the runs ``budget_B`` (and ``one_at_a_time`` if the baselines did not run it)
     to ``runs``; returns the report's ``budget_sweep``.
 
     repeats : the one-at-a-time run and every budget's run are repeated, interleaved (one,
         B1, B2, ..., one, B1, ...), and each is timed by its fastest repetition (the least
-        disturbed by other load); ``runs`` keeps the first repetition."""
+        disturbed by other load); ``runs`` keeps the first repetition.
+    checkpoint : called after each run (writes the partial report)"""
     subset = meshes[::baseline_every] if baseline_every else list(meshes)
     everything = len(subset) == len(meshes)
     default = runs["batched"]["batch_faces"]
@@ -191,6 +192,7 @@ def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: 
                                     batch_faces=budget, **common)
                 if rep == 0:
                     runs[name] = run
+                checkpoint()
             seconds[budget].append(run["wall_seconds"])
             cpu[budget].append(run.get("cpu_seconds"))
             stage_s[budget].append(run["stage_seconds"])
@@ -303,19 +305,30 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
              plan_seconds)
     work = Path(tempfile.mkdtemp(dir=out, prefix=".bench-work-"))
     notes = report["notes"]
+    # Written after every run, so that a bench stopped at a time limit (the GPU check's) leaves
+    # the runs it finished: report.json/md with "partial" set, until the final write.
+    report.update(comparison=None, wall_seconds=None, partial=True,
+                  peak_memory=dict.fromkeys(("ru_maxrss_mib", "worker_maxrss_mib",
+                                             "total_rss_bound_mib", "cuda_max_memory_allocated_mib")))
+
+    def checkpoint():
+        report["wall_seconds"] = time.perf_counter() - t_bench
+        write_bench_reports(out, report)
+
     try:
         report["warm_up_seconds"] = warm_up(device, seed, remedy, n_akvf, segment_kwargs)
         common = dict(device=device, seed=seed, remedy=remedy, n_fields=n_fields,
                       segment_kwargs=segment_kwargs, workers=workers)
         runs = report["runs"]
         runs["batched"] = run_torchakvf("batched", meshes, work, batch_faces=batch_faces, **common)
-        report["comparison"] = None
+        checkpoint()
         if int(baseline_every) == 0:
             notes.append("baselines not run (--baseline-every 0)")
         else:
             subset = meshes[::int(baseline_every)]
             runs["one_at_a_time"] = run_torchakvf("one_at_a_time", subset, work, batch_faces=1,
                                                    **common)
+            checkpoint()
             ref, why = load_scipy_reference()
             if ref is None:
                 notes.append(why)
@@ -323,6 +336,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
                 runs["scipy"] = {"name": "scipy", "kind": "scipy", "skipped": why}
             else:
                 runs["scipy"] = run_scipy(ref, subset, work, seed=seed, n_akvf=n_akvf)
+                checkpoint()
             baselines = [r for r in (runs["one_at_a_time"], runs["scipy"]) if "skipped" not in r]
             excluded = {}
             for m in subset:
@@ -339,6 +353,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
             if compared:
                 runs["batched_subset"] = run_torchakvf("batched_subset", compared, work,
                                                         batch_faces=batch_faces, **common)
+                checkpoint()
                 ids = [m.mesh_id for m in compared]
                 if runs["batched_subset"]["failed"]:
                     notes.append("run batched_subset had failures; its ratios are not comparable")
@@ -351,7 +366,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
             report["comparison"] = comp
         if budgets:
             report["budget_sweep"] = _budget_sweep(meshes, int(baseline_every), budgets, runs, work,
-                                                   common, notes, repeats)
+                                                   common, notes, repeats, checkpoint)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     bounds = [r["total_rss_bound_mib"] for r in report["runs"].values() if r.get("total_rss_bound_mib")]
@@ -363,5 +378,6 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
                                   if r.get("cuda_max_memory_allocated_mib") is not None],
                                  default=None)}
     report["wall_seconds"] = time.perf_counter() - t_bench
+    report["partial"] = False
     write_bench_reports(out, report)
     return report

@@ -101,6 +101,9 @@ def _markdown(r: dict) -> str:
     s = r["settings"]
     sel = r["selection"]
     L = ["# torchakvf bench\n"]
+    if r.get("partial"):
+        L.append(f"**Partial report:** the bench has not finished (stopped, or still running); "
+                 f"these are the runs done after {_f(r.get('wall_seconds'), 1)} s.\n")
     L.append(f"- created {r['created']}; torchakvf {r['environment']['torchakvf']}, torch "
              f"{r['environment']['torch']} ({r['environment']['torch_threads']} threads, "
              f"{r['environment']['cpu_count']} CPUs), device {s['device']}"
