@@ -89,9 +89,12 @@ def test_killing_operator_entries(device, dtype):
     _on(got.stiffness, device), _on(got.mass, device)
     rs, gs = ref.stiffness.coalesce(), got.stiffness.coalesce().cpu()
     assert rs.dtype == gs.dtype == torch.float64        # assembled in float64 from any coordinates
-    assert torch.equal(rs.indices(), gs.indices())
+    assert rs.shape == gs.shape
+    # The difference as a sparse matrix: a sparse product on the device may keep or drop
+    # entries that cancel to zero, so the patterns are compared through the values.
     scale = rs.values().abs().max()
-    assert (rs.values() - gs.values()).abs().max() <= 1e-12 * scale
+    assert (rs - gs).coalesce().values().abs().max() <= 1e-12 * scale
+    assert gs._nnz() <= 1.1 * rs._nnz() and rs._nnz() <= 1.1 * gs._nnz()
     for name in ("mass", "star1_raw", "edge_ptr"):
         a, b = getattr(ref, name), getattr(got, name).cpu()
         assert torch.allclose(a, b, rtol=1e-12, atol=0), name
