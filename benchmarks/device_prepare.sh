@@ -5,11 +5,15 @@
 #   .whl/         wheels of the runtime dependencies the GPU image lacks (cholespy, trimesh,
 #                 fast-simplification, tqdm) for CPython 3.12 on x86-64 manylinux
 #   .psb_subset/  a few PSB meshes (the first two of each category) and their human labels
-# Then call the device tool with carry [".whl", ".psb_subset"] and the command
+# Then call the device tool with carry [".whl", ".psb_subset"], timeout_s 540 and the command
 #   bash benchmarks/device_check.sh
+# (about 16 MB travels: 6.5 MB of wheels, 9.3 MB of meshes).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-for d in .whl .psb_subset; do grep -qxF "/$d/" .git/info/exclude 2>/dev/null || echo "/$d/" >> .git/info/exclude; done
+# git ignores both (in a worktree too: --git-path finds the repository's own exclude file).
+exclude=$(git rev-parse --git-path info/exclude)
+mkdir -p "$(dirname "$exclude")"
+for d in .whl .psb_subset; do grep -qxF "/$d/" "$exclude" 2>/dev/null || echo "/$d/" >> "$exclude"; done
 mkdir -p .whl
 for spec in cholespy fast-simplification trimesh tqdm; do
   python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
@@ -22,6 +26,7 @@ for c in $(seq 0 18); do
   [ "$c" = 13 ] && continue                      # Spring (261-280) is not in the benchmark
   for i in 1 2; do
     id=$((c * 20 + i))
+    [ -f "$psb/meshes/$id.off.gz" ] || continue
     cp "$psb/meshes/$id.off.gz" .psb_subset/meshes/
     [ -d "$psb/gt/$id" ] && cp -r "$psb/gt/$id" .psb_subset/gt/
   done

@@ -62,6 +62,9 @@ def test_missing_psb_folder_is_one_line(tmp_path, capsys):
     ("--device", "tpu9", "--device"),
     ("--categories", "Robots", "unknown PSB category 'Robots'"),
     ("--categories", "Spring", "has no meshes"),
+    ("--budgets", "4000,lots", "--budgets must be integers >= 1"),
+    ("--budgets", "0", "--budgets must be integers >= 1"),
+    ("--repeats", "0", "--repeats must be an integer >= 1"),
 ])
 def test_bad_options_are_one_line(fake_psb, tmp_path, capsys, flag, value, words):
     root, _ = fake_psb
@@ -105,6 +108,8 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
         assert {k: v["predictions"] for k, v in run["segment_seconds_by_k"].items()} == \
             {"2": 1, "3": 1, "6": 1}
         assert run["ru_maxrss_mib"] > 0
+        if run["kind"] == "torchakvf":   # CPU time of this process and of its finished workers
+            assert run["cpu_seconds"] > 0.1 * run["stage_seconds"]["akvf"], (name, run["cpu_seconds"])
     assert r["runs"]["batched"]["batches"] == 1            # 564 faces: one batch at the default budget
     assert r["runs"]["one_at_a_time"]["batches"] == 2 and r["runs"]["one_at_a_time"]["batch_faces"] == 1
     c = r["comparison"]
@@ -151,3 +156,84 @@ def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys, one_t
     assert r["runs"]["batched"]["meshes_ok"] == 1 and r["selection"]["ks"] == {"1": [2, 3]}
     assert r["settings"]["segment_kwargs"]["solver"] == "lanczos"
     assert "1_2.seg" in (tmp_path / "b" / "report.md").read_text()
+
+
+def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_thread):
+    """--budgets: the same meshes once one per batch and once per budget, in one run; per
+    budget the ratio one-at-a-time seconds / batched seconds (what issue 13 asks >= 1 of)."""
+    root, n_faces = fake_psb
+    out = tmp_path / "b"
+    assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "0",
+                 "--workers", "1", "--coarse-faces", "0", "--budgets", "100000,300,300"]) == 0
+    stdout = capsys.readouterr().out
+    r = json.loads((out / "report.json").read_text())
+    assert r["settings"]["budgets"] == [300, 100000]                   # sorted, distinct
+    assert set(r["runs"]) == {"batched", "one_at_a_time", "budget_300", "budget_100000"}
+    sweep = r["budget_sweep"]
+    assert sweep["mesh_ids"] == [1, 21] and sweep["faces"] == n_faces   # every mesh: no baselines
+    one = r["runs"]["one_at_a_time"]
+    assert one["batches"] == 2 and one["batch_faces"] == 1
+    # 252 + 312 faces: a budget of 300 holds one mesh a batch, 100000 both; the default budget
+    # (run batched, the same meshes here) is a row too, not run again.
+    default = r["settings"]["batch_faces"]
+    assert [(row["budget"], row["batches"], row["run"]) for row in sweep["rows"]] == sorted(
+        [(300, 2, "budget_300"), (100000, 1, "budget_100000"), (default, 1, "batched")])
+    for row in sweep["rows"]:
+        run = r["runs"][row["run"]]
+        assert run["mesh_ids"] == one["mesh_ids"] and run["meshes_ok"] == 2 and row["comparable"]
+        assert row["seconds"] == run["wall_seconds"] > 0
+        assert abs(row["ratio"] - one["wall_seconds"] / run["wall_seconds"]) < 1e-12
+        assert row["stage_ratios"]["akvf"] > 0 and row["stage_ratios"]["segment"] > 0
+        assert row["cpu_seconds_each"] == [run["cpu_seconds"]] and run["cpu_seconds"] > 0
+        assert abs(row["cpu_ratio"] - one["cpu_seconds"] / run["cpu_seconds"]) < 1e-12
+    md = (out / "report.md").read_text()
+    assert "## Batched vs one at a time, by face budget" in md and "| 100,000 | 1 |" in md
+    assert "by face budget: 300: " in stdout and "100000: " in stdout
+
+
+def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path, one_thread):
+    """With baselines on, the sweep runs on their subset and reuses run one_at_a_time."""
+    root, _ = fake_psb
+    fast = dict(n_fields=16, segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
+    r = bench.run_bench(root, tmp_path / "b", baseline_every=2, budgets=[5000, 1], workers=1,
+                        repeats=2, **fast)
+    sweep = r["budget_sweep"]
+    assert sweep["mesh_ids"] == [1] == r["runs"]["one_at_a_time"]["mesh_ids"]
+    assert r["runs"]["budget_5000"]["mesh_ids"] == [1]
+    # Budget 1 is the one-at-a-time run itself: no row. Repeats: interleaved, the fastest counts;
+    # the first one-at-a-time repetition is the baselines' own run.
+    (row,) = sweep["rows"]
+    assert row["budget"] == 5000 and len(row["seconds_each"]) == 2 and sweep["repeats"] == 2
+    each = sweep["one_at_a_time_seconds_each"]
+    assert len(each) == 2 and each[0] == r["runs"]["one_at_a_time"]["wall_seconds"]
+    assert row["seconds"] == min(row["seconds_each"]) and row["one_at_a_time_seconds"] == min(each)
+    assert row["seconds_each"][0] == r["runs"]["budget_5000"]["wall_seconds"]
+    assert abs(row["ratio"] - min(each) / min(row["seconds_each"])) < 1e-12
+    assert "2 repetitions, interleaved" in (tmp_path / "b" / "report.md").read_text()
+    r0 = bench.run_bench(root, tmp_path / "b0", baseline_every=0, workers=1, **fast)
+    assert "budget_sweep" not in r0 and r0["settings"]["budgets"] == [] and r0["partial"] is False
+
+
+def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeypatch, one_thread):
+    """The report is written after every run (partial), so a bench stopped at a time limit
+    (benchmarks/device_check.sh) keeps what it measured."""
+    root, _ = fake_psb
+    real, calls = bench.run_torchakvf, []
+
+    def stop_at_the_second(name, *args, **kwargs):
+        calls.append(name)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(bench, "run_torchakvf", stop_at_the_second)
+    out = tmp_path / "b"
+    with pytest.raises(KeyboardInterrupt):
+        bench.run_bench(root, out, baseline_every=0, budgets=[300], workers=1, n_fields=16,
+                        segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
+    assert calls == ["batched", "one_at_a_time"]
+    r = json.loads((out / "report.json").read_text())
+    assert r["partial"] is True and set(r["runs"]) == {"batched"}
+    assert r["runs"]["batched"]["meshes_ok"] == 2 and r["wall_seconds"] > 0
+    assert "Partial report" in (out / "report.md").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "report.md"]   # scratch gone

@@ -35,6 +35,20 @@ faces = the face count of the input file; memory in MiB = 2**20 bytes):
   is faster): the baseline's per-mesh seconds summed over the compared meshes (for a baseline
   on several workers, its wall time split over its meshes by their seconds), divided by the wall
   seconds of run (a'); also per stage ("akvf", "segment": summed stage seconds, i.e. per core).
+* **Face budgets** (``--budgets B1,B2,...``, off by default): "batched against one at a
+  time" at several budgets, on the same meshes in the same run: the baseline subset (every
+  ``--baseline-every``-th mesh; every mesh with ``--baseline-every 0``) once one mesh per batch
+  (run (b), also run for the sweep when the baselines are off) and once per budget B (runs
+  ``budget_B``: batches of <= B solved faces, i.e. decimated faces under ``--coarse-faces``);
+  when the subset is every mesh, run (a) is the row of the default budget (not run again).
+  Per budget: one-at-a-time seconds / budget_B seconds (>= 1: batching at least as fast), the
+  same with CPU seconds (``resource.getrusage`` of this process and its finished workers: what
+  other processes' load on a shared machine does not inflate; on CUDA the wall ratio is the one
+  that counts), and per stage; a budget whose run had other failures than run (b) is flagged not
+  comparable. ``--repeats R`` runs the sweep R times, interleaved (one at a time, B1, B2, ...,
+  then again), and times each run by its fastest repetition: on a shared machine one
+  repetition's ratios moved by +-30 % (two one-mesh-per-batch runs of the same 6 meshes,
+  32.7 s and 38.5 s against 47.8 s).
 * **Workers.** Runs (a), (b), (a') predict on ``--workers`` processes (one thread each; default
   one per CPU core on CPU); the scipy baseline is one process. Decimation (``--coarse-faces``,
   default 4000) is on for every torchakvf run, as in ``torchakvf eval``.
@@ -55,6 +69,7 @@ import time
 from pathlib import Path
 
 from .. import __version__
+from ..devices import resolve_device
 from ..errors import TorchAKVFError
 from ..parts.engine import DEFAULT_REMEDY
 from ..pipeline.parallel import default_workers
@@ -127,13 +142,100 @@ def _compare(base: dict, ours: dict, ids: list) -> dict:
     return out
 
 
+def _check_budgets(budgets) -> list:
+    """Budgets as a sorted list of distinct ints >= 1 (a comma string or a sequence; None: [])."""
+    if budgets is None:
+        return []
+    if isinstance(budgets, str):
+        budgets = [b for b in budgets.split(",") if b.strip()]
+    out = []
+    for b in budgets:
+        try:
+            v = int(str(b).strip())
+        except ValueError:
+            raise TorchAKVFError(f"--budgets must be integers >= 1 separated by commas, got {b!r}") from None
+        if v < 1:
+            raise TorchAKVFError(f"--budgets must be integers >= 1 separated by commas, got {v}")
+        out.append(v)
+    return sorted(set(out))
+
+
+def _budget_sweep(meshes, baseline_every: int, budgets: list, runs: dict, work: Path, common: dict,
+                  notes: list, repeats: int = 1, checkpoint=lambda: None) -> dict:
+    """Batched against one at a time at each face budget, on the same meshes (see the module
+    notes). Adds the runs ``budget_B`` (and ``one_at_a_time`` if the baselines did not run it)
+    to ``runs``; returns the report's ``budget_sweep``.
+
+    repeats : the one-at-a-time run and every budget's run are repeated, interleaved (one,
+        B1, B2, ..., one, B1, ...), and each is timed by its fastest repetition (the least
+        disturbed by other load); ``runs`` keeps the first repetition.
+    checkpoint : called after each run (writes the partial report)"""
+    subset = meshes[::baseline_every] if baseline_every else list(meshes)
+    everything = len(subset) == len(meshes)
+    default = runs["batched"]["batch_faces"]
+    # budget 1 is the one-at-a-time run itself
+    rows_budgets = sorted((set(budgets) | ({default} if everything else set())) - {1})
+    seconds = {b: [] for b in [1] + rows_budgets}        # 1: the one-at-a-time run
+    cpu = {b: [] for b in seconds}
+    stage_s = {b: [] for b in seconds}
+    failed = {b: set() for b in seconds}
+    names = {1: "one_at_a_time"}
+    for rep in range(int(repeats)):
+        for budget in [1] + rows_budgets:
+            if rep == 0 and budget == 1 and "one_at_a_time" in runs:
+                run = runs["one_at_a_time"]       # the baselines' own run, on these meshes
+            elif rep == 0 and budget == default and everything:
+                names[budget], run = "batched", runs["batched"]   # no rerun of run (a)
+            else:
+                name = names.setdefault(budget, "one_at_a_time" if budget == 1 else f"budget_{budget}")
+                run = run_torchakvf(name if rep == 0 else f"{name} (repeat {rep + 1})", subset, work,
+                                    batch_faces=budget, **common)
+                if rep == 0:
+                    runs[name] = run
+                checkpoint()
+            seconds[budget].append(run["wall_seconds"])
+            cpu[budget].append(run.get("cpu_seconds"))
+            stage_s[budget].append(run["stage_seconds"])
+            failed[budget] |= set(run["failed"])
+    one_s = min(seconds[1])
+    sweep = {"mesh_ids": [m.mesh_id for m in subset], "meshes": len(subset),
+             "faces": sum(m.faces for m in subset), "baseline_run": "one_at_a_time",
+             "repeats": int(repeats),
+             "ratio": ("one_at_a_time seconds / budget_B seconds (>= 1: batching at least as fast); "
+                       "each the fastest of its repeats"),
+             "cpu_ratio": ("the same with CPU seconds (this process and its workers): what "
+                           "other processes' load does not inflate"),
+             "one_at_a_time_seconds_each": seconds[1], "one_at_a_time_cpu_seconds_each": cpu[1],
+             "rows": []}
+    for budget in rows_budgets:
+        name = names[budget]
+        comparable = failed[budget] == failed[1]
+        if not comparable:
+            notes.append(f"run {name} failed on other meshes than one_at_a_time: its ratio is not comparable")
+        sec = min(seconds[budget])
+        row = {"budget": budget, "run": name, "batches": runs[name]["batches"], "seconds": sec,
+               "seconds_each": seconds[budget], "one_at_a_time_seconds": one_s,
+               "ratio": one_s / sec if sec > 0 else None, "stage_ratios": {}, "comparable": comparable}
+        c1, cb = cpu[1], cpu[budget]
+        row["cpu_seconds_each"] = cb
+        row["cpu_ratio"] = (min(c1) / min(cb) if None not in c1 + cb and min(cb) > 0 else None)
+        for stage in ("akvf", "segment"):
+            t = min(x[stage] for x in stage_s[budget])
+            row["stage_ratios"][stage] = min(x[stage] for x in stage_s[1]) / t if t > 0 else None
+        sweep["rows"].append(row)
+        log.info("bench: budget %d: %d batches, %.2f s; one at a time %.2f s: %.2fx (CPU time %.2fx)",
+                 budget, row["batches"], sec, one_s, row["ratio"] or 0.0, row["cpu_ratio"] or 0.0)
+    return sweep
+
+
 # ---- the bench ----------------------------------------------------------------------------
 
 def run_bench(psb_root, out_dir, *, limit: int | None = None,
               baseline_every: int = DEFAULT_BASELINE_EVERY, device: str = "cpu", seed: int = 0,
               categories=None, batch_faces: int | None = None, remedy: str | None = None,
               n_fields: int | None = None, segment_kwargs: dict | None = None,
-              options: dict | None = None, workers: int | None = None) -> dict:
+              options: dict | None = None, workers: int | None = None,
+              budgets=None, repeats: int = 1) -> dict:
     """Run the bench (see the module notes) and write ``<out>/report.json`` and ``report.md``.
 
     psb_root : folder with ``meshes/N.off[.gz]`` and ``gt/N/N_k.seg[.gz]``
@@ -149,6 +251,9 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     workers : processes of the torchakvf runs (a), (b), (a'), one thread each (None: one per
         CPU core on CPU, 1 on a GPU); the scipy baseline runs in this process
     options : the command-line options as given, recorded in the report
+    budgets : face budgets of the "batched vs one at a time" sweep (ints >= 1; None or empty:
+        no sweep), see the module notes; the report's ``budget_sweep``
+    repeats : repetitions of the sweep's runs, interleaved; each timed by its fastest (>= 1)
 
     Returns the report as a dict (what ``report.json`` holds; ``problems``: inputs left out).
     """
@@ -156,6 +261,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
         raise TorchAKVFError(f"--limit must be an integer >= 1, got {limit}")
     if int(baseline_every) < 0:
         raise TorchAKVFError(f"--baseline-every must be an integer >= 0, got {baseline_every}")
+    device = str(resolve_device(device))
     segment_kwargs = dict(segment_kwargs or {})
     workers = default_workers(device) if workers is None else int(workers)
     if batch_faces is None:
@@ -163,6 +269,9 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     batch_faces = int(batch_faces)
     if batch_faces < 1:
         raise TorchAKVFError(f"--batch-faces must be an integer >= 1, got {batch_faces}")
+    budgets = _check_budgets(budgets)
+    if int(repeats) < 1:
+        raise TorchAKVFError(f"--repeats must be an integer >= 1, got {repeats}")
     remedy = DEFAULT_REMEDY if remedy is None else remedy
     segment_kwargs.setdefault("refine", False)
     # The evaluation's AKVF count: the largest default field count plus the engine's spares.
@@ -178,6 +287,8 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
     plan_seconds = time.perf_counter() - t0
     report = report_header(__version__, psb_root, out, device, seed, batch_faces, baseline_every, limit,
                      categories, remedy, n_akvf, n_fields, segment_kwargs, options)
+    report["settings"]["budgets"] = budgets
+    report["settings"]["repeats"] = int(repeats)
     report["selection"] = {
         "meshes": len(meshes), "faces": sum(m.faces for m in meshes),
         "predictions": sum(len(m.ks) for m in meshes),
@@ -194,19 +305,30 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
              plan_seconds)
     work = Path(tempfile.mkdtemp(dir=out, prefix=".bench-work-"))
     notes = report["notes"]
+    # Written after every run, so that a bench stopped at a time limit (the GPU check's) leaves
+    # the runs it finished: report.json/md with "partial" set, until the final write.
+    report.update(comparison=None, wall_seconds=None, partial=True,
+                  peak_memory=dict.fromkeys(("ru_maxrss_mib", "worker_maxrss_mib",
+                                             "total_rss_bound_mib", "cuda_max_memory_allocated_mib")))
+
+    def checkpoint():
+        report["wall_seconds"] = time.perf_counter() - t_bench
+        write_bench_reports(out, report)
+
     try:
         report["warm_up_seconds"] = warm_up(device, seed, remedy, n_akvf, segment_kwargs)
         common = dict(device=device, seed=seed, remedy=remedy, n_fields=n_fields,
                       segment_kwargs=segment_kwargs, workers=workers)
         runs = report["runs"]
         runs["batched"] = run_torchakvf("batched", meshes, work, batch_faces=batch_faces, **common)
-        report["comparison"] = None
+        checkpoint()
         if int(baseline_every) == 0:
             notes.append("baselines not run (--baseline-every 0)")
         else:
             subset = meshes[::int(baseline_every)]
             runs["one_at_a_time"] = run_torchakvf("one_at_a_time", subset, work, batch_faces=1,
                                                    **common)
+            checkpoint()
             ref, why = load_scipy_reference()
             if ref is None:
                 notes.append(why)
@@ -214,6 +336,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
                 runs["scipy"] = {"name": "scipy", "kind": "scipy", "skipped": why}
             else:
                 runs["scipy"] = run_scipy(ref, subset, work, seed=seed, n_akvf=n_akvf)
+                checkpoint()
             baselines = [r for r in (runs["one_at_a_time"], runs["scipy"]) if "skipped" not in r]
             excluded = {}
             for m in subset:
@@ -230,6 +353,7 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
             if compared:
                 runs["batched_subset"] = run_torchakvf("batched_subset", compared, work,
                                                         batch_faces=batch_faces, **common)
+                checkpoint()
                 ids = [m.mesh_id for m in compared]
                 if runs["batched_subset"]["failed"]:
                     notes.append("run batched_subset had failures; its ratios are not comparable")
@@ -240,6 +364,9 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
             if ref is None:
                 comp["ratios"]["scipy"] = None
             report["comparison"] = comp
+        if budgets:
+            report["budget_sweep"] = _budget_sweep(meshes, int(baseline_every), budgets, runs, work,
+                                                   common, notes, repeats, checkpoint)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     bounds = [r["total_rss_bound_mib"] for r in report["runs"].values() if r.get("total_rss_bound_mib")]
@@ -251,5 +378,6 @@ def run_bench(psb_root, out_dir, *, limit: int | None = None,
                                   if r.get("cuda_max_memory_allocated_mib") is not None],
                                  default=None)}
     report["wall_seconds"] = time.perf_counter() - t_bench
+    report["partial"] = False
     write_bench_reports(out, report)
     return report

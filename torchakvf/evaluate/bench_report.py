@@ -63,10 +63,47 @@ _DESCRIPTIONS = {
 }
 
 
+def _describe(name: str, run: dict, settings: dict) -> str:
+    if name in _DESCRIPTIONS:
+        return _DESCRIPTIONS[name].format(bf=settings["batch_faces"])
+    # budget_B: a run of the face-budget sweep
+    return f"torchakvf, batches of <= {run['batch_faces']} faces, the budget sweep's meshes"
+
+
+def _budget_lines(sweep: dict) -> list:
+    L = ["\n## Batched vs one at a time, by face budget (same meshes, this run)\n"]
+    L.append(f"{sweep['meshes']} meshes ({sweep['faces']:,} faces; ids "
+             f"{', '.join(map(str, sweep['mesh_ids']))}), each run once one mesh per batch "
+             f"(run {sweep['baseline_run']}) and once per budget (runs budget_B; a budget counts "
+             "the faces solved, i.e. decimated faces under coarse_faces)"
+             + (f"; {sweep['repeats']} repetitions, interleaved, each run timed by its fastest"
+                if sweep.get("repeats", 1) > 1 else "") + ".\n")
+    L.append("| face budget | batches | batched s | one at a time s | ratio | CPU-time ratio | akvf ratio | "
+             "segment ratio | batched s, each repeat |")
+    L.append("|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+    for row in sweep["rows"]:
+        flag = "" if row["comparable"] else " (not comparable: other failures)"
+        L.append(f"| {row['budget']:,} | {row['batches']} | {_f(row['seconds'])} | "
+                 f"{_f(row['one_at_a_time_seconds'])} | **{_f(row['ratio'])}**{flag} | "
+                 f"{_f(row.get('cpu_ratio'))} | "
+                 f"{_f(row['stage_ratios'].get('akvf'))} | {_f(row['stage_ratios'].get('segment'))} | "
+                 f"{', '.join(_f(x) for x in row.get('seconds_each', []))} |")
+    if sweep.get("one_at_a_time_seconds_each"):
+        L.append(f"\none at a time s, each repeat: {', '.join(_f(x) for x in sweep['one_at_a_time_seconds_each'])}")
+    L.append("\nratio = one-at-a-time seconds / batched seconds (>= 1: batching at least as fast); "
+             "CPU-time ratio: the same with the CPU seconds of this process and its workers (other "
+             "processes' load does not inflate them; on a GPU the wall ratio is the one that counts); "
+             "stage ratios compare summed stage seconds.")
+    return L
+
+
 def _markdown(r: dict) -> str:
     s = r["settings"]
     sel = r["selection"]
     L = ["# torchakvf bench\n"]
+    if r.get("partial"):
+        L.append(f"**Partial report:** the bench has not finished (stopped, or still running); "
+                 f"these are the runs done after {_f(r.get('wall_seconds'), 1)} s.\n")
     L.append(f"- created {r['created']}; torchakvf {r['environment']['torchakvf']}, torch "
              f"{r['environment']['torch']} ({r['environment']['torch_threads']} threads, "
              f"{r['environment']['cpu_count']} CPUs), device {s['device']}"
@@ -107,7 +144,7 @@ def _markdown(r: dict) -> str:
             L.append(f"- **{name}**: {run['skipped']}")
         else:
             how = "one mesh at a time, CPU" if run["kind"] == "scipy" else f"{run['batches']} batch(es)"
-            L.append(f"- **{name}**: {_DESCRIPTIONS[name].format(bf=s['batch_faces'])} ({how})")
+            L.append(f"- **{name}**: {_describe(name, run, s)} ({how})")
     L.append("\nStages: load = reading files; pack = clean-up, packing, transfer to the device; "
              "akvf = operator + eigensolve (once per batch, shared by every k); segment = "
              "untangling + spherical k-means + boundaries; write = prediction files; other = the "
@@ -157,6 +194,8 @@ def _markdown(r: dict) -> str:
             L.append("\nExcluded from the comparison (failed in some run):")
             for i, why in c["excluded"].items():
                 L.append(f"- {i}: {why}")
+    if r.get("budget_sweep"):
+        L.extend(_budget_lines(r["budget_sweep"]))
     fails = [(n, i, e) for n, run in r["runs"].items() for i, e in run.get("failed", {}).items()]
     if fails:
         L.append("\n## Failures\n")
@@ -215,6 +254,11 @@ def summary_lines(report: dict, out: Path) -> list:
             v = c["ratios"].get(name)
             parts.append(f"{name} {_f(v['ratio'])}x" if v else f"{name} skipped")
         L.append(f"  baseline / torchakvf on {c['meshes']} meshes: " + ", ".join(parts))
+    sweep = report.get("budget_sweep")
+    if sweep:
+        L.append(f"  one at a time / batched on {sweep['meshes']} meshes, by face budget: "
+                 + ", ".join(f"{row['budget']}: {_f(row['ratio'])}x (CPU time {_f(row.get('cpu_ratio'))}x)"
+                             for row in sweep["rows"]))
     for note in report["notes"]:
         L.append(f"  note: {note}")
     L.append(f"  wrote {out / REPORT_MD} and {out / REPORT_JSON}")

@@ -26,7 +26,7 @@ from .predict import PredictSettings, predict_in_worker
 log = logging.getLogger("torchakvf.bench")
 
 __all__ = ["STAGES", "BenchMesh", "load_scipy_reference", "run_torchakvf", "run_scipy", "warm_up",
-           "rss_mib", "predict_settings"]
+           "rss_mib", "cpu_seconds", "predict_settings"]
 
 #: Stage names of a run, in report order.
 STAGES = ("load", "pack", "akvf", "segment", "write", "other")
@@ -63,6 +63,19 @@ def rss_mib(children: bool = False) -> float | None:
         return None
     peak = resource.getrusage(resource.RUSAGE_CHILDREN if children else resource.RUSAGE_SELF).ru_maxrss
     return peak / _MIB if sys.platform == "darwin" else peak * 1024 / _MIB  # bytes vs KiB
+
+
+def cpu_seconds() -> float:
+    """User + system CPU seconds so far of this process and its finished (reaped) child
+    processes: a run's difference is its CPU time, which other processes' load on a shared
+    machine does not inflate as it does wall time (worker pools end with each run, so their
+    time is in by the run's end)."""
+    try:
+        import resource
+    except ImportError:  # not on Windows
+        return time.process_time()
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def _cuda_reset(device) -> None:
@@ -145,7 +158,7 @@ def run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: st
     _cuda_reset(device)
     log.info("bench %s: %d meshes, %d faces, batches of <= %d faces, device %s", name, len(meshes),
              run["faces"], batch_faces, device)
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), cpu_seconds()
     order = sorted(plans, key=lambda p: (n_k[p.mesh_id], faces_of[p.mesh_id], p.mesh_id))
     solved = solved_face_counts(faces_of, segment_kwargs.get("coarse_faces"))
     settings = predict_settings(device, seed, remedy, n_fields, segment_kwargs)
@@ -185,6 +198,7 @@ def run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: st
             run["per_mesh"][batch[0].mesh_id]["stages"] = {
                 k: v for k, v in timings.items() if k != "segment_by_k"}
     wall = time.perf_counter() - t_start
+    run["cpu_seconds"] = cpu_seconds() - cpu_start
     prog.close()
     shutil.rmtree(pred_root, ignore_errors=True)  # after the clock: predictions are scratch
     return _finish_run(run, meshes, wall, stages, by_k, device)

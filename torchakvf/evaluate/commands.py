@@ -190,6 +190,13 @@ def add_bench_arguments(p) -> None:
                    help="run the one-at-a-time and scipy baselines on every M-th mesh of the "
                         f"selection (default {DEFAULT_BASELINE_EVERY}; 0: none)")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default cpu)")
+    p.add_argument("--budgets", default=None, metavar="B1,B2",
+                   help="also time batched against one mesh at a time at these face budgets "
+                        "(e.g. 4000,20000,80000), on the baseline subset (every mesh with "
+                        "--baseline-every 0); default: no sweep")
+    p.add_argument("--repeats", default="1", metavar="R",
+                   help="with --budgets: run the sweep R times, interleaved, and time each run by "
+                        "its fastest repetition (default 1)")
     p.add_argument("--seed", default="0", help="random seed (default 0)")
     p.add_argument("--categories", default=None, metavar="A,B",
                    help="comma-separated PSB category names (default: all)")
@@ -233,7 +240,8 @@ def run_bench_command(args) -> int:
             segment_kwargs[name] = getattr(args, name)
     report = run_bench(Path(args.psb or default_psb_arg()), out, limit=limit, baseline_every=every,
                        device=device, seed=seed, categories=categories, batch_faces=batch_faces,
-                       segment_kwargs=segment_kwargs, workers=workers,
+                       segment_kwargs=segment_kwargs, workers=workers, budgets=args.budgets,
+                       repeats=parse_int(args.repeats, "--repeats", 1),
                        options={k: v for k, v in vars(args).items() if k not in ("func", "command")})
     for line in summary_lines(report, out):
         print(line)

@@ -62,6 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..devices import resolve_device
 from ..errors import TorchAKVFError
 from ..fields.akvf import SOLVERS
 from ..io.outputs import OutputSpaceError, atomic_write_bytes
@@ -154,6 +155,7 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     EvalSummary (``.failed``: whether any mesh failed or any input was left out)
     """
     t_start = time.perf_counter()
+    device = str(resolve_device(device))   # before any work: one line, not every mesh failed
     remedy = DEFAULT_REMEDY if remedy is None else remedy
     if batch_faces is None:
         batch_faces = default_eval_batch_faces(device, segment_kwargs.get("coarse_faces"))

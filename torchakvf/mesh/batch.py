@@ -15,6 +15,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from ..devices import resolve_device
 from ..errors import MeshError, ParameterError
 from .clean import CleanMesh, clean_mesh
 from .coarse import CoarseMesh, coarse_mesh
@@ -114,7 +115,7 @@ class MeshBatch:
             fs.append(f_s)
             nv, nf, ne = nv + len(m.vertices), nf + len(m.faces), ne + len(e)
             vptr.append(nv), fptr.append(nf), eptr.append(ne)
-        dev = torch.device(device)
+        dev = resolve_device(device)   # one ParameterError for a device this machine lacks
         t = lambda a, dt: torch.as_tensor(np.concatenate(a), dtype=dt, device=dev)  # noqa: E731
         return cls(verts=t(verts, dtype), faces=t(faces, torch.int64), edges=t(edges, torch.int64),
                    face_edges=t(fe, torch.int64), face_edge_sign=t(fs, dtype),
@@ -164,6 +165,8 @@ class MeshBatch:
             device, dtype = None, device
         if dtype is not None and dtype not in (torch.float32, torch.float64):
             raise ParameterError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        if device is not None:
+            device = resolve_device(device)
         mv = {k: getattr(self, k).to(device=device, dtype=dtype) for k in self._FLOAT_FIELDS}
         mv.update({k: getattr(self, k).to(device=device) for k in self._INDEX_FIELDS})
         return MeshBatch(meshes=self.meshes, coarse=self.coarse, **mv)

@@ -52,20 +52,12 @@ def _float(text, flag: str, minimum: float | None = None, maximum: float | None 
     return value
 
 
-def _device(text: str) -> str:
-    import torch
+def _device(text: str, check_available: bool = True) -> str:
+    """``--device`` as a torch device string (:func:`torchakvf.devices.resolve_device`: one-line
+    errors for an unknown type, CUDA absent here, an index beyond the GPUs present)."""
+    from ..devices import resolve_device
 
-    try:
-        dev = torch.device(text)
-    except (RuntimeError, ValueError):
-        raise TorchAKVFError(f"--device {text!r} is not a torch device (e.g. cpu, cuda, cuda:1)") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise TorchAKVFError(f"--device {text}: CUDA is not available on this machine (use --device cpu)")
-    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
-        raise TorchAKVFError(f"--device {text}: this machine has {torch.cuda.device_count()} CUDA devices")
-    if dev.type not in ("cpu", "cuda"):
-        raise TorchAKVFError(f"--device {text}: only cpu and cuda are supported")
-    return str(dev)
+    return str(resolve_device(text, what="--device", check_available=check_available))
 
 
 def _remedy(text: str) -> str:
@@ -94,13 +86,17 @@ def _common(p: argparse.ArgumentParser) -> None:
                         "one GPU each). Default 0: no Ray")
 
 
+def _ray_workers(args) -> int:
+    return _int(args.ray_workers, "--ray-workers", 0)
+
+
 def _run(args, task, device: str) -> int:
     from .inputs import discover_inputs
     from .outdir import check_output_dir
     from .runner import default_batch_faces, failure_text, run_corpus
 
     out = Path(args.out)
-    ray_workers = _int(args.ray_workers, "--ray-workers", 0)
+    ray_workers = _ray_workers(args)
     if ray_workers:
         import importlib.util
 
@@ -176,7 +172,7 @@ def run_segment(args) -> int:
                        n_fields=n_fields, remedy=_remedy(args.remedy or DEFAULT_REMEDY),
                        formats=parse_formats(args.formats), coarse_faces=coarse or None,
                        solver=args.solver, method=args.method)
-    return _run(args, task, _device(args.device))
+    return _run(args, task, _device(args.device, check_available=not _ray_workers(args)))
 
 
 # ---- features -----------------------------------------------------------------------------
@@ -209,7 +205,7 @@ def run_features(args) -> int:
     remedy = _remedy(args.remedy or DEFAULT_REMEDY)
     coarse = _int(args.coarse_faces, "--coarse-faces", 0) or None
     max_faces = _int(args.max_faces, "--max-faces", 1) if args.max_faces is not None else None
-    device = _device(args.device)
+    device = _device(args.device, check_available=not _ray_workers(args))
     task = FeaturesTask(n, seed=seed, remedy=remedy, face_vectors=args.face_vectors, cache_dir=args.cache,
                         coarse_faces=coarse, max_faces=max_faces)
     return _run(args, task, device)

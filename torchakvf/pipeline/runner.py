@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
 
+from ..devices import resolve_device
 from ..errors import TorchAKVFError
 from ..io import peek_face_count
 from ..io.manifest import MANIFEST, ManifestWriter, read_manifest
@@ -198,6 +199,7 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
     folder is held by another run or the manifest cannot be written.
     """
     t_start = time.perf_counter()
+    device = str(resolve_device(device))   # before any work: one line, not N failed meshes
     out_dir = check_output_dir(out_dir)
     with OutputLock(out_dir):
         plan = plan_run(paths, out_dir, task, batch_faces=batch_faces, device=device, seed=seed,
