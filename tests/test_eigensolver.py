@@ -79,7 +79,7 @@ def scipy_matrices(system, b: int = 0):
 # akvf-math.md Sec. 3 tables
 # ---------------------------------------------------------------------------------------------
 
-METHODS = ["lobpcg", "lanczos"]
+METHODS = ["lobpcg", "lanczos", "krylov"]
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -14,6 +14,8 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
+from ..solvers.factor import ShiftedFactor
+from ..solvers.krylov import block_krylov
 from ..solvers.lanczos import shift_invert_lanczos
 from ..solvers.lobpcg import segmented_lobpcg
 from .whitney import whitney_face_vectors
@@ -78,7 +80,7 @@ def as_batch(meshes, device=None, coarse_faces: int | None = None) -> MeshBatch:
     return MeshBatch.from_meshes(list(meshes), device=device or "cpu", coarse_faces=coarse_faces)
 
 
-SOLVERS = ("auto", "lobpcg", "lanczos")
+SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
 
 #: Under a mesh-quality remedy, eigenpairs below this (λ·area) are spurious: a Killing energy is
 #: >= 0, and good meshes give at worst small negatives (-0.06 on a hemisphere, akvf-math.md);
@@ -89,14 +91,19 @@ SPURIOUS_MARGIN = 8
 
 
 def solver_for(device: torch.device) -> str:
-    """The eigensolver "auto" picks: Lanczos on CPU, the batched LOBPCG elsewhere.
+    """The eigensolver "auto" picks: block Krylov on CPU, the batched LOBPCG elsewhere.
 
-    Both use the same CHOLMOD shift-invert factor. On CPU the block method's dense
-    Rayleigh-Ritz work (bases of 3·(n + guard) columns) costs more than Lanczos' single
-    right-hand-side solves (benchmarks/bench_eigensolver.py); on a GPU the block method's
-    batched dense work is what the device is good at, and ARPACK does not run there.
+    All three use the same CHOLMOD shift-invert factor (one per mesh). On CPU the block
+    shift-invert Krylov solver (:func:`~torchakvf.solvers.krylov.block_krylov`) keeps every
+    solve it makes, like ARPACK, but solves 8 right-hand sides per sweep through the factor and
+    converges only the n pairs asked for; measured against ARPACK ("lanczos") and LOBPCG on
+    PSB meshes 1, 21, 121, 181, 301 in benchmarks/results/eigensolver_fullres.md. LOBPCG's dense
+    Rayleigh-Ritz work (bases of 3·(n + guard) columns, every column solved each iteration) is
+    the slowest of the three on CPU. On a GPU the block method's batched dense work is what
+    the device is good at, and ARPACK does not run there (the Krylov solver would, but has not
+    been measured on one).
     """
-    return "lanczos" if torch.device(device).type == "cpu" else "lobpcg"
+    return "krylov" if torch.device(device).type == "cpu" else "lobpcg"
 
 
 def _remedy_advice(remedy: str, decimated: bool = False) -> str:
@@ -134,7 +141,8 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         n returned are the n smallest of the rest; ``dropped`` counts the skipped ones)
     boundary_correction : use the open-mesh boundary terms (akvf-math.md)
     solver : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
-        shift-invert on the same factor, CPU, one mesh at a time), or "auto" (:func:`solver_for`)
+        shift-invert on the same factor, CPU, one mesh at a time), "krylov" (block shift-invert
+        Krylov on the same factor, one mesh at a time) or "auto" (:func:`solver_for`)
     device : device of the batch built from Mesh inputs (a MeshBatch given is moved there);
         default: the batch's own, "cpu" for meshes
     method : deprecated alias of ``solver``
@@ -159,12 +167,28 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         solver = solver_for(batch.device)
     names = batch.names
 
+    drop = remedy != "none"
+    factors: dict[int, ShiftedFactor] = {}     # krylov: a re-solve with more room reuses them
+
+    def factor_of(b: int) -> ShiftedFactor:
+        if b not in factors:
+            r, c, v, _ = system.block(b)
+            lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
+            factors[b] = ShiftedFactor(r, c, v, system.mass[lo:hi], name=names[b])
+        return factors[b]
+
     def solve(meshes_: list[int], count: int):
         sub = system if len(meshes_) == len(batch) else system.select(meshes_)
         sub_names = [names[b] for b in meshes_]
         try:
             if solver == "lanczos":
                 return shift_invert_lanczos(sub, count, tol=tol, seed=seed, names=sub_names)
+            if solver == "krylov":
+                # Only the n kept pairs (and the spurious ones below them) must converge; the
+                # room for spurious modes is returned as it is.
+                return block_krylov(sub, count, tol=tol, seed=seed, names=sub_names, need=n,
+                                    skip_below=SPURIOUS_BELOW if drop else None,
+                                    factors=[factor_of(b) for b in meshes_], grow=len(meshes_) == 1)
             return segmented_lobpcg(sub, count, tol=tol, seed=seed, names=sub_names, max_iter=max_iter)
         except SolverError as exc:
             if "fields asked for" in str(exc):
@@ -172,7 +196,6 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
             decimated = any(batch.coarse_of(b) is not None for b in meshes_)
             raise SolverError(f"{exc}; {_remedy_advice(remedy, decimated)}") from None
 
-    drop = remedy != "none"
     edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
     # Per mesh: n eigenpairs plus room for spurious ones (capped below the mesh's edge count).
     counts = [n + (min(SPURIOUS_MARGIN, max(e - n - 1, 0)) if drop else 0) for e in edges]
@@ -181,12 +204,16 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     for _ in range(4):
         # Meshes needing the same count are solved together; a mesh with more spurious modes
         # than its room is solved again alone with more (its mates keep theirs).
-        for count in sorted({counts[b] for b in todo}):
-            group = [b for b in todo if counts[b] == count]
-            eig = solve(group, count)
+        # The Krylov solver works one mesh at a time anyway and makes room for spurious modes
+        # itself (it returns more pairs where they need it), so it needs no second round.
+        groups = ([[b] for b in todo] if solver == "krylov" else
+                  [[b for b in todo if counts[b] == c] for c in sorted({counts[b] for b in todo})])
+        for group in groups:
+            eig = solve(group, counts[group[0]])
             vecs = batch.split(eig.vectors, _group_ptr(eig, group, edges))
             for j, b in enumerate(group):
                 per_mesh[b] = (eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j], eig.shifts[j])
+                counts[b] = max(counts[b], eig.eigenvalues.shape[1])
         if not drop:
             break
         again = []
