@@ -178,7 +178,8 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         return factors[b]
 
     def solve(meshes_: list[int], count: int):
-        sub = system if len(meshes_) == len(batch) else system.select(meshes_)
+        whole = len(meshes_) == len(batch)
+        sub = system if whole or solver == "krylov" else system.select(meshes_)
         sub_names = [names[b] for b in meshes_]
         try:
             if solver == "lanczos":
@@ -189,12 +190,13 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
                 fac = [factor_of(b) for b in meshes_]
                 eig = block_krylov(sub, count, tol=tol, seed=seed, names=sub_names, need=n,
                                    skip_below=SPURIOUS_BELOW if drop else None, factors=fac,
-                                   grow=len(meshes_) == 1)
+                                   grow=len(meshes_) == 1, meshes=meshes_)
                 if len(meshes_) == 1 and not bool(eig.converged[0]) and sub.mass.device.type == "cpu":
                     # Rare (seen on a mesh with 33 spurious modes and shift -512, where the
                     # wanted pairs' 1/(λ - σ) all crowd together): ARPACK on the same factor.
-                    k = min(eig.eigenvalues.shape[1], len(sub.mass) - 1)
-                    eig = shift_invert_lanczos(sub, k, tol=tol, seed=seed, names=sub_names, factors=fac)
+                    one = sub if whole else system.select(meshes_)
+                    k = min(eig.eigenvalues.shape[1], len(one.mass) - 1)
+                    eig = shift_invert_lanczos(one, k, tol=tol, seed=seed, names=sub_names, factors=fac)
                 return eig
             return segmented_lobpcg(sub, count, tol=tol, seed=seed, names=sub_names, max_iter=max_iter)
         except SolverError as exc:

@@ -55,8 +55,11 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
                  names: list[str] | None = None, need: int | None = None,
                  skip_below: float | None = None, block: int = BLOCK,
                  max_dim: int | None = None, factors: list | None = None,
-                 grow: bool = False) -> EigenResult:
+                 grow: bool = False, meshes: list[int] | None = None) -> EigenResult:
     """The ``count`` smallest eigenpairs of every mesh of ``system``, one mesh at a time.
+
+    meshes : solve only these meshes of the system (indices, in that order; default all), so
+        a subset needs no :meth:`KillingSystem.select`; names and factors then follow it
 
     count : pairs returned per mesh
     need : pairs that must reach ``tol`` (the first ``need`` in ascending order; default
@@ -77,22 +80,23 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
 
     Returns an :class:`EigenResult`; ``iterations`` counts shift-invert right-hand sides.
     """
-    nb = system.n_meshes
-    names = names or [f"mesh {b}" for b in range(nb)]
+    meshes = list(range(system.n_meshes)) if meshes is None else [int(b) for b in meshes]
+    nb = len(meshes)
+    names = names or [f"mesh {b}" for b in meshes]
     need = count if need is None else min(need, count)
     sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
-    for b, e in enumerate(sizes):
-        if count > e:
-            raise SolverError(f"{names[b]}: {count} fields asked for but the mesh has only {e} "
-                              "edges; ask for fewer fields")
+    for j, b in enumerate(meshes):
+        if count > sizes[b]:
+            raise SolverError(f"{names[j]}: {count} fields asked for but the mesh has only "
+                              f"{sizes[b]} edges; ask for fewer fields")
     if grow and nb != 1:
         raise ParameterError(f"block_krylov(grow=True) solves one mesh at a time, got {nb}")
     values, vectors, residuals, solves, shifts = [], [], [], [], []
-    for b in range(nb):
+    for j, b in enumerate(meshes):
         r, c, v, size = system.block(b)
         lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
         mass = system.mass[lo:hi].to(torch.float64)
-        factor = factors[b] if factors is not None else ShiftedFactor(r, c, v, mass, name=names[b])
+        factor = factors[j] if factors is not None else ShiftedFactor(r, c, v, mass, name=names[j])
         stiff = torch.sparse_coo_tensor(torch.stack([r, c]), v.to(torch.float64), (size, size),
                                         check_invariants=False).to_sparse_csr()
         dims = (lambda k: max_dim) if max_dim else (lambda k: max(10 * k, 240))
@@ -101,7 +105,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         short = bool(torch.isinf(res).all())
         if not short and not bool((res[:_needed(lam, need, skip_below)] <= tol).all()):
             log.info("%s: block Krylov stopped at a basis of %d with residual %.2e > tol %.1e",
-                        names[b], k, float(res.max()), tol)
+                        names[j], k, float(res.max()), tol)
         values.append(lam), vectors.append(x), residuals.append(res)
         solves.append(k), shifts.append(factor.sigma)
     dev = system.mass.device
