@@ -95,7 +95,7 @@ def solver_for(device: torch.device) -> str:
 
     All three use the same CHOLMOD shift-invert factor (one per mesh). On CPU the block
     shift-invert Krylov solver (:func:`~torchakvf.solvers.krylov.block_krylov`) keeps every
-    solve it makes, like ARPACK, but solves 8 right-hand sides per sweep through the factor and
+    solve it makes, like ARPACK, but solves 6 right-hand sides per sweep through the factor and
     converges only the n pairs asked for; measured against ARPACK ("lanczos") and LOBPCG on
     PSB meshes 1, 21, 121, 181, 301 in benchmarks/results/eigensolver_fullres.md. LOBPCG's dense
     Rayleigh-Ritz work (bases of 3·(n + guard) columns, every column solved each iteration) is
