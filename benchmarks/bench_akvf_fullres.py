@@ -50,7 +50,7 @@ import torch
 import torchakvf as ta
 from torchakvf import scipy_reference as ref
 from torchakvf import shapes
-from torchakvf.fields.akvf import solver_for
+from torchakvf.fields.akvf import KRYLOV_MIN_EDGES, solver_for
 from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
 from torchakvf.mesh.coarse import coarse_mesh
@@ -200,30 +200,30 @@ def main(argv=None) -> int:
         f"- torch {torch.__version__}, scipy {scipy.__version__}, numpy {np.__version__}, "
         f"python {platform.python_version()}, {os.cpu_count()} CPUs (shared with other jobs: "
         "absolute seconds are noisy, ratios within a round are what counts)",
-        f"- ta = `ta.akvf(mesh, n={n})` defaults (solver auto = {solver_for('cpu')} on "
-        "CPU; cleaning + operator + factor + solve + Whitney); ta lanczos = same with "
-        "solver='lanczos' (the previous CPU default)",
+        f"- ta = `ta.akvf(mesh, n={n})` defaults (solver auto: on CPU krylov for meshes from "
+        f"{KRYLOV_MIN_EDGES} edges, lanczos below; column 'auto'; cleaning + operator + factor + "
+        "solve + Whitney); ta lanczos = same with solver='lanczos' (the previous CPU default)",
         "- scipy ref = scipy_reference: killing_operator_scipy(remedy='smooth') + eigsh(sigma=-1, "
         "SuperLU) + Rayleigh-Ritz, on the cleaned mesh (cleaning not charged); eigsh only = eigsh "
         "(SuperLU) on torchakvf's operator at its shift",
         "- Δλ = max |λ_ta − λ| / max(|λ|,1) over the n pairs; bound = max over pairs of "
         "min(r, r²/relgap) from the larger of the two residuals r",
         "",
-        "| id | faces | edges | σ | ta s | ta lanczos s | scipy ref s | eigsh only s | "
+        "| id | faces | edges | auto | σ | ta s | ta lanczos s | scipy ref s | eigsh only s | "
         "ref/ta | eigsh/ta | lanczos/ta | solves ta / lanczos | res ta | res ref | res eigsh | "
         "Δλ vs eigsh | bound | Δλ vs ref | dropped |",
-        "|" + "---|" * 19,
+        "|" + "---|" * 20,
     ]
     for i in args.ids:
         b, f = best[i], info[i]
         lines.append(
-            f"| {i} | {f['faces']} | {f['edges']} | {f['sigma']:g} | {b['ta']:.2f} | "
+            f"| {i} | {f['faces']} | {f['edges']} | {solver_for('cpu', f['edges'])} | {f['sigma']:g} | {b['ta']:.2f} | "
             f"{b['lanczos']:.2f} | {b['ref']:.2f} | {b['eigsh']:.2f} | {b['ref'] / b['ta']:.2f} | "
             f"{b['eigsh'] / b['ta']:.2f} | {b['lanczos'] / b['ta']:.2f} | {f['solves']} / "
             f"{f['solves_l']} | {f['res_ta']:.1e} | {f['res_ref']:.1e} | {f['res_e']:.1e} | "
             f"{f['d_eigsh']:.1e} | {f['bound']:.1e} | {f['d_ref']:.1e} | {f['dropped']} |")
     lines.append(
-        f"| **total** | | | | {tot['ta']:.2f} | {tot['lanczos']:.2f} | {tot['ref']:.2f} | "
+        f"| **total** | | | | | {tot['ta']:.2f} | {tot['lanczos']:.2f} | {tot['ref']:.2f} | "
         f"{tot['eigsh']:.2f} | **{tot['ref'] / tot['ta']:.2f}** | **{tot['eigsh'] / tot['ta']:.2f}** "
         f"| **{tot['lanczos'] / tot['ta']:.2f}** | | | | | | | | |")
     lines += [

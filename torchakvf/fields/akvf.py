@@ -90,20 +90,32 @@ SPURIOUS_BELOW = -1.0
 SPURIOUS_MARGIN = 8
 
 
-def solver_for(device: torch.device) -> str:
-    """The eigensolver "auto" picks: block Krylov on CPU, the batched LOBPCG elsewhere.
+#: On CPU, "auto" solves meshes with at least this many edges with the block Krylov solver and
+#: smaller ones with ARPACK Lanczos (same factor). Measured crossover, ta.akvf n = 32, CPU time,
+#: Lanczos / Krylov: 0.81 at ~6,000 edges (PSB meshes decimated to 4,000 faces, also at n = 12
+#: and 20), 0.94 at 12,000, 0.96 at 14,112 (PSB 1), 1.09 at ~18,000-21,000, 1.18-1.26 at
+#: 17,832-45,594 (PSB 121, 181, 301, 21); benchmarks/results/eigensolver_fullres.md.
+KRYLOV_MIN_EDGES = 15000
 
-    All three use the same CHOLMOD shift-invert factor (one per mesh). On CPU the block
+
+def solver_for(device: torch.device, edges: int | None = None) -> str:
+    """The eigensolver "auto" picks for a mesh of ``edges`` edges on ``device``: on CPU the block
+    Krylov solver from :data:`KRYLOV_MIN_EDGES` edges on (and when ``edges`` is not given),
+    Lanczos below; the batched LOBPCG elsewhere.
+
+    All use the same CHOLMOD shift-invert factor (one per mesh). On CPU the block
     shift-invert Krylov solver (:func:`~torchakvf.solvers.krylov.block_krylov`) keeps every
     solve it makes, like ARPACK, but solves 6 right-hand sides per sweep through the factor and
-    converges only the n pairs asked for; measured against ARPACK ("lanczos") and LOBPCG on
-    PSB meshes 1, 21, 121, 181, 301 in benchmarks/results/eigensolver_fullres.md. LOBPCG's dense
+    converges only the n pairs asked for; on small meshes its per-step dense work costs more
+    than ARPACK's single-vector steps (see :data:`KRYLOV_MIN_EDGES`). LOBPCG's dense
     Rayleigh-Ritz work (bases of 3·(n + guard) columns, every column solved each iteration) is
-    the slowest of the three on CPU. On a GPU the block method's batched dense work is what
-    the device is good at, and ARPACK does not run there (the Krylov solver would, but has not
-    been measured on one).
+    the slowest of the three on CPU (4x Lanczos on PSB 21 and 301). On a GPU the block method's
+    batched dense work is what the device is good at, and ARPACK does not run there (the Krylov
+    solver would, but has not been measured on one).
     """
-    return "krylov" if torch.device(device).type == "cpu" else "lobpcg"
+    if torch.device(device).type != "cpu":
+        return "lobpcg"
+    return "krylov" if edges is None or edges >= KRYLOV_MIN_EDGES else "lanczos"
 
 
 def _remedy_advice(remedy: str, decimated: bool = False) -> str:
@@ -142,7 +154,8 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     boundary_correction : use the open-mesh boundary terms (akvf-math.md)
     solver : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
         shift-invert on the same factor, CPU, one mesh at a time), "krylov" (block shift-invert
-        Krylov on the same factor, one mesh at a time) or "auto" (:func:`solver_for`)
+        Krylov on the same factor, one mesh at a time) or "auto" (:func:`solver_for`, decided
+        per mesh: on CPU Krylov for meshes from :data:`KRYLOV_MIN_EDGES` edges, Lanczos below)
     device : device of the batch built from Mesh inputs (a MeshBatch given is moved there);
         default: the batch's own, "cpu" for meshes
     method : deprecated alias of ``solver``
@@ -163,12 +176,13 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
     batch = as_batch(meshes, device=device)
     system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
-    if solver == "auto":
-        solver = solver_for(batch.device)
+    edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
+    # The solver of each mesh ("auto" decides per mesh, by its size).
+    solvers = [solver_for(batch.device, e) if solver == "auto" else solver for e in edges]
     names = batch.names
 
     drop = remedy != "none"
-    factors: dict[int, ShiftedFactor] = {}     # krylov: a re-solve with more room reuses them
+    factors: dict[int, ShiftedFactor] = {}     # a re-solve with more room reuses them
 
     def factor_of(b: int) -> ShiftedFactor:
         if b not in factors:
@@ -177,13 +191,16 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
             factors[b] = ShiftedFactor(r, c, v, system.mass[lo:hi], name=names[b])
         return factors[b]
 
-    def solve(meshes_: list[int], count: int):
+    def solve(meshes_: list[int], count: int, solver: str):
         whole = len(meshes_) == len(batch)
         sub = system if whole or solver == "krylov" else system.select(meshes_)
         sub_names = [names[b] for b in meshes_]
         try:
             if solver == "lanczos":
-                return shift_invert_lanczos(sub, count, tol=tol, seed=seed, names=sub_names)
+                # On CPU the factors are kept for a re-solve with more room (ARPACK needs CPU ones).
+                cpu = system.mass.device.type == "cpu"
+                return shift_invert_lanczos(sub, count, tol=tol, seed=seed, names=sub_names,
+                                            factors=[factor_of(b) for b in meshes_] if cpu else None)
             if solver == "krylov":
                 # Only the n kept pairs (and the spurious ones below them) must converge; the
                 # room for spurious modes is returned as it is.
@@ -205,7 +222,6 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
             decimated = any(batch.coarse_of(b) is not None for b in meshes_)
             raise SolverError(f"{exc}; {_remedy_advice(remedy, decimated)}") from None
 
-    edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
     # Per mesh: n eigenpairs plus room for spurious ones (capped below the mesh's edge count).
     counts = [n + (min(SPURIOUS_MARGIN, max(e - n - 1, 0)) if drop else 0) for e in edges]
     per_mesh: list = [None] * len(batch)
@@ -215,10 +231,12 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         # than its room is solved again alone with more (its mates keep theirs).
         # The Krylov solver works one mesh at a time anyway and makes room for spurious modes
         # itself (it returns more pairs where they need it), so it needs no second round.
-        groups = ([[b] for b in todo] if solver == "krylov" else
-                  [[b for b in todo if counts[b] == c] for c in sorted({counts[b] for b in todo})])
+        others = [b for b in todo if solvers[b] != "krylov"]
+        groups = [[b] for b in todo if solvers[b] == "krylov"] + [
+            [b for b in others if (counts[b], solvers[b]) == key]
+            for key in sorted({(counts[b], solvers[b]) for b in others})]
         for group in groups:
-            eig = solve(group, counts[group[0]])
+            eig = solve(group, counts[group[0]], solvers[group[0]])
             vecs = batch.split(eig.vectors, _group_ptr(eig, group, edges))
             for j, b in enumerate(group):
                 per_mesh[b] = (eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j], eig.shifts[j])

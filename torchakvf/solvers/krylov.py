@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 BLOCK = 6
 #: A needed pair counts as converged when its estimated residual is below this fraction of tol
 #: (the estimate is exact up to round-off; the margin absorbs that round-off).
-_SAFETY = 0.5
+_SAFETY = 0.9
 #: Relative S-norm below which a new direction is numerically inside the basis and dropped.
 _DEPENDENT = 1e-10
 #: Squared norm fraction left after one Gram-Schmidt pass below which a second pass is made.
