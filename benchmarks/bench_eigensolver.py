@@ -23,8 +23,13 @@ and the number of negative eigenvalues among the n, with the chosen remedy and w
 A mesh that fails is reported in the table, never fatal. ``--profile ID`` runs cProfile once on
 torchakvf for that mesh and prints where the time goes.
 
+``--fullres`` runs benchmarks/bench_akvf_fullres.py instead (``ta.akvf`` defaults against scipy
+eigsh on PSB 1, 21, 121, 181, 301 at full resolution, batched against one at a time; writes
+benchmarks/results/eigensolver_fullres.md); the arguments after it go to that script.
+
 Usage::
 
+    python benchmarks/bench_eigensolver.py --fullres --repeat 3  # issue 13's full-resolution figure
     python benchmarks/bench_eigensolver.py                       # the 19 meshes, remedy smooth
     python benchmarks/bench_eigensolver.py --remedy none --out benchmarks/results/eigensolver_none.md
     python benchmarks/bench_eigensolver.py --ids 1 21 --profile 281
@@ -118,6 +123,9 @@ def eigensolve(system, n: int, tol: float, max_iter: int, names, method: str = "
         if shift_invert_lanczos is None:
             raise RuntimeError("this torchakvf has no solvers.lanczos")
         return shift_invert_lanczos(system, n, tol=tol, names=names)
+    if method == "krylov":
+        from torchakvf.solvers.krylov import block_krylov
+        return block_krylov(system, n, tol=tol, names=names)
     return segmented_lobpcg(system, n, tol=tol, names=names, max_iter=max_iter)
 
 
@@ -282,7 +290,9 @@ def _f(x, spec):
 
 
 SOLVER_LABEL = {"lobpcg": "segmented_lobpcg (cholespy/CHOLMOD shift-invert preconditioner)",
-                "lanczos": "shift_invert_lanczos (ARPACK on the CHOLMOD factor; iters = solves)"}
+                "lanczos": "shift_invert_lanczos (ARPACK on the CHOLMOD factor; iters = solves)",
+                "krylov": "block_krylov (block shift-invert Krylov on the CHOLMOD factor; iters = "
+                          "right-hand sides)"}
 
 
 def header(args, psb: Path) -> str:
@@ -433,7 +443,7 @@ def parse_args(argv=None):
     p.add_argument("--scipy-tol", type=float, default=0.0,
                    help="eigsh's own tol (default 0: machine precision, as a user would call it)")
     p.add_argument("--max-iter", type=int, default=60, help="segmented_lobpcg max_iter")
-    p.add_argument("--method", default="lobpcg", choices=("lobpcg", "lanczos"),
+    p.add_argument("--method", default="lobpcg", choices=("lobpcg", "lanczos", "krylov"),
                    help="torchakvf eigensolver timed (default lobpcg = segmented_lobpcg)")
     p.add_argument("--remedy", default="smooth", choices=REMEDIES, help="operator remedy (default smooth)")
     p.add_argument("--ids", type=int, nargs="+", default=FIRST_IDS,
@@ -451,6 +461,11 @@ def parse_args(argv=None):
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--fullres" in argv:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import bench_akvf_fullres
+        return bench_akvf_fullres.main([a for a in argv if a != "--fullres"])
     args = parse_args(argv)
     if not (args.psb / "meshes").is_dir():
         print(f"PSB not found at {args.psb} (expected {args.psb}/meshes/N.off.gz); set --psb or "

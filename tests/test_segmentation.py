@@ -69,8 +69,20 @@ def test_batch_equals_one_at_a_time(built, batch_seg):
         s = built[name]
         alone = ta.segment(ta.Mesh(s.vertices, s.faces, name=name), k=s.n_parts, seed=0)
         np.testing.assert_allclose(alone[0].eigenvalues, batch_seg[i].eigenvalues, rtol=1e-8, atol=1e-8)
-        same = np.mean(alone[0].labels == batch_seg[i].labels)
+        # Up to the numbering of the parts: on an exactly symmetric shape which half is part 0
+        # is a tie that round-off decides (seen with the block Krylov solver on the dumbbell).
+        same = _agreement_up_to_numbering(alone[0].labels, batch_seg[i].labels)
         assert same >= 0.999, f"{name}: batch and single labels agree on {same:.5f} of faces"
+
+
+def _agreement_up_to_numbering(a: np.ndarray, b: np.ndarray) -> float:
+    """Fraction of faces with the same label after the best one-to-one renumbering of b."""
+    from scipy.optimize import linear_sum_assignment
+    k = int(max(a.max(), b.max())) + 1
+    confusion = np.zeros((k, k))
+    np.add.at(confusion, (a, b), 1)
+    rows, cols = linear_sum_assignment(-confusion)
+    return float(confusion[rows, cols].sum() / len(a))
 
 
 def test_same_seed_same_labels_other_seed_still_right():

@@ -14,6 +14,8 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
+from ..solvers.factor import ShiftedFactor
+from ..solvers.krylov import block_krylov
 from ..solvers.lanczos import shift_invert_lanczos
 from ..solvers.lobpcg import segmented_lobpcg
 from .whitney import whitney_face_vectors
@@ -78,7 +80,7 @@ def as_batch(meshes, device=None, coarse_faces: int | None = None) -> MeshBatch:
     return MeshBatch.from_meshes(list(meshes), device=device or "cpu", coarse_faces=coarse_faces)
 
 
-SOLVERS = ("auto", "lobpcg", "lanczos")
+SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
 
 #: Under a mesh-quality remedy, eigenpairs below this (λ·area) are spurious: a Killing energy is
 #: >= 0, and good meshes give at worst small negatives (-0.06 on a hemisphere, akvf-math.md);
@@ -88,15 +90,32 @@ SPURIOUS_BELOW = -1.0
 SPURIOUS_MARGIN = 8
 
 
-def solver_for(device: torch.device) -> str:
-    """The eigensolver "auto" picks: Lanczos on CPU, the batched LOBPCG elsewhere.
+#: On CPU, "auto" solves meshes with at least this many edges with the block Krylov solver and
+#: smaller ones with ARPACK Lanczos (same factor). Measured crossover, ta.akvf n = 32, CPU time,
+#: Lanczos / Krylov: 0.81 at ~6,000 edges (PSB meshes decimated to 4,000 faces, also at n = 12
+#: and 20), 0.94 at 12,000, 0.96 at 14,112 (PSB 1), 1.09 at ~18,000-21,000, 1.18-1.26 at
+#: 17,832-45,594 (PSB 121, 181, 301, 21); benchmarks/results/eigensolver_fullres.md.
+KRYLOV_MIN_EDGES = 15000
 
-    Both use the same CHOLMOD shift-invert factor. On CPU the block method's dense
-    Rayleigh-Ritz work (bases of 3·(n + guard) columns) costs more than Lanczos' single
-    right-hand-side solves (benchmarks/bench_eigensolver.py); on a GPU the block method's
-    batched dense work is what the device is good at, and ARPACK does not run there.
+
+def solver_for(device: torch.device, edges: int | None = None) -> str:
+    """The eigensolver "auto" picks for a mesh of ``edges`` edges on ``device``: on CPU the block
+    Krylov solver from :data:`KRYLOV_MIN_EDGES` edges on (and when ``edges`` is not given),
+    Lanczos below; the batched LOBPCG elsewhere.
+
+    All use the same CHOLMOD shift-invert factor (one per mesh). On CPU the block
+    shift-invert Krylov solver (:func:`~torchakvf.solvers.krylov.block_krylov`) keeps every
+    solve it makes, like ARPACK, but solves 6 right-hand sides per sweep through the factor and
+    converges only the n pairs asked for; on small meshes its per-step dense work costs more
+    than ARPACK's single-vector steps (see :data:`KRYLOV_MIN_EDGES`). LOBPCG's dense
+    Rayleigh-Ritz work (bases of 3·(n + guard) columns, every column solved each iteration) is
+    the slowest of the three on CPU (4x Lanczos on PSB 21 and 301). On a GPU the block method's
+    batched dense work is what the device is good at, and ARPACK does not run there (the Krylov
+    solver would, but has not been measured on one).
     """
-    return "lanczos" if torch.device(device).type == "cpu" else "lobpcg"
+    if torch.device(device).type != "cpu":
+        return "lobpcg"
+    return "krylov" if edges is None or edges >= KRYLOV_MIN_EDGES else "lanczos"
 
 
 def _remedy_advice(remedy: str, decimated: bool = False) -> str:
@@ -134,7 +153,9 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         n returned are the n smallest of the rest; ``dropped`` counts the skipped ones)
     boundary_correction : use the open-mesh boundary terms (akvf-math.md)
     solver : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
-        shift-invert on the same factor, CPU, one mesh at a time), or "auto" (:func:`solver_for`)
+        shift-invert on the same factor, CPU, one mesh at a time), "krylov" (block shift-invert
+        Krylov on the same factor, one mesh at a time) or "auto" (:func:`solver_for`, decided
+        per mesh: on CPU Krylov for meshes from :data:`KRYLOV_MIN_EDGES` edges, Lanczos below)
     device : device of the batch built from Mesh inputs (a MeshBatch given is moved there);
         default: the batch's own, "cpu" for meshes
     method : deprecated alias of ``solver``
@@ -155,16 +176,45 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
     batch = as_batch(meshes, device=device)
     system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
-    if solver == "auto":
-        solver = solver_for(batch.device)
+    edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
+    # The solver of each mesh ("auto" decides per mesh, by its size).
+    solvers = [solver_for(batch.device, e) if solver == "auto" else solver for e in edges]
     names = batch.names
 
-    def solve(meshes_: list[int], count: int):
-        sub = system if len(meshes_) == len(batch) else system.select(meshes_)
+    drop = remedy != "none"
+    factors: dict[int, ShiftedFactor] = {}     # a re-solve with more room reuses them
+
+    def factor_of(b: int) -> ShiftedFactor:
+        if b not in factors:
+            r, c, v, _ = system.block(b)
+            lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
+            factors[b] = ShiftedFactor(r, c, v, system.mass[lo:hi], name=names[b])
+        return factors[b]
+
+    def solve(meshes_: list[int], count: int, solver: str):
+        whole = len(meshes_) == len(batch)
+        sub = system if whole or solver == "krylov" else system.select(meshes_)
         sub_names = [names[b] for b in meshes_]
         try:
             if solver == "lanczos":
-                return shift_invert_lanczos(sub, count, tol=tol, seed=seed, names=sub_names)
+                # On CPU the factors are kept for a re-solve with more room (ARPACK needs CPU ones).
+                cpu = system.mass.device.type == "cpu"
+                return shift_invert_lanczos(sub, count, tol=tol, seed=seed, names=sub_names,
+                                            factors=[factor_of(b) for b in meshes_] if cpu else None)
+            if solver == "krylov":
+                # Only the n kept pairs (and the spurious ones below them) must converge; the
+                # room for spurious modes is returned as it is.
+                fac = [factor_of(b) for b in meshes_]
+                eig = block_krylov(sub, count, tol=tol, seed=seed, names=sub_names, need=n,
+                                   skip_below=SPURIOUS_BELOW if drop else None, factors=fac,
+                                   grow=len(meshes_) == 1, meshes=meshes_)
+                if len(meshes_) == 1 and not bool(eig.converged[0]) and sub.mass.device.type == "cpu":
+                    # Rare (seen on a mesh with 33 spurious modes and shift -512, where the
+                    # wanted pairs' 1/(λ - σ) all crowd together): ARPACK on the same factor.
+                    one = sub if whole else system.select(meshes_)
+                    k = min(eig.eigenvalues.shape[1], len(one.mass) - 1)
+                    eig = shift_invert_lanczos(one, k, tol=tol, seed=seed, names=sub_names, factors=fac)
+                return eig
             return segmented_lobpcg(sub, count, tol=tol, seed=seed, names=sub_names, max_iter=max_iter)
         except SolverError as exc:
             if "fields asked for" in str(exc):
@@ -172,8 +222,6 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
             decimated = any(batch.coarse_of(b) is not None for b in meshes_)
             raise SolverError(f"{exc}; {_remedy_advice(remedy, decimated)}") from None
 
-    drop = remedy != "none"
-    edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
     # Per mesh: n eigenpairs plus room for spurious ones (capped below the mesh's edge count).
     counts = [n + (min(SPURIOUS_MARGIN, max(e - n - 1, 0)) if drop else 0) for e in edges]
     per_mesh: list = [None] * len(batch)
@@ -181,12 +229,18 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     for _ in range(4):
         # Meshes needing the same count are solved together; a mesh with more spurious modes
         # than its room is solved again alone with more (its mates keep theirs).
-        for count in sorted({counts[b] for b in todo}):
-            group = [b for b in todo if counts[b] == count]
-            eig = solve(group, count)
+        # The Krylov solver works one mesh at a time anyway and makes room for spurious modes
+        # itself (it returns more pairs where they need it), so it needs no second round.
+        others = [b for b in todo if solvers[b] != "krylov"]
+        groups = [[b] for b in todo if solvers[b] == "krylov"] + [
+            [b for b in others if (counts[b], solvers[b]) == key]
+            for key in sorted({(counts[b], solvers[b]) for b in others})]
+        for group in groups:
+            eig = solve(group, counts[group[0]], solvers[group[0]])
             vecs = batch.split(eig.vectors, _group_ptr(eig, group, edges))
             for j, b in enumerate(group):
                 per_mesh[b] = (eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j], eig.shifts[j])
+                counts[b] = max(counts[b], eig.eigenvalues.shape[1])
         if not drop:
             break
         again = []

@@ -1,9 +1,10 @@
 """Alternative eigensolver: implicitly restarted Lanczos (ARPACK, via scipy ``eigsh``) in
 shift-invert mode on the same CHOLMOD factor the LOBPCG path uses. CPU only, one mesh at a time.
 
-Offered for comparison (``torchakvf.akvf(..., solver="lanczos")``): it needs fewer solves per
-eigenpair, but each is a single right-hand side, and with a loose tolerance Lanczos can drop
-copies of repeated eigenvalues, which a block method does not. See benchmarks/bench_eigensolver.py.
+Offered for comparison (``torchakvf.akvf(..., solver="lanczos")``; the CPU default before the
+block Krylov solver, and that solver's fallback): it needs fewer solves per eigenpair, but each
+is a single right-hand side, and with a loose tolerance Lanczos can drop copies of repeated
+eigenvalues, which a block method does not. See benchmarks/results/eigensolver_fullres.md.
 """
 from __future__ import annotations
 
@@ -19,11 +20,12 @@ from .lobpcg import EigenResult, relative_residuals
 
 
 def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed: int = 0,
-                         names: list[str] | None = None) -> EigenResult:
+                         names: list[str] | None = None, factors: list | None = None) -> EigenResult:
     """The ``n`` smallest eigenpairs of each mesh by ARPACK shift-invert on a CHOLMOD factor.
 
     ``tol`` is the residual reported as converged (ARPACK itself runs to machine precision,
-    since a loose ARPACK tolerance is what loses repeated eigenvalues).
+    since a loose ARPACK tolerance is what loses repeated eigenvalues). factors : optional
+    precomputed :class:`ShiftedFactor` per mesh.
     """
     nb = system.n_meshes
     names = names or [f"mesh {b}" for b in range(nb)]
@@ -37,7 +39,8 @@ def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed:
         r, c, v, size = system.block(b)
         lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
         mass = system.mass[lo:hi].cpu()
-        factor = ShiftedFactor(r.cpu(), c.cpu(), v.cpu(), mass, name=names[b])
+        factor = (factors[b] if factors is not None else
+                  ShiftedFactor(r.cpu(), c.cpu(), v.cpu(), mass, name=names[b]))
         stiff = sp.csr_matrix((v.cpu().numpy(), (r.cpu().numpy(), c.cpu().numpy())), shape=(size, size))
         count = [0]
 

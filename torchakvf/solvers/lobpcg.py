@@ -40,7 +40,8 @@ class EigenResult:
     eigenvalues : [B, n] ascending, λ·area (the operator is built on unit-area meshes)
     vectors : packed [ΣE, n], S1-orthonormal per mesh
     residuals : [B, n] ||S1^{-1/2}(R w - λ S1 w)|| / max(|λ|, 1) for S1-normalized w
-    iterations : [B] LOBPCG iterations per mesh (Lanczos: shift-invert solves)
+    iterations : [B] LOBPCG iterations per mesh (Lanczos: shift-invert solves; block Krylov:
+        shift-invert right-hand sides)
     shifts : [B] the shift σ of each mesh's factor
     converged : [B] bool, every residual <= tol
     """
