@@ -16,6 +16,7 @@ from ..errors import TorchAKVFError
 from ..mesh.coarse import DEFAULT_COARSE_FACES
 from ..parts.engine import METHODS
 from ..pipeline.commands import _device as parse_device
+from ..pipeline.commands import add_solver_argument
 from ..pipeline.commands import _int as parse_int
 from ..pipeline.parallel import default_workers
 from .bench import DEFAULT_BASELINE_EVERY
@@ -103,8 +104,7 @@ def add_eval_arguments(p) -> None:
                         "PSB mesh a batch, measured fastest)")
     p.add_argument("--default-k", type=_positive_int, default=DEFAULT_K_NO_GT,
                    help=f"parts for meshes without human segmentations (default {DEFAULT_K_NO_GT})")
-    p.add_argument("--solver", default=None, choices=["auto", "lanczos", "lobpcg"],
-                   help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
+    add_solver_argument(p, default=None)
     p.add_argument("--method", default=None, choices=list(METHODS),
                    help="segmentation method: merge (default: over-segment, then merge adjacent "
                         "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
@@ -209,8 +209,7 @@ def add_bench_arguments(p) -> None:
     p.add_argument("--workers", default=None, metavar="W",
                    help="processes of the torchakvf runs, one thread each (default: one per CPU "
                         "core on CPU, at most 8; 1 on a GPU)")
-    p.add_argument("--solver", default=None, choices=["auto", "lanczos", "lobpcg"],
-                   help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
+    add_solver_argument(p, default=None)
     p.add_argument("--method", default=None, choices=list(METHODS),
                    help="segmentation method: merge (default: over-segment, then merge adjacent "
                         "parts by symmetry and concavity) or paper (Solomon et al. 2011)")

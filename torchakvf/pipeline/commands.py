@@ -11,6 +11,7 @@ import logging
 from pathlib import Path
 
 from ..errors import TorchAKVFError
+from ..fields.akvf import KRYLOV_MIN_EDGES, SOLVERS
 from ..parts.engine import DEFAULT_METHOD, METHODS
 
 log = logging.getLogger("torchakvf")
@@ -22,6 +23,14 @@ log = logging.getLogger("torchakvf")
 #: and it fits the int64 a seed may be stored in.
 MAX_SEED = 2**63 - 1
 
+
+
+def add_solver_argument(p: argparse.ArgumentParser, default) -> None:
+    """``--solver``, its choices those of :func:`torchakvf.akvf` (one list for every command)."""
+    p.add_argument("--solver", default=default, choices=list(SOLVERS),
+                   help="eigensolver of the AKVFs (default auto: on CPU ARPACK Lanczos below "
+                        f"{KRYLOV_MIN_EDGES} edges and block Krylov above, both on a CHOLMOD "
+                        "factor; LOBPCG on a GPU)")
 
 def _int(text, flag: str, minimum: int | None = None, maximum: int | None = None) -> int:
     try:
@@ -150,8 +159,7 @@ def _add_segment(sub) -> None:
                    help=f"solve on meshes decimated to about N faces and cut the parts on the "
                         f"originals (default {DEFAULT_COARSE_FACES}, measured on the PSB; 0: full "
                         "resolution)")
-    p.add_argument("--solver", default="auto", choices=["auto", "lanczos", "lobpcg"],
-                   help="eigensolver of the AKVFs (default auto: Lanczos on CPU, LOBPCG on a GPU)")
+    add_solver_argument(p, default="auto")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS),
                    help="segmentation method: merge (default: over-segment, then merge adjacent "
                         "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
