@@ -159,7 +159,9 @@ def main(argv=None):
               "`total` is `MeshBatch.from_meshes([load_mesh(path)], coarse_faces=...)`, the path "
               "`eval`/`bench` take (load + the bench's 'pack'); `surface_map` locates the fine "
               "vertices and face barycenters on the coarse mesh; `decimate` includes the "
-              "relaxation, which projects onto the fine surface with the same search.", "",
+              "fast_simplification (unchanged, most of it) and the relaxation, which keeps the former "
+              "nearest-barycenter search (`EXACT_RELAXATION = False`) so the decimated meshes are "
+              "bit-identical.", "",
               "## Outputs against the baseline", "",
               "| mesh | faces | load same | clean same | decimation same | map points | other face | "
               "baseline farther | new farther |", "|---|---|---|---|---|---|---|---|---|"]
