@@ -1,7 +1,8 @@
 """Validation and clean-up of one mesh, with index maps back to the input's faces.
 
 What is repaired (and counted in ``CleanMesh.report``): exact duplicate vertices are merged,
-faces with a repeated vertex index, zero-area faces and repeated faces are dropped, faces are
+faces with a repeated vertex index, zero-area faces and repeated faces are dropped (with
+``zip_cracks=True`` the crack a dropped needle face leaves is zipped shut), faces are
 re-oriented consistently per component, unreferenced vertices are removed.
 What is refused (``MeshError``): non-manifold edges (shared by more than two faces),
 non-orientable surfaces, and meshes with nothing left after clean-up.
@@ -108,8 +109,16 @@ def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(face_cross_products(vertices, faces), axis=1)
 
 
-def clean_mesh(mesh: Mesh) -> CleanMesh:
-    """Validate and clean ``mesh``; see the module docstring for what is repaired or refused."""
+def clean_mesh(mesh: Mesh, zip_cracks: bool = False) -> CleanMesh:
+    """Validate and clean ``mesh``; see the module docstring for what is repaired or refused.
+
+    zip_cracks : close the crack that dropping a needle face (zero area, one vertex on the
+        opposite edge) opens, by splitting the face across it (:func:`_zip_cracks`; off by default for now).
+        A crack is a zero-area hole whose open-boundary terms cost Killing modes (a sphere with
+        one loses a rotation) or make R - σS1 indefinite at every shift (PSB 351, the only PSB
+        mesh with such faces: 20 of them; zipped, it solves at full resolution). False: the
+        faces are just dropped.
+    """
     name = mesh.name
     report = {}
     # Merge exact duplicate vertices (STL and many exporters write one copy per face).
@@ -127,7 +136,10 @@ def clean_mesh(mesh: Mesh) -> CleanMesh:
     area = face_areas(verts, faces)
     degenerate = area <= DEGENERATE_AREA_FRACTION * area.mean()
     report["zero_area_faces"] = int(degenerate.sum())
-    faces, keep = faces[~degenerate], keep[~degenerate]
+    if zip_cracks and degenerate.any():
+        faces, keep, report["zipped_cracks"] = _zip_cracks(verts, faces, keep, degenerate)
+    else:
+        faces, keep = faces[~degenerate], keep[~degenerate]
     if len(faces) == 0:
         raise MeshError(name, "every face has zero area; nothing is left to process")
 
@@ -158,6 +170,47 @@ def clean_mesh(mesh: Mesh) -> CleanMesh:
     return CleanMesh(vertices=verts, faces=faces, face_index=keep, n_input_faces=mesh.n_faces,
                      face_component=vertex_comp[faces[:, 0]].astype(np.int64), name=name,
                      input_faces=mesh.faces, report=report)
+
+
+def _zip_cracks(verts: np.ndarray, faces: np.ndarray, keep: np.ndarray, degenerate: np.ndarray):
+    """Drop the degenerate faces, closing the crack each needle face (A, B, C), B on segment
+    AC, leaves: the face across AC, (C, A, D), is split at B into (C, B, D) and (B, A, D) (both
+    keep its input face index). Where the needle sat in a flattened pocket, a new face repeats
+    an existing one on the same three vertices; both copies are dropped (the pocket had no area).
+
+    Returns (faces, keep, number of needles zipped). Degenerate faces that are not needles
+    between two kept faces are just dropped.
+    """
+    faces, keep = faces.copy(), keep.copy()
+    out_faces, out_keep, zipped = [], [], 0
+    alive = ~degenerate
+    # Directed half-edge (u, v) -> face, of the faces that stay.
+    half = {(int(u), int(v)): i for i in np.flatnonzero(alive)
+            for u, v in zip(faces[i], faces[i][[1, 2, 0]])}
+    for d in np.flatnonzero(degenerate):
+        tri = faces[d]
+        length = np.linalg.norm(verts[tri[[1, 2, 0]]] - verts[tri], axis=1)
+        k = int(length.argmax())
+        a, c, b = int(tri[k]), int(tri[(k + 1) % 3]), int(tri[(k + 2) % 3])
+        i = half.get((c, a))
+        if i is None or not alive[i]:
+            continue
+        t = faces[i].tolist()
+        j = t.index(c)
+        dv = t[(j + 2) % 3]
+        for u, v in zip(t, t[1:] + t[:1]):
+            half.pop((u, v), None)
+        alive[i] = False
+        for new in ((c, b, dv), (b, a, dv)):
+            out_faces.append(new)
+            out_keep.append(keep[i])
+        zipped += 1
+    faces = np.concatenate([faces[alive], np.array(out_faces, dtype=faces.dtype).reshape(-1, 3)])
+    keep = np.concatenate([keep[alive], np.array(out_keep, dtype=keep.dtype)])
+    # A zipped pocket: the same three vertices twice (opposite orientation): drop both copies.
+    _, _, inverse, counts = unique_rows(np.sort(faces, axis=1))
+    single = counts[inverse] == 1
+    return faces[single], keep[single], zipped
 
 
 @dataclass
