@@ -129,3 +129,87 @@ def test_coarse_faces_needs_mesh_inputs():
     batch = MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces)])
     with pytest.raises(ParameterError, match="coarse_faces"):
         ta.segment(batch, k=2, coarse_faces=100)
+
+
+def _every_face_closest(vertices, faces, points):
+    """Brute force: Ericson's closest point on every face for every point; [P] face (lowest
+    index among the nearest) and distance."""
+    from torchakvf.mesh.coarse import _closest_barycentric
+    tri = vertices[faces]
+    a, b, c = tri[None, :, 0], tri[None, :, 1], tri[None, :, 2]
+    w = _closest_barycentric(points[:, None, :], a, b, c)                  # [P, F, 3]
+    q = w[..., 0:1] * a + w[..., 1:2] * b + w[..., 2:3] * c
+    d = np.linalg.norm(q - points[:, None, :], axis=-1)
+    return d.argmin(axis=1), d.min(axis=1), d
+
+
+def _check_exact(vertices, faces, points):
+    loc = locate_on_surface(vertices, faces, points)
+    face, dist, all_d = _every_face_closest(vertices, faces, points)
+    scale = np.abs(vertices).max()
+    # Same distance as brute force, and the face found is one of the nearest (a different
+    # face only where two faces are equally near within round-off: a shared edge or corner).
+    assert np.allclose(loc.distance, dist, rtol=0, atol=1e-12 * scale)
+    rows = np.arange(len(points))
+    assert np.all(all_d[rows, loc.face] <= dist + 1e-12 * scale)
+    tie = np.sort(all_d, axis=1)[:, 1] - dist <= 1e-12 * scale
+    assert np.array_equal(loc.face[~tie], face[~tie])
+    assert np.all(loc.bary >= -1e-12) and np.allclose(loc.bary.sum(1), 1)
+    closest = np.einsum("pc,pcx->px", loc.bary, vertices[faces[loc.face]])
+    assert np.allclose(np.linalg.norm(closest - points, axis=1), loc.distance, atol=1e-12 * scale)
+    return tie
+
+
+@pytest.mark.parametrize("shape", ["torus", "dumbbell", "icosphere"])
+def test_locate_is_exact_against_every_face_on_builtin_meshes(shape):
+    s = shapes.icosphere(2) if shape == "icosphere" else getattr(shapes, shape)()
+    rng = np.random.default_rng(1)
+    lo, hi = s.vertices.min(0), s.vertices.max(0)
+    far = rng.uniform(lo - 0.3 * (hi - lo), hi + 0.3 * (hi - lo), size=(300, 3))   # anywhere
+    f = rng.integers(len(s.faces), size=300)
+    on = np.einsum("pc,pcx->px", rng.dirichlet(np.ones(3), size=300), s.vertices[s.faces[f]])
+    near = on + rng.normal(scale=0.01 * (hi - lo).max(), size=on.shape)       # near the surface
+    # Points on edges and corners, and pushed off them: where several faces are equally near.
+    e = s.faces[f]
+    t = rng.uniform(size=(300, 1))
+    edge = t * s.vertices[e[:, 0]] + (1 - t) * s.vertices[e[:, 1]]
+    corner = s.vertices[e[:, 2]] * (1 + rng.uniform(-0.05, 0.05, size=(300, 1)))
+    tie = _check_exact(s.vertices, s.faces, np.concatenate([far, near, edge, corner]))
+    assert tie.sum() > 50                                      # the ties were exercised
+
+
+def test_locate_is_exact_on_a_random_soup_with_slivers():
+    # Random triangles of very different sizes and shapes (slivers included), and points among
+    # them: where the nearest barycenters say little about the nearest face.
+    rng = np.random.default_rng(2)
+    centers = rng.uniform(-1, 1, size=(400, 3))
+    size = np.exp(rng.uniform(np.log(0.01), np.log(0.5), size=(400, 1, 1)))
+    tri = centers[:, None] + size * rng.normal(size=(400, 3, 3))
+    tri[:40, 2] = tri[:40, 0] + 1e-3 * (tri[:40, 1] - tri[:40, 0]) + 1e-4   # slivers
+    v = tri.reshape(-1, 3)
+    f = np.arange(len(v)).reshape(-1, 3)
+    _check_exact(v, f, rng.uniform(-1.2, 1.2, size=(500, 3)))
+
+
+def test_locate_finds_what_nearest_barycenters_miss():
+    # A long triangle whose barycenter is far away, next to many small ones: the point lies
+    # over the long one's far end. (The former search, among the 8 faces with the nearest
+    # barycenters, returned small face 19, 29 units away.)
+    small = np.array([[[x, 1.0, 0.0], [x + 0.1, 1.0, 0.0], [x, 1.1, 0.0]] for x in np.linspace(-0.5, 0.5, 20)])
+    long = np.array([[[-50.0, 0.0, 0.0], [50.0, 0.0, 0.0], [0.0, -1.0, 0.0]]])
+    tri = np.concatenate([small, long])
+    v = tri.reshape(-1, 3)
+    f = np.arange(len(v)).reshape(-1, 3)
+    loc = locate_on_surface(v, f, np.array([[30.0, 0.05, 0.0]]))
+    assert loc.face[0] == 20 and np.isclose(loc.distance[0], 0.05)
+
+
+def test_unique_rows_is_numpys_row_unique():
+    from torchakvf.mesh.clean import unique_rows
+    rng = np.random.default_rng(3)
+    for a in [rng.integers(0, 4, size=(500, 3)), rng.integers(0, 3, size=(300, 2)).astype(np.float64),
+              np.array([[0.0, -0.0, 1.0], [-0.0, 0.0, 1.0], [1.0, 2.0, 3.0], [0.0, 0.0, 1.0]])]:
+        got = unique_rows(a)
+        want = np.unique(a, axis=0, return_index=True, return_inverse=True, return_counts=True)
+        for g, w in zip(got, want):
+            assert np.array_equal(g, np.asarray(w).reshape(g.shape))
