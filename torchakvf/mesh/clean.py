@@ -109,11 +109,11 @@ def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(face_cross_products(vertices, faces), axis=1)
 
 
-def clean_mesh(mesh: Mesh, zip_cracks: bool = False) -> CleanMesh:
+def clean_mesh(mesh: Mesh, zip_cracks: bool = True) -> CleanMesh:
     """Validate and clean ``mesh``; see the module docstring for what is repaired or refused.
 
     zip_cracks : close the crack that dropping a needle face (zero area, one vertex on the
-        opposite edge) opens, by splitting the face across it (:func:`_zip_cracks`; off by default for now).
+        opposite edge) opens, by splitting the face across it (:func:`_zip_cracks`).
         A crack is a zero-area hole whose open-boundary terms cost Killing modes (a sphere with
         one loses a rotation) or make R - σS1 indefinite at every shift (PSB 351, the only PSB
         mesh with such faces: 20 of them; zipped, it solves at full resolution). False: the
@@ -179,7 +179,7 @@ def _zip_cracks(verts: np.ndarray, faces: np.ndarray, keep: np.ndarray, degenera
     an existing one on the same three vertices; both copies are dropped (the pocket had no area).
 
     Returns (faces, keep, number of needles zipped). Degenerate faces that are not needles
-    between two kept faces are just dropped.
+    with kept faces across all three edges are just dropped.
     """
     faces, keep = faces.copy(), keep.copy()
     out_faces, out_keep, zipped = [], [], 0
@@ -195,6 +195,10 @@ def _zip_cracks(verts: np.ndarray, faces: np.ndarray, keep: np.ndarray, degenera
         i = half.get((c, a))
         if i is None or not alive[i]:
             continue
+        if (b, c) not in half or (a, b) not in half:
+            # Not a crack: B is on no face beside the needle's short edges, so dropping the
+            # needle opens no hole (and splitting the face across AC would make one).
+            continue
         t = faces[i].tolist()
         j = t.index(c)
         dv = t[(j + 2) % 3]
@@ -207,10 +211,16 @@ def _zip_cracks(verts: np.ndarray, faces: np.ndarray, keep: np.ndarray, degenera
         zipped += 1
     faces = np.concatenate([faces[alive], np.array(out_faces, dtype=faces.dtype).reshape(-1, 3)])
     keep = np.concatenate([keep[alive], np.array(out_keep, dtype=keep.dtype)])
-    # A zipped pocket: the same three vertices twice (opposite orientation): drop both copies.
+    # A zipped pocket: a new face on the same three vertices as another face (opposite
+    # orientation): drop both copies. Repeats among the input's own faces are left to the
+    # repeated-face step (one copy kept).
+    new = np.zeros(len(faces), dtype=bool)
+    new[len(faces) - len(out_faces):] = True
     _, _, inverse, counts = unique_rows(np.sort(faces, axis=1))
-    single = counts[inverse] == 1
-    return faces[single], keep[single], zipped
+    pocket = np.zeros(len(counts), dtype=bool)
+    pocket[inverse[new & (counts[inverse] > 1)]] = True
+    stay = ~pocket[inverse]
+    return faces[stay], keep[stay], zipped
 
 
 @dataclass
