@@ -30,7 +30,7 @@ from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.merge import oversegment_k, region_graph
 from torchakvf.parts.segment import SPARE_FIELDS, UNTANGLE_RESTARTS, default_n_fields, field_counts
 
-RATIOS = (1.0, 1.5, 2.0, 3.0)
+RATIOS = (1.0, 2.0, 2.5, 3.0, 4.0)
 
 
 def subset_ids(per_category: int) -> list[int]:
@@ -48,7 +48,7 @@ def cache_mesh(entry, out: Path, coarse_faces: int, seed: int = 0) -> None:
     timing = {"akvf": time.perf_counter() - t0, "untangle": 0.0, "segment": {}}
     dual = dual_edges(mesh.vertices, mesh.faces)
     area = face_areas(mesh.vertices, mesh.faces)
-    data = {"pairs": dual.pairs.astype(np.int32), "length": dual.length, "dihedral": dual.dihedral,
+    data = {"faces": mesh.faces.astype(np.int32), "vertices": mesh.vertices, "pairs": dual.pairs.astype(np.int32), "length": dual.length, "dihedral": dual.dihedral,
             "area": area, "ks": np.array(ks)}
     unts = {}
     for k in ks:
@@ -61,12 +61,15 @@ def cache_mesh(entry, out: Path, coarse_faces: int, seed: int = 0) -> None:
             kp = oversegment_k(k, r, len(mesh.faces))
             key = f"k{k}_r{r:g}"
             t1 = time.perf_counter()
-            seg = segment(fields, k=kp, seed=seed, n_fields=ns, untangled=unts[tuple(ns)], refine=False)[0]
+            seg = segment(fields, k=kp, seed=seed, n_fields=ns, untangled=unts[tuple(ns)], refine=False,
+                          method="paper")[0]
             timing["segment"][key] = time.perf_counter() - t1
             g = region_graph(seg.labels, dual, seg.features, area)
             data[key + "_labels"] = g.labels.astype(np.int16)
             data[key + "_area"], data[key + "_mean"] = g.area, g.mean
             data[key + "_length"], data[key + "_concave"] = g.length, g.concave
+            if r == 1.0:   # per-face untangled features on the input faces (graph-cut data terms)
+                data[f"k{k}_feats"] = seg.features.astype(np.float16)
     for i, g in enumerate(gts):
         data[f"gt{i}"] = g.astype(np.int16)
     data["n_gt"] = np.array(len(gts))
