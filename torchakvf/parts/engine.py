@@ -33,6 +33,7 @@ from .boundaries import (face_margins, isoline_face_labels, refine_along_isoline
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import part_generators
 from .concavity import dual_edges
+from .graphcut import GraphCut, graphcut_labels
 from .merge import MergeWeights, merge_parts, merged_distances, oversegment_k, partition_cost
 from .results import MeshSegmentation, Segmentation
 from .topology import face_adjacency
@@ -143,6 +144,9 @@ class SegmentOptions:
     boundary: str = "isoline"
     min_part_fraction: float = 0.01
     refine: bool = True
+    #: boundaries re-decided by a graph cut on the dual graph (:mod:`torchakvf.parts.graphcut`)
+    #: after the parts are chosen; None = off (measured: no gain, benchmarks/results/quality_v2.md)
+    graphcut: GraphCut | None = None
 
     def __post_init__(self):
         if self.boundary not in BOUNDARIES:
@@ -235,6 +239,12 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
             vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
             # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
             cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
+        if opts.graphcut is not None:
+            if "dual" not in cache:
+                cache["dual"] = dual_edges(clean.vertices, clean.faces)
+            # data term: each face's distance to each part, the mean over its corners
+            face_dist = vdist[clean.faces].mean(axis=1)
+            labels = graphcut_labels(labels, face_dist, cache["dual"], area, opts.graphcut)
     gens = part_generators(labels, feats, area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
     converged, residual = solve_quality(fields, b)
     return MeshSegmentation(
@@ -248,6 +258,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
                     coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
                     solver=opts.solver, method=opts.method,
+                    **({"graphcut": vars(opts.graphcut)} if opts.graphcut is not None else {}),
                     **({"k_oversegment": k_cluster, **{f"merge_{name}": float(v) for name, v in
                                                        vars(opts.merge).items()}} if merging(opts) else {})),
         converged=converged, max_residual=residual)
