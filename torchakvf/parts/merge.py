@@ -190,15 +190,11 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
             mat[j, :] = mat[:, j] = 0.0
         owner[owner == j] = i
         cost[j, :] = cost[:, j] = np.inf
-        if weights.cut > 0:   # every neighbour's perimeter-share term may change: all rows again
-            live = np.flatnonzero(area > 0)
-            sub = _pair_costs(mean, area, length, concave, convex, live, weights, k)
-            sub[np.arange(len(live)), live] = np.inf
-            cost[np.ix_(live, np.arange(K))] = sub
-        else:
-            row = _pair_costs(mean, area, length, concave, convex, np.array([i]), weights, k)[0]
-            row[i] = np.inf
-            cost[i, :] = cost[:, i] = row
+        # Only the merged part's costs change: a neighbour's perimeter is the same (its
+        # boundary with i and j is now all with i) and so are all other pairs' terms.
+        row = _pair_costs(mean, area, length, concave, convex, np.array([i]), weights, k)[0]
+        row[i] = np.inf
+        cost[i, :] = cost[:, i] = row
     roots = np.unique(owner)
     return np.searchsorted(roots, owner), history
 
