@@ -13,8 +13,9 @@ from torchakvf.errors import ParameterError
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
 from torchakvf.parts.concavity import crease_weights, dual_edges
+from torchakvf.evaluate.k_auto import pick_k
 from torchakvf.parts.merge import (MergeWeights, RegionGraph, greedy_merge, merge_costs, merge_parts,
-                                   merged_distances, oversegment_k, partition_cost,
+                                   merged_distances, next_merge_cost, oversegment_k, partition_cost,
                                    region_graph)
 from torchakvf.parts.topology import face_adjacency
 
@@ -65,7 +66,7 @@ def test_merge_cost_and_order_by_hand():
                     mean=np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
                     length=np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]], dtype=float),
                     concave=np.array([[0, 1, 0.5], [1, 0, 0], [0.5, 0, 0]], dtype=float))
-    w = MergeWeights(symmetry=1.0, concavity=2.0, size=1.0, ratio=2.0)
+    w = MergeWeights(symmetry=1.0, concavity=2.0, size=1.0, ratio=2.0, part_size=0.0, convexity=0.0, cut=0.0)
     cost = merge_costs(g, w)
     # (0,1): same features, κ = 1/2 -> 0 + 2 (1/2) + 1/4; (0,2): orthogonal -> 1 + 1 + 1/4.
     np.testing.assert_allclose(cost[0, 1], 1.25)
@@ -113,9 +114,9 @@ def _adjacent_label_pairs(labels, faces):
     return {(int(x), int(y)) for x, y in zip(a, b) if x != y}
 
 
-@pytest.mark.parametrize("k,weights", [(1, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0)),
-                                       (2, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0)),
-                                       (4, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0)),
+@pytest.mark.parametrize("k,weights", [(1, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+                                       (2, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+                                       (4, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
                                        (3, MergeWeights(convexity=2.0, cut=1.0, part_size=0.3,
                                                         crease_angle=0.5))])
 def test_merging_only_joins_adjacent_parts(k, weights):
@@ -205,3 +206,18 @@ def test_partition_cost_by_hand():
     np.testing.assert_allclose(partition_cost(np.array([4, 4, 7]), feats), 2 * (1 - 1 / np.sqrt(2)))
     # One part of identical directions costs nothing.
     assert partition_cost(np.zeros(3, dtype=int), np.ones((3, 2))) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_next_merge_cost_and_the_merge_rule_of_k_auto():
+    v, f = hinge(np.pi / 2)
+    w = MergeWeights(symmetry=1.0, concavity=2.0, part_size=0.0, convexity=0.0, cut=0.0)
+    # orthogonal features (1 - cos = 1) across a right-angle valley (κ = 1/2): 1 + 2 (1/2)
+    assert next_merge_cost(np.array([0, 1]), dual_edges(v, f), np.eye(2), np.ones(2), w) == pytest.approx(2.0)
+    assert next_merge_cost(np.array([0, 0]), dual_edges(v, f), np.eye(2), np.ones(2), w) == np.inf
+    ks, nxt = [2, 3, 4, 5, 6], [5.0, 3.0, 0.5, 2.0, 0.1]
+    # descending from 6: 0.1 cheap -> 5 (2.0 > τ = 1) stops there
+    assert pick_k(ks, np.ones(5), "merge", next_costs=nxt, tau=1.0) == 5
+    assert pick_k(ks, np.ones(5), "merge", next_costs=nxt, tau=2.5) == 3
+    assert pick_k(ks, np.ones(5), "merge", next_costs=nxt, tau=10.0) == 2
+    with pytest.raises(ParameterError, match="next-merge"):
+        pick_k(ks, np.ones(5), "merge")

@@ -9,6 +9,12 @@ pick the k with the largest second difference ``c(k-1) - 2 c(k) + c(k+1)``: the 
 which extra parts stop paying for themselves. Ties go to the smaller k. Only interior k's
 (``k_min < k < k_max``) can be chosen by this rule.
 
+* ``"merge"`` - from the merge costs (:func:`~torchakvf.parts.merge.next_merge_cost`): at each k
+  the cheapest merge left among the k parts, c_next(k); descending from k_max, merging goes on
+  while that merge is cheap, and stops at the first k whose next merge costs more than τ
+  (:data:`MERGE_TAU`, chosen by cross-validation across PSB categories,
+  benchmarks/results/quality_v2_kauto.md); k_min when every merge is cheap.
+
 Other rules, kept for comparison (see the measurements in the evaluation report):
 
 * ``"knee"`` - the "kneedle" point: after scaling k and c(k) to [0, 1], the k whose cost lies
@@ -32,10 +38,12 @@ from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, cluste
                             default_n_fields, segment_rounds, solve_akvfs)
 from ..parts.results import Segmentation
 
-RULES = ("elbow", "knee", "spectrum")
+RULES = ("elbow", "knee", "spectrum", "merge")
+#: The "merge" rule's threshold on the cheapest merge left (units of the merge cost).
+MERGE_TAU = 1.0
 DEFAULT_K_RANGE = (2, 10)
 
-__all__ = ["RULES", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
+__all__ = ["RULES", "MERGE_TAU", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
            "check_k_range"]
 
 
@@ -50,6 +58,7 @@ class KScan:
     rule : the rule used
     n_fields : fields untangled for every k (an int, or one per mesh)
     segmentations : {k: Segmentation} (only when kept)
+    next_costs : [B, len(ks)] cost of the cheapest merge left among each k's parts (inf: none)
     """
 
     ks: list
@@ -59,6 +68,7 @@ class KScan:
     rule: str
     n_fields: int
     segmentations: dict = field(default_factory=dict)
+    next_costs: np.ndarray | None = None
 
     def segmentation(self) -> Segmentation:
         """The chosen k's segmentation of every mesh (needs the segmentations kept)."""
@@ -78,12 +88,18 @@ def check_k_range(k_range) -> tuple[int, int]:
     return lo, hi
 
 
-def pick_k(ks, costs, rule: str = "elbow", eigenvalues=None) -> int:
-    """The k one rule picks from one mesh's cost curve ``costs[i] = c(ks[i])``."""
+def pick_k(ks, costs, rule: str = "elbow", eigenvalues=None, next_costs=None, tau: float = MERGE_TAU) -> int:
+    """The k one rule picks from one mesh's cost curve ``costs[i] = c(ks[i])`` (rule "merge":
+    from ``next_costs[i]``, the cheapest merge left at ks[i], and the threshold ``tau``)."""
     ks = np.asarray(ks, dtype=np.int64)
     c = np.asarray(costs, dtype=np.float64)
     if rule not in RULES:
         raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
+    if rule == "merge":
+        if next_costs is None:
+            raise ParameterError("rule 'merge' needs the next-merge costs (KScan.next_costs)")
+        above = ks[np.asarray(next_costs, dtype=np.float64) > tau]
+        return int(above.max()) if len(above) else int(ks[0])
     if rule == "spectrum":
         if eigenvalues is None:
             raise ParameterError("rule 'spectrum' needs the Killing eigenvalues")
@@ -152,16 +168,18 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
             raise ParameterError(f"{m.name}: k_max = {hi} is larger than its {len(m.faces)} faces")
     ks = list(range(lo, hi + 1))
     costs = np.zeros((nb, len(ks)))
+    nexts = np.full((nb, len(ks)), np.inf)
     segs = {}
     # One field count for every k, so one untangling serves the whole scan.
     for j, rnd in enumerate(segment_rounds(fields, [ks] * nb, opts, n_fields=ns)):
         costs[:, j] = [m.cost for m in rnd.meshes]
+        nexts[:, j] = [m.params.get("merge_next", np.inf) for m in rnd.meshes]
         if keep:
             segs[ks[j]] = rnd.segmentation()
     eig = fields.eigenvalues.detach().cpu().numpy().astype(np.float64)
-    chosen = [pick_k(ks, costs[b], rule, eig[b]) for b in range(nb)]
+    chosen = [pick_k(ks, costs[b], rule, eig[b], nexts[b]) for b in range(nb)]
     return KScan(ks=ks, costs=costs, eigenvalues=eig, chosen=chosen, rule=rule, n_fields=ns,
-                 segmentations=segs)
+                 segmentations=segs, next_costs=nexts)
 
 
 def choose_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", **kwargs) -> list[int]:

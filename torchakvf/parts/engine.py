@@ -34,7 +34,8 @@ from .discovery import absorb_single_neighbour_regions, connecting_region, remov
 from .generators import part_generators
 from .concavity import dual_edges
 from .graphcut import GraphCut, graphcut_labels
-from .merge import MergeWeights, merge_parts, merged_distances, oversegment_k, partition_cost
+from .merge import (MergeWeights, merge_parts, merged_distances, next_merge_cost, oversegment_k,
+                    partition_cost)
 from .results import MeshSegmentation, Segmentation
 from .topology import face_adjacency
 
@@ -209,6 +210,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
     k_cluster = cluster_count(k, f1 - f0, opts)
     centers = km.centers[b, :k_cluster, :n_b].detach().cpu().numpy()
     cost = float(km.cost[b])
+    merge_next = None
     labels = km.labels[b, :f1 - f0].detach().cpu().numpy()
     vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
     coarse = batch.coarse_of(b)
@@ -230,21 +232,21 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         labels = absorb_single_neighbour_regions(labels, adjacency)
     else:
         labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=False)
+        if "dual" not in cache:
+            cache["dual"] = dual_edges(clean.vertices, clean.faces)
         if merging(opts):
             over = labels
-            if "dual" not in cache:
-                cache["dual"] = dual_edges(clean.vertices, clean.faces)
             labels = merge_parts(over, clean.faces, clean.vertices, feats, area, k, opts.merge,
                                  dual=cache["dual"])
             vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
             # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
             cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
         if opts.graphcut is not None:
-            if "dual" not in cache:
-                cache["dual"] = dual_edges(clean.vertices, clean.faces)
             # data term: each face's distance to each part, the mean over its corners
             face_dist = vdist[clean.faces].mean(axis=1)
             labels = graphcut_labels(labels, face_dist, cache["dual"], area, opts.graphcut)
+        # what merging two of these parts would cost (k auto's "merge" rule reads it)
+        merge_next = next_merge_cost(labels, cache["dual"], feats, area, opts.merge)
     gens = part_generators(labels, feats, area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
     converged, residual = solve_quality(fields, b)
     return MeshSegmentation(
@@ -259,6 +261,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
                     solver=opts.solver, method=opts.method,
                     **({"graphcut": vars(opts.graphcut)} if opts.graphcut is not None else {}),
+                    **({"merge_next": merge_next} if merge_next is not None else {}),
                     **({"k_oversegment": k_cluster, **{f"merge_{name}": float(v) for name, v in
                                                        vars(opts.merge).items()}} if merging(opts) else {})),
         converged=converged, max_residual=residual)

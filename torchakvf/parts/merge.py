@@ -39,18 +39,18 @@ class MergeWeights:
     """Weights of the merge cost and the over-segmentation factor k' = ceil(ratio k).
 
     Defaults chosen by 3-fold cross-validation across the 15 labelled PSB categories (59
-    meshes, benchmarks/results/quality_cv.md) among the ratios that keep the stage within 20%
-    of the pipeline's time (1.5, 2; ratio 3 scores better but adds 33%): every fold picked
-    ratio 2, w_sym 1, w_size 0 (the size term never helped; kept for ablations) and w_cav 16
-    (8 in one fold); held-out 1-RI 0.170 against the paper mode's 0.199."""
+    meshes, benchmarks/results/quality_v2_sweep.md; every fold picked ratio 4, w_sym 1, w_cav
+    32, w_cvx 4, two of three also the boundary-share term): CV 1-RI 0.159 against 0.173 for
+    the former default (ratio 2, w_cav 16 only; benchmarks/results/quality_cv.md) and 0.199 for
+    the paper mode. ``size`` (share of the whole surface) never helped; kept for ablations."""
 
     symmetry: float = 1.0
-    concavity: float = 16.0
+    concavity: float = 32.0
     size: float = 0.0
-    ratio: float = 2.0
-    part_size: float = 0.0
-    convexity: float = 0.0
-    cut: float = 0.0
+    ratio: float = 4.0
+    part_size: float = 0.1
+    convexity: float = 4.0
+    cut: float = 0.5
     crease_angle: float = math.pi
 
     def __post_init__(self):
@@ -220,6 +220,18 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
     return out.astype(np.asarray(labels).dtype, copy=False)
 
 
+def next_merge_cost(labels: np.ndarray, dual: DualEdges, features: np.ndarray, face_area: np.ndarray,
+                    weights: MergeWeights | None = None) -> float:
+    """The cost of the cheapest merge left among the parts of ``labels`` [F] (inf when no two
+    parts are adjacent): what going from k = (its part count) to k - 1 parts would cost. k auto
+    reads it: a large one means the parts are worth keeping apart. features [F, n], face_area [F]."""
+    weights = MergeWeights() if weights is None else weights
+    graph = region_graph(labels, dual, features, face_area, weights.crease_angle)
+    if graph.n_parts < 2:
+        return float("inf")
+    return float(merge_costs(graph, weights, graph.n_parts).min())
+
+
 def partition_cost(labels: np.ndarray, features: np.ndarray) -> float:
     """Spherical k-means cost Σ_f (1 - cos(x_f, c_p)) of a given partition, each part's center
     c_p the normalized sum of its unit feature rows (the optimal one): the k-means objective
@@ -254,5 +266,5 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     return out
 
 
-__all__ = ["MergeWeights", "merged_distances", "partition_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
+__all__ = ["MergeWeights", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
            "greedy_merge", "merge_parts"]
