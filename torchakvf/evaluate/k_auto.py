@@ -1,6 +1,6 @@
 """Choosing the number of parts k automatically (beyond the paper, which takes k as given).
 
-Rule (default ``"elbow"``): segment every mesh for each k in ``k_range`` from *one* AKVF
+Rule ``"elbow"`` (the default before the merge costs existed): segment every mesh for each k in ``k_range`` from *one* AKVF
 solve and *one* field count (``n_fields = default_n_fields(k_max)`` for every k, so that the
 per-face features, and hence the k-means costs, are comparable across k; moved, like
 ``segment`` does, off a cluster of near-equal eigenvalues), normalise the
@@ -39,11 +39,15 @@ from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, cluste
 from ..parts.results import Segmentation
 
 RULES = ("elbow", "knee", "spectrum", "merge")
-#: The "merge" rule's threshold on the cheapest merge left (units of the merge cost).
-MERGE_TAU = 1.0
+#: The rule used unless one is given: "merge" (held-out 1-RI 0.171 on the cached PSB subset
+#: against 0.241 for "elbow"; benchmarks/results/quality_v2_kauto.md).
+DEFAULT_RULE = "merge"
+#: The "merge" rule's threshold on the cheapest merge left (units of the merge cost): chosen by
+#: 3-fold cross-validation across PSB categories (the folds chose 1.0, 1.05, 1.15).
+MERGE_TAU = 1.05
 DEFAULT_K_RANGE = (2, 10)
 
-__all__ = ["RULES", "MERGE_TAU", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
            "check_k_range"]
 
 
@@ -88,7 +92,7 @@ def check_k_range(k_range) -> tuple[int, int]:
     return lo, hi
 
 
-def pick_k(ks, costs, rule: str = "elbow", eigenvalues=None, next_costs=None, tau: float = MERGE_TAU) -> int:
+def pick_k(ks, costs, rule: str = DEFAULT_RULE, eigenvalues=None, next_costs=None, tau: float = MERGE_TAU) -> int:
     """The k one rule picks from one mesh's cost curve ``costs[i] = c(ks[i])`` (rule "merge":
     from ``next_costs[i]``, the cheapest merge left at ks[i], and the threshold ``tau``)."""
     ks = np.asarray(ks, dtype=np.int64)
@@ -128,7 +132,7 @@ def pick_k(ks, costs, rule: str = "elbow", eigenvalues=None, next_costs=None, ta
     return int(ks[int(np.argmax(below))])
 
 
-def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 0,
+def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, seed: int = 0,
            remedy: str = DEFAULT_REMEDY, n_fields: int | None = None, keep: bool = True,
            device=None, **segment_kwargs) -> KScan:
     """Segment every mesh for each k in ``k_range`` (inclusive) and pick one k per mesh.
@@ -137,7 +141,7 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
     ----------
     meshes : MeshBatch, Mesh, list of Mesh, or an :class:`AKVFResult` to reuse
     k_range : (k_min, k_max), inclusive, k_max >= k_min + 2
-    rule : see the module notes (``"elbow"`` default)
+    rule : see the module notes (default :data:`DEFAULT_RULE`)
     n_fields : fields untangled for every k (default ``default_n_fields(k_max)`` per mesh, moved
         by :func:`~torchakvf.parts.engine.cluster_safe_n` off a degenerate eigenvalue cluster)
     keep : keep every k's :class:`Segmentation` (memory: one label array per mesh per k)
@@ -182,12 +186,12 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
                  segmentations=segs, next_costs=nexts)
 
 
-def choose_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", **kwargs) -> list[int]:
+def choose_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, **kwargs) -> list[int]:
     """One automatically chosen k per mesh (see :func:`scan_k` for the parameters)."""
     return scan_k(meshes, k_range, rule=rule, keep=False, **kwargs).chosen
 
 
-def segment_auto(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", **kwargs) -> Segmentation:
+def segment_auto(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, **kwargs) -> Segmentation:
     """``segment(meshes, k="auto")``: each mesh segmented with its automatically chosen k.
 
     The returned :class:`MeshSegmentation` s carry ``params["k_auto"]`` (the rule, the k's
