@@ -189,6 +189,14 @@ def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
     return oversegment_k(k, opts.merge.ratio, n_faces) if merging(opts) else int(k)
 
 
+def cluster_restarts(opts: SegmentOptions) -> int:
+    """k-means restarts of a round: the merge's own (``MergeWeights.restarts``) for an
+    over-segmentation, else ``kmeans_restarts``."""
+    if merging(opts) and opts.merge.restarts is not None:
+        return int(opts.merge.restarts)
+    return int(opts.kmeans_restarts)
+
+
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
               opts: SegmentOptions, mesh_cache: dict | None = None) -> MeshSegmentation:
     """Mesh b's parts from its clustering: boundaries, (ε > 0) connecting region, clean-up of
@@ -262,7 +270,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     solver=opts.solver, method=opts.method,
                     **({"graphcut": vars(opts.graphcut)} if opts.graphcut is not None else {}),
                     **({"merge_next": merge_next} if merge_next is not None else {}),
-                    **({"k_oversegment": k_cluster, **{f"merge_{name}": float(v) for name, v in
+                    **({"k_oversegment": k_cluster, **{f"merge_{name}": (None if v is None else float(v)) for name, v in
                                                        vars(opts.merge).items()}} if merging(opts) else {})),
         converged=converged, max_residual=residual)
 
@@ -341,7 +349,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
         n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
         km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
-        km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed)
+        km = spherical_kmeans(xpad, mask, km_ks, restarts=cluster_restarts(opts), seed=opts.seed)
         meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
                   if b in active else None for b in range(nb)]
         t2 = time.perf_counter()
@@ -422,6 +430,6 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 
 
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
-           "field_counts", "akvf_count", "default_n_fields", "cluster_safe_n", "per_mesh",
+           "field_counts", "akvf_count", "cluster_restarts", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
            "UNTANGLE_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]
