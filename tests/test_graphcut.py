@@ -42,7 +42,7 @@ def test_two_labels_expansion_is_the_exact_optimum(seed):
     w = 0.3 * rng.random(len(pairs))
     best, arg = _brute(unary, pairs, w)
     got = potts_expansion(unary, pairs, w)
-    # gco rounds energies to integers (5 digits of the largest term): equal up to that.
+    # energies go to gco as integers (6 digits of the largest term): equal up to that.
     assert energy(got, unary, pairs, w) == pytest.approx(best, abs=1e-3)
 
 
@@ -99,3 +99,25 @@ def test_parameter_errors():
         GraphCut(crease_angle=0.0)
     with pytest.raises(ParameterError):
         GraphCut(band=-2)
+
+
+def test_fixing_faces_beyond_the_band_gives_the_full_problem_optimum():
+    # Two labels: both the reduced (band only) and the full constrained problem are solved
+    # exactly by one expansion, so their energies must agree.
+    s = shapes.icosphere(2)
+    d = dual_edges(s.vertices, s.faces)
+    area = face_areas(s.vertices, s.faces)
+    z = s.vertices[s.faces].mean(1)[:, 2]
+    labels = (z > 0.2).astype(int)
+    rng = np.random.default_rng(7)
+    dist = rng.random((len(labels), 2))
+    opts = GraphCut(smoothness=0.5, band=2)
+    out = graphcut_labels(labels, dist, d, area, opts)
+    from torchakvf.parts.graphcut import edge_weights
+    w = opts.smoothness * edge_weights(d, opts)
+    unary = dist * (area / area.mean())[:, None]
+    allowed = allowed_labels(labels, d.pairs, 2, opts.band)
+    assert (~allowed).any() and (allowed.sum(1) == 2).any()
+    full = potts_expansion(np.where(allowed, unary, 1e3), d.pairs, w)
+    assert allowed[np.arange(len(out)), out].all()
+    assert energy(out, unary, d.pairs, w) == pytest.approx(energy(full, unary, d.pairs, w), rel=1e-4)

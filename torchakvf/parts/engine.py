@@ -145,9 +145,10 @@ class SegmentOptions:
     boundary: str = "isoline"
     min_part_fraction: float = 0.01
     refine: bool = True
-    #: boundaries re-decided by a graph cut on the dual graph (:mod:`torchakvf.parts.graphcut`)
-    #: after the parts are chosen; None = off (measured: no gain, benchmarks/results/quality_v2.md)
-    graphcut: GraphCut | None = None
+    #: method "merge": boundaries re-decided by a graph cut on the dual graph after the merge
+    #: (:mod:`torchakvf.parts.graphcut`); None = off. On by default: 1-RI better on every
+    #: cross-validation fold (benchmarks/results/quality_v2.md). The paper mode never cuts.
+    graphcut: GraphCut | None = field(default_factory=GraphCut)
 
     def __post_init__(self):
         if self.boundary not in BOUNDARIES:
@@ -249,7 +250,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
             vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
             # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
             cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
-        if opts.graphcut is not None:
+        if opts.graphcut is not None and merging(opts):
             # data term: each face's distance to each part, the mean over its corners
             face_dist = vdist[clean.faces].mean(axis=1)
             labels = graphcut_labels(labels, face_dist, cache["dual"], area, opts.graphcut)
@@ -268,7 +269,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
                     coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
                     solver=opts.solver, method=opts.method,
-                    **({"graphcut": vars(opts.graphcut)} if opts.graphcut is not None else {}),
+                    **({"graphcut": vars(opts.graphcut)} if opts.graphcut is not None and merging(opts) else {}),
                     **({"merge_next": merge_next} if merge_next is not None else {}),
                     **({"k_oversegment": k_cluster, **{f"merge_{name}": (None if v is None else float(v)) for name, v in
                                                        vars(opts.merge).items()}} if merging(opts) else {})),

@@ -11,7 +11,8 @@ After the parts are chosen (k-means, merging), each face's part is re-decided by
   on concave creases (θ > 0), 0 elsewhere (:func:`~torchakvf.parts.concavity.crease_weights`);
 * a band: a face may only take a part present within ``band`` dual rings of it, so the cut
   moves boundaries and never relabels a far-away region with look-alike features (which
-  would make a part disconnected).
+  would make a part disconnected). Faces with one part in reach are fixed and only the band
+  around the boundaries goes to the solver (their edges to it become data terms).
 
 The minimization is alpha-expansion (Boykov, Veksler & Zabih 2001) with the gco library
 (Veksler & Delong) through gco-wrapper: the field's standard solver for Potts energies; with
@@ -32,9 +33,13 @@ from .concavity import DualEdges, crease_weights
 class GraphCut:
     """Parameters of :func:`graphcut_labels`: smoothness λ (dimensionless: edge lengths over
     the mean length, areas over the mean area), concave-crease discount β, crease_angle
-    (radians) at which a crease counts fully, band (dual rings a boundary may move)."""
+    (radians) at which a crease counts fully, band (dual rings a boundary may move).
 
-    smoothness: float = 1.0
+    Defaults: λ 10, β 10 chosen by 3-fold cross-validation across the labelled PSB categories
+    (every fold; λ in {0.3, 1, 3, 10}, β in {0, 10, 30}; benchmarks/results/quality_v2_graphcut*.md);
+    crease angle 45° and band 6 rings fixed beforehand, not tuned."""
+
+    smoothness: float = 10.0
     beta: float = 10.0
     crease_angle: float = np.pi / 4
     band: int = 6
@@ -86,24 +91,39 @@ def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np
                  + weights[labels[pairs[:, 0]] != labels[pairs[:, 1]]].sum())
 
 
+#: Energies go to gco as integers: the largest term maps to this many units (gco sums them in
+#: 64 bits; its own float mode keeps only 3 digits of the largest term for edge weights).
+INTEGER_UNITS = 1_000_000
+
+
 def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion (gco).
 
-    unary : [F, k] float; pairs : [P, 2] site pairs; weights : [P] >= 0. Returns [F] int64.
-    gco works in integers (energies scaled by their maximum, 5 digits kept for the data term).
+    unary : [F, k] float >= 0; pairs : [P, 2] site pairs; weights : [P] >= 0. Returns [F] int64.
+    Terms are rounded to integers with :data:`INTEGER_UNITS` for the largest one.
     """
     gco = _gco()
-    unary = np.ascontiguousarray(unary, dtype=np.float64)
-    k = unary.shape[1]
-    if k == 1 or len(unary) == 0:
-        return np.zeros(len(unary), dtype=np.int64)
-    e = np.sort(np.asarray(pairs, dtype=np.int64), axis=1)
+    unary = np.asarray(unary, dtype=np.float64)
+    n, k = unary.shape
+    if k == 1 or n == 0:
+        return np.zeros(n, dtype=np.int64)
+    e = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
     keep = e[:, 0] != e[:, 1]
-    potts = np.ascontiguousarray(1.0 - np.eye(k))
-    out = gco.cut_general_graph(np.ascontiguousarray(e[keep], dtype=np.int32),
-                                np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[keep]),
-                                unary, potts, n_iter=-1, algorithm="expansion")
-    return np.asarray(out, dtype=np.int64)
+    e, w = e[keep], np.asarray(weights, dtype=np.float64)[keep]
+    top = max(float(unary.max(initial=0.0)), float(w.max(initial=0.0)), 1e-300)
+    scale = INTEGER_UNITS / top
+    g = gco.GCO()
+    g.create_general_graph(n, k, energy_is_float=False)
+    try:
+        g.set_data_cost(np.ascontiguousarray(np.rint(unary * scale), dtype=np.intc))
+        if len(e):
+            g.set_all_neighbors(np.ascontiguousarray(e[:, 0], dtype=np.intc), np.ascontiguousarray(e[:, 1], dtype=np.intc),
+                                np.ascontiguousarray(np.rint(w * scale), dtype=np.intc))
+        g.set_smooth_cost(np.ascontiguousarray(1 - np.eye(k), dtype=np.intc))
+        g.expansion(-1)
+        return np.asarray(g.get_labels(), dtype=np.int64)
+    finally:
+        g.destroy_graph()
 
 
 def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, face_area: np.ndarray,
@@ -134,12 +154,34 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     allowed = allowed_labels(labels[sites], pairs, k, opts.band) & finite
     # A forbidden label costs more than any face could gain by taking it (its own data term
     # plus every cut edge around it), so it is never chosen; kept finite for gco's integers.
-    incident = np.bincount(pairs.ravel(), weights=np.r_[w, w], minlength=len(sites))
-    big = float(unary.max(initial=0.0) + incident.max(initial=0.0)) + 1.0
-    unary = np.where(allowed, unary, big)
+    own = labels[sites]
+    # Faces with one allowed part (beyond the band of every boundary) keep it: they leave the
+    # graph, and each of their edges to a free face becomes that face's cost of taking any
+    # other part (exact: the energy differs by a constant). Only the band is solved.
+    free = allowed.sum(axis=1) > 1
+    fa, fb = free[pairs[:, 0]], free[pairs[:, 1]]
+    unary = unary.copy()
+    for side, other in ((0, 1), (1, 0)):
+        edge = free[pairs[:, side]] & ~free[pairs[:, other]]
+        f_free, f_fixed = pairs[edge, side], pairs[edge, other]
+        np.add.at(unary, f_free, w[edge][:, None])                       # w for every label...
+        np.add.at(unary, (f_free, own[f_fixed]), -w[edge])               # ...but the fixed one's
+    idx = np.flatnonzero(free)
+    local = np.full(len(sites), -1, dtype=np.int64)
+    local[idx] = np.arange(len(idx))
+    both = fa & fb
+    sub_pairs = local[pairs[both]]
+    sub_w = w[both]
+    sub_unary = unary[idx]
+    incident = np.bincount(sub_pairs.ravel(), weights=np.r_[sub_w, sub_w], minlength=len(idx))
+    big = float(np.abs(sub_unary).max(initial=0.0) + incident.max(initial=0.0)) + 1.0
+    sub_unary = np.where(allowed[idx], sub_unary, big)
+    new = own.copy()
+    if len(idx):
+        new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w)
     out = labels.copy()
-    out[sites] = potts_expansion(unary, pairs, w)
+    out[sites] = new
     return out
 
 
-__all__ = ["GraphCut", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]
+__all__ = ["GraphCut", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]
