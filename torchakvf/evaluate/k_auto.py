@@ -39,12 +39,12 @@ from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, cluste
 from ..parts.results import Segmentation
 
 RULES = ("elbow", "knee", "spectrum", "merge")
-#: The rule used unless one is given: "merge" (held-out 1-RI 0.171 on the cached PSB subset
-#: against 0.241 for "elbow"; benchmarks/results/quality_v2_kauto.md).
+#: The rule used unless one is given: "merge" (held-out 1-RI 0.151 on the cached PSB subset
+#: against 0.245 for "elbow" and 0.161 at the humans' mode k; benchmarks/results/quality_v2_kauto.md).
 DEFAULT_RULE = "merge"
 #: The "merge" rule's threshold on the cheapest merge left (units of the merge cost): chosen by
-#: 3-fold cross-validation across PSB categories (the folds chose 1.0, 1.05, 1.15).
-MERGE_TAU = 1.05
+#: 3-fold cross-validation across PSB categories (every fold chose 0.95, default merge weights).
+MERGE_TAU = 0.95
 DEFAULT_K_RANGE = (2, 10)
 
 __all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",

@@ -179,6 +179,14 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     new = own.copy()
     if len(idx):
         new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w)
+    # A part the cut emptied (a small part inside the band of its boundary, outweighed by its
+    # cut length) gets its faces back: the cut moves boundaries, it does not change k.
+    before = np.bincount(own, minlength=k)
+    after = np.bincount(new, minlength=k)
+    gone = (before > 0) & (after == 0)
+    if gone.any():
+        back = gone[own]
+        new[back] = own[back]
     out = labels.copy()
     out[sites] = new
     return out
