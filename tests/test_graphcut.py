@@ -6,7 +6,7 @@ import itertools
 import numpy as np
 import pytest
 
-pytest.importorskip("gco", reason="gco-wrapper (pip install 'torchakvf[graphcut]') not installed")
+pytest.importorskip("gco", reason="gco-wrapper (a dependency: pip install -e .) not installed")
 
 from torchakvf import shapes
 from torchakvf.errors import ParameterError

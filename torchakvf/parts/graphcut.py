@@ -56,9 +56,9 @@ class GraphCut:
 def _gco():
     try:
         import gco
-    except ImportError as e:   # optional dependency: only the graph-cut stage needs it
-        raise ParameterError("the graph-cut stage needs gco-wrapper: pip install 'torchakvf[graphcut]' "
-                             "(or pip install gco-wrapper)") from e
+    except ImportError as e:   # imported here so the rest of the package works without it
+        raise ParameterError("the graph-cut stage (on by default in method 'merge') needs gco-wrapper: "
+                             "pip install gco-wrapper, or pass graphcut=None") from e
     return gco
 
 
