@@ -58,7 +58,7 @@ def _gco():
         import gco
     except ImportError as e:   # imported here so the rest of the package works without it
         raise ParameterError("the graph-cut stage (on by default in method 'merge') needs gco-wrapper: "
-                             "pip install gco-wrapper, or pass graphcut=None") from e
+                             "pip install gco-wrapper, or segment with SegmentOptions(graphcut=None)") from e
     return gco
 
 
