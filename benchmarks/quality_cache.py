@@ -30,7 +30,7 @@ from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.merge import oversegment_k, region_graph
 from torchakvf.parts.segment import SPARE_FIELDS, UNTANGLE_RESTARTS, default_n_fields, field_counts
 
-RATIOS = (1.0, 1.5, 2.0, 3.0)
+RATIOS = (1.0, 2.0, 2.5, 3.0, 4.0)
 
 
 def subset_ids(per_category: int) -> list[int]:
@@ -38,7 +38,7 @@ def subset_ids(per_category: int) -> list[int]:
     return [c * 20 + i for c in cats for i in range(1, per_category + 1)]
 
 
-def cache_mesh(entry, out: Path, coarse_faces: int, seed: int = 0) -> None:
+def cache_mesh(entry, out: Path, coarse_faces: int, seed: int = 0, ratios=RATIOS, restarts: int = 20) -> None:
     t0 = time.perf_counter()
     mesh = load_mesh(entry.mesh_path)
     gts = [P.read_seg(s) for s in entry.seg_paths]
@@ -48,7 +48,7 @@ def cache_mesh(entry, out: Path, coarse_faces: int, seed: int = 0) -> None:
     timing = {"akvf": time.perf_counter() - t0, "untangle": 0.0, "segment": {}}
     dual = dual_edges(mesh.vertices, mesh.faces)
     area = face_areas(mesh.vertices, mesh.faces)
-    data = {"pairs": dual.pairs.astype(np.int32), "length": dual.length, "dihedral": dual.dihedral,
+    data = {"faces": mesh.faces.astype(np.int32), "vertices": mesh.vertices, "pairs": dual.pairs.astype(np.int32), "length": dual.length, "dihedral": dual.dihedral,
             "area": area, "ks": np.array(ks)}
     unts = {}
     for k in ks:
@@ -57,16 +57,19 @@ def cache_mesh(entry, out: Path, coarse_faces: int, seed: int = 0) -> None:
         if tuple(ns) not in unts:
             unts[tuple(ns)] = untangle(fields, n=ns, seed=seed, restarts=UNTANGLE_RESTARTS)
         timing["untangle"] += time.perf_counter() - t1
-        for r in RATIOS:
+        for r in ratios:
             kp = oversegment_k(k, r, len(mesh.faces))
             key = f"k{k}_r{r:g}"
             t1 = time.perf_counter()
-            seg = segment(fields, k=kp, seed=seed, n_fields=ns, untangled=unts[tuple(ns)], refine=False)[0]
+            seg = segment(fields, k=kp, seed=seed, n_fields=ns, untangled=unts[tuple(ns)], refine=False,
+                          method="paper", kmeans_restarts=20 if r == 1.0 else restarts)[0]
             timing["segment"][key] = time.perf_counter() - t1
             g = region_graph(seg.labels, dual, seg.features, area)
             data[key + "_labels"] = g.labels.astype(np.int16)
             data[key + "_area"], data[key + "_mean"] = g.area, g.mean
             data[key + "_length"], data[key + "_concave"] = g.length, g.concave
+            if r == 1.0:   # per-face untangled features on the input faces (graph-cut data terms)
+                data[f"k{k}_feats"] = seg.features.astype(np.float16)
     for i, g in enumerate(gts):
         data[f"gt{i}"] = g.astype(np.int16)
     data["n_gt"] = np.array(len(gts))
@@ -82,6 +85,8 @@ def main():
     ap.add_argument("--per-category", type=int, default=4)
     ap.add_argument("--ids", default=None, help="comma-separated mesh ids (default: the subset)")
     ap.add_argument("--coarse-faces", type=int, default=4000)
+    ap.add_argument("--ratios", default=",".join(f"{r:g}" for r in RATIOS))
+    ap.add_argument("--restarts", type=int, default=20, help="k-means restarts of the over-segmentations (r > 1)")
     a = ap.parse_args()
     torch.set_num_threads(1)
     out = Path(a.out)
@@ -91,7 +96,8 @@ def main():
     for i in ids:
         if (out / f"{i}.npz").exists():
             continue
-        cache_mesh(entries[i], out, a.coarse_faces)
+        cache_mesh(entries[i], out, a.coarse_faces, ratios=tuple(float(r) for r in a.ratios.split(",")),
+                   restarts=a.restarts)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ paper pipeline per mesh = AKVFs (load, clean, decimate, solve) + untangling + se
 human k; added = segment at k' = ceil(ratio k) minus segment at k (k-means and isolines with more
 centers) + merge_parts at every k (dual graph, region graph, greedy merges).
 
-    PYTHONPATH=$PWD python benchmarks/quality_timing.py --ratio 3 --weights 1,16,0
+    PYTHONPATH=$PWD python benchmarks/quality_timing.py --cache /tmp/qcache \
+        --weights ratio=4,concavity=32,convexity=4,cut=0.5,part_size=0.1
 """
 from __future__ import annotations
 
@@ -24,11 +25,11 @@ from torchakvf.parts.merge import MergeWeights, merge_parts
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cache", default="/tmp/quality_cache")
-    ap.add_argument("--ratio", type=float, default=3.0)
-    ap.add_argument("--weights", default="1,16,0", help="symmetry,concavity,size")
+    ap.add_argument("--cache", default="/tmp/qcache")
+    ap.add_argument("--weights", default="ratio=2", help="MergeWeights as name=value,...")
     a = ap.parse_args()
-    w = MergeWeights(*[float(x) for x in a.weights.split(",")], ratio=a.ratio)
+    w = MergeWeights(**{kv.split("=")[0]: float(kv.split("=")[1]) for kv in a.weights.split(",")})
+    a.ratio = w.ratio
     entries = {e.mesh_id: e for e in P.find_psb_meshes(P.default_psb_root())}
     paper = added = merge = 0.0
     for js in sorted(Path(a.cache).glob("*.json"), key=lambda p: int(p.stem)):

@@ -109,7 +109,8 @@ def test_merge_weights_are_recorded_in_the_settings(tiny_psb, tmp_path):
     evaluate_psb(root, tmp_path, progress=False, metrics="rand", plot=False, ids="1",
                  merge=MergeWeights(concavity=8.0), **FAST)
     rec = json.loads((tmp_path / "settings.json").read_text())["prediction"]["segment_kwargs"]
-    assert rec["merge"] == {"symmetry": 1.0, "concavity": 8.0, "size": 0.0, "ratio": 2.0}
+    assert rec["merge"] == dict(vars(MergeWeights()), concavity=8.0)   # every field, the one given changed
+    assert rec["merge"]["concavity"] == 8.0 and MergeWeights().concavity != 8.0
 
 
 def test_dumbbell_two_part_human_is_matched(tiny_psb, run_by_seg):

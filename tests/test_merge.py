@@ -12,9 +12,10 @@ from torchakvf import shapes
 from torchakvf.errors import ParameterError
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
-from torchakvf.parts.concavity import dual_edges
+from torchakvf.parts.concavity import crease_weights, dual_edges
+from torchakvf.evaluate.k_auto import pick_k
 from torchakvf.parts.merge import (MergeWeights, RegionGraph, greedy_merge, merge_costs, merge_parts,
-                                   merged_distances, oversegment_k, partition_cost,
+                                   merged_distances, next_merge_cost, oversegment_k, partition_cost,
                                    region_graph)
 from torchakvf.parts.topology import face_adjacency
 
@@ -65,7 +66,7 @@ def test_merge_cost_and_order_by_hand():
                     mean=np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
                     length=np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]], dtype=float),
                     concave=np.array([[0, 1, 0.5], [1, 0, 0], [0.5, 0, 0]], dtype=float))
-    w = MergeWeights(symmetry=1.0, concavity=2.0, size=1.0, ratio=2.0)
+    w = MergeWeights(symmetry=1.0, concavity=2.0, size=1.0, ratio=2.0, part_size=0.0, convexity=0.0, cut=0.0)
     cost = merge_costs(g, w)
     # (0,1): same features, κ = 1/2 -> 0 + 2 (1/2) + 1/4; (0,2): orthogonal -> 1 + 1 + 1/4.
     np.testing.assert_allclose(cost[0, 1], 1.25)
@@ -79,14 +80,46 @@ def test_merge_cost_and_order_by_hand():
     np.testing.assert_array_equal(greedy_merge(g, 2, w)[0], [0, 0, 1])
 
 
+def test_convexity_boundary_share_and_part_size_terms_by_hand():
+    g = RegionGraph(labels=np.array([0, 1, 2]), area=np.array([1.0, 1.0, 2.0]),
+                    mean=np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
+                    length=np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]], dtype=float),
+                    concave=np.array([[0, 1, 0.5], [1, 0, 0], [0.5, 0, 0]], dtype=float),
+                    convex=np.array([[0, 0.4, 0], [0.4, 0, 0], [0, 0, 0]], dtype=float))
+    w = MergeWeights(symmetry=0.0, concavity=0.0, convexity=1.0, cut=1.0, part_size=1.0)
+    # perimeters 3, 2, 1. (0,1): convex 0.4/2 + (1 - 2/min(3,2)) + k min(1,1)/4;
+    # (0,2): 0 + (1 - 1/min(3,1)) + k min(1,2)/4.
+    cost = merge_costs(g, w, k=2)
+    np.testing.assert_allclose([cost[0, 1], cost[0, 2]], [0.2 + 0 + 0.5, 0 + 0 + 0.5])
+    new_id, history = greedy_merge(g, 2, w)
+    np.testing.assert_array_equal(new_id, [0, 1, 0])
+    np.testing.assert_allclose(history, [0.5])
+    # k = 1: (0,2) at 1/4 first; then part {0,2} (area 3, perimeter 2) with 1: 0.2 + 0 + 1/4.
+    np.testing.assert_allclose(greedy_merge(g, 1, w)[1], [0.25, 0.45])
+
+
+def test_crease_weights_saturate_at_the_crease_angle():
+    cav, cvx = crease_weights(np.array([np.pi / 2, -np.pi / 8, 0.0, np.pi / 8]), np.pi / 4)
+    np.testing.assert_allclose(cav, [1.0, 0.0, 0.0, 0.5])
+    np.testing.assert_allclose(cvx, [0.0, 0.5, 0.0, 0.0])
+    v, f = hinge(-np.pi / 3)
+    g = region_graph(np.array([0, 1]), dual_edges(v, f), np.ones((2, 2)), np.ones(2))
+    np.testing.assert_allclose(g.convex, [[0, 1 / 3], [1 / 3, 0]])
+    np.testing.assert_allclose(g.concave, 0.0)
+
+
 def _adjacent_label_pairs(labels, faces):
     adj = face_adjacency(faces)
     a, b = labels[adj[:, 0]], labels[adj[:, 1]]
     return {(int(x), int(y)) for x, y in zip(a, b) if x != y}
 
 
-@pytest.mark.parametrize("k", [1, 2, 4])
-def test_merging_only_joins_adjacent_parts(k):
+@pytest.mark.parametrize("k,weights", [(1, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+                                       (2, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+                                       (4, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+                                       (3, MergeWeights(convexity=2.0, cut=1.0, part_size=0.3,
+                                                        crease_angle=0.5))])
+def test_merging_only_joins_adjacent_parts(k, weights):
     s = shapes.icosphere(3)
     rng = np.random.default_rng(0)
     # 12 parts: faces by nearest of 12 random directions (connected caps), features random
@@ -95,8 +128,7 @@ def test_merging_only_joins_adjacent_parts(k):
     bary = s.vertices[s.faces].mean(1)
     labels = np.argmax(bary @ centers.T, axis=1)
     feats = np.abs(rng.normal(size=(12, 6)))[labels] + 0.01 * rng.random((len(labels), 6))
-    out = merge_parts(labels, s.faces, s.vertices, feats, face_areas(s.vertices, s.faces), k,
-                      MergeWeights(symmetry=1.0, concavity=1.0, size=1.0))
+    out = merge_parts(labels, s.faces, s.vertices, feats, face_areas(s.vertices, s.faces), k, weights)
     assert len(np.unique(out)) == k
     # Every merged part is a union of old parts connected in the old region graph.
     old_adj = _adjacent_label_pairs(labels, s.faces)
@@ -174,3 +206,18 @@ def test_partition_cost_by_hand():
     np.testing.assert_allclose(partition_cost(np.array([4, 4, 7]), feats), 2 * (1 - 1 / np.sqrt(2)))
     # One part of identical directions costs nothing.
     assert partition_cost(np.zeros(3, dtype=int), np.ones((3, 2))) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_next_merge_cost_and_the_merge_rule_of_k_auto():
+    v, f = hinge(np.pi / 2)
+    w = MergeWeights(symmetry=1.0, concavity=2.0, part_size=0.0, convexity=0.0, cut=0.0)
+    # orthogonal features (1 - cos = 1) across a right-angle valley (κ = 1/2): 1 + 2 (1/2)
+    assert next_merge_cost(np.array([0, 1]), dual_edges(v, f), np.eye(2), np.ones(2), w) == pytest.approx(2.0)
+    assert next_merge_cost(np.array([0, 0]), dual_edges(v, f), np.eye(2), np.ones(2), w) == np.inf
+    ks, nxt = [2, 3, 4, 5, 6], [5.0, 3.0, 0.5, 2.0, 0.1]
+    # descending from 6: 0.1 cheap -> 5 (2.0 > τ = 1) stops there
+    assert pick_k(ks, np.ones(5), "merge", next_costs=nxt, tau=1.0) == 5
+    assert pick_k(ks, np.ones(5), "merge", next_costs=nxt, tau=2.5) == 3
+    assert pick_k(ks, np.ones(5), "merge", next_costs=nxt, tau=10.0) == 2
+    with pytest.raises(ParameterError, match="next-merge"):
+        pick_k(ks, np.ones(5), "merge")

@@ -75,7 +75,7 @@ def add_eval_arguments(p) -> None:
                    help="by-segmentation: k = each human's segment count, compared with that "
                         "human only (default); by-model: k = the most common human count")
     p.add_argument("-k", dest="k", default=None, choices=["auto"],
-                   help="'auto': choose the number of parts per mesh (k-means cost elbow); one "
+                   help="'auto': choose the number of parts per mesh (merge costs: stop where the cheapest merge is expensive); one "
                         "prediction per mesh, compared with every human (--protocol is ignored)")
     p.add_argument("--k-range", default="2,10", metavar="LO,HI",
                    help="k's tried with -k auto (default 2,10)")

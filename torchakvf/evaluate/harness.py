@@ -70,7 +70,7 @@ from ..operators import REMEDIES
 from ..parts.engine import DEFAULT_REMEDY, SegmentOptions
 from ..pipeline.parallel import map_batches
 from ..progress import progress as progress_bar
-from .k_auto import DEFAULT_K_RANGE, RULES, check_k_range
+from .k_auto import DEFAULT_K_RANGE, DEFAULT_RULE, RULES, check_k_range
 from .plan import (DEFAULT_K_NO_GT, PROTOCOLS, default_eval_batch_faces, find_entries, human_mode,
                    make_batches, plan_meshes, select_entries, settings_guard, solved_face_counts)
 from .predict import PredictSettings, predict_in_worker
@@ -118,7 +118,7 @@ def _check_settings(protocol, k_mode, remedy, batch_faces, default_k, n_fields, 
 def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segmentation", ids=None,
                  per_category: int | None = None, seed: int = 0, remedy: str | None = None,
                  n_fields: int | None = None, batch_faces: int | None = None, k_mode: str | None = None,
-                 progress=True, metrics=None, k_range=None, k_rule: str = "elbow",
+                 progress=True, metrics=None, k_range=None, k_rule: str = DEFAULT_RULE,
                  default_k: int = DEFAULT_K_NO_GT, plot: bool = True, workers: int | None = None,
                  device: str = "cpu", **segment_kwargs) -> EvalSummary:
     """Run the method on PSB meshes, score it against the human segmentations, write reports.
@@ -139,7 +139,7 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     progress : True (a bar on a terminal, log lines otherwise), False, or a callable taking
         one line (each batch and each problem)
     metrics : metric groups, e.g. "rand,hamming" (default all: rand,hamming,gce,lce,cd)
-    k_range, k_rule : the k's tried and the rule with k_mode="auto" (default (2, 10), "elbow")
+    k_range, k_rule : the k's tried and the rule with k_mode="auto" (default (2, 10), k_auto.DEFAULT_RULE)
     default_k : parts for meshes without human segmentations (given-k protocols)
     plot : write rand_index.png
     workers : processes predicting batches side by side, each on one thread (default 1:

@@ -1,6 +1,6 @@
 """Choosing the number of parts k automatically (beyond the paper, which takes k as given).
 
-Rule (default ``"elbow"``): segment every mesh for each k in ``k_range`` from *one* AKVF
+Rule ``"elbow"`` (the default before the merge costs existed): segment every mesh for each k in ``k_range`` from *one* AKVF
 solve and *one* field count (``n_fields = default_n_fields(k_max)`` for every k, so that the
 per-face features, and hence the k-means costs, are comparable across k; moved, like
 ``segment`` does, off a cluster of near-equal eigenvalues), normalise the
@@ -8,6 +8,12 @@ spherical k-means cost ``c(k)`` (sum over faces of 1 - cos to the centre) by ``c
 pick the k with the largest second difference ``c(k-1) - 2 c(k) + c(k+1)``: the "elbow" after
 which extra parts stop paying for themselves. Ties go to the smaller k. Only interior k's
 (``k_min < k < k_max``) can be chosen by this rule.
+
+* ``"merge"`` - from the merge costs (:func:`~torchakvf.parts.merge.next_merge_cost`): at each k
+  the cheapest merge left among the k parts, c_next(k); descending from k_max, merging goes on
+  while that merge is cheap, and stops at the first k whose next merge costs more than τ
+  (:data:`MERGE_TAU`, chosen by cross-validation across PSB categories,
+  benchmarks/results/quality_v2_kauto.md); k_min when every merge is cheap.
 
 Other rules, kept for comparison (see the measurements in the evaluation report):
 
@@ -32,10 +38,16 @@ from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, cluste
                             default_n_fields, segment_rounds, solve_akvfs)
 from ..parts.results import Segmentation
 
-RULES = ("elbow", "knee", "spectrum")
+RULES = ("elbow", "knee", "spectrum", "merge")
+#: The rule used unless one is given: "merge" (held-out 1-RI 0.151 on the cached PSB subset
+#: against 0.245 for "elbow" and 0.161 at the humans' mode k; benchmarks/results/quality_v2_kauto.md).
+DEFAULT_RULE = "merge"
+#: The "merge" rule's threshold on the cheapest merge left (units of the merge cost): chosen by
+#: 3-fold cross-validation across PSB categories (every fold chose 0.95, default merge weights).
+MERGE_TAU = 0.95
 DEFAULT_K_RANGE = (2, 10)
 
-__all__ = ["RULES", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
            "check_k_range"]
 
 
@@ -50,6 +62,7 @@ class KScan:
     rule : the rule used
     n_fields : fields untangled for every k (an int, or one per mesh)
     segmentations : {k: Segmentation} (only when kept)
+    next_costs : [B, len(ks)] cost of the cheapest merge left among each k's parts (inf: none)
     """
 
     ks: list
@@ -59,6 +72,7 @@ class KScan:
     rule: str
     n_fields: int
     segmentations: dict = field(default_factory=dict)
+    next_costs: np.ndarray | None = None
 
     def segmentation(self) -> Segmentation:
         """The chosen k's segmentation of every mesh (needs the segmentations kept)."""
@@ -78,12 +92,18 @@ def check_k_range(k_range) -> tuple[int, int]:
     return lo, hi
 
 
-def pick_k(ks, costs, rule: str = "elbow", eigenvalues=None) -> int:
-    """The k one rule picks from one mesh's cost curve ``costs[i] = c(ks[i])``."""
+def pick_k(ks, costs, rule: str = DEFAULT_RULE, eigenvalues=None, next_costs=None, tau: float = MERGE_TAU) -> int:
+    """The k one rule picks from one mesh's cost curve ``costs[i] = c(ks[i])`` (rule "merge":
+    from ``next_costs[i]``, the cheapest merge left at ks[i], and the threshold ``tau``)."""
     ks = np.asarray(ks, dtype=np.int64)
     c = np.asarray(costs, dtype=np.float64)
     if rule not in RULES:
         raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
+    if rule == "merge":
+        if next_costs is None:
+            raise ParameterError("rule 'merge' needs the next-merge costs (KScan.next_costs)")
+        above = ks[np.asarray(next_costs, dtype=np.float64) > tau]
+        return int(above.max()) if len(above) else int(ks[0])
     if rule == "spectrum":
         if eigenvalues is None:
             raise ParameterError("rule 'spectrum' needs the Killing eigenvalues")
@@ -112,7 +132,7 @@ def pick_k(ks, costs, rule: str = "elbow", eigenvalues=None) -> int:
     return int(ks[int(np.argmax(below))])
 
 
-def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 0,
+def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, seed: int = 0,
            remedy: str = DEFAULT_REMEDY, n_fields: int | None = None, keep: bool = True,
            device=None, **segment_kwargs) -> KScan:
     """Segment every mesh for each k in ``k_range`` (inclusive) and pick one k per mesh.
@@ -121,7 +141,7 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
     ----------
     meshes : MeshBatch, Mesh, list of Mesh, or an :class:`AKVFResult` to reuse
     k_range : (k_min, k_max), inclusive, k_max >= k_min + 2
-    rule : see the module notes (``"elbow"`` default)
+    rule : see the module notes (default :data:`DEFAULT_RULE`)
     n_fields : fields untangled for every k (default ``default_n_fields(k_max)`` per mesh, moved
         by :func:`~torchakvf.parts.engine.cluster_safe_n` off a degenerate eigenvalue cluster)
     keep : keep every k's :class:`Segmentation` (memory: one label array per mesh per k)
@@ -152,24 +172,26 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", seed: int = 
             raise ParameterError(f"{m.name}: k_max = {hi} is larger than its {len(m.faces)} faces")
     ks = list(range(lo, hi + 1))
     costs = np.zeros((nb, len(ks)))
+    nexts = np.full((nb, len(ks)), np.inf)
     segs = {}
     # One field count for every k, so one untangling serves the whole scan.
     for j, rnd in enumerate(segment_rounds(fields, [ks] * nb, opts, n_fields=ns)):
         costs[:, j] = [m.cost for m in rnd.meshes]
+        nexts[:, j] = [m.params.get("merge_next", np.inf) for m in rnd.meshes]
         if keep:
             segs[ks[j]] = rnd.segmentation()
     eig = fields.eigenvalues.detach().cpu().numpy().astype(np.float64)
-    chosen = [pick_k(ks, costs[b], rule, eig[b]) for b in range(nb)]
+    chosen = [pick_k(ks, costs[b], rule, eig[b], nexts[b]) for b in range(nb)]
     return KScan(ks=ks, costs=costs, eigenvalues=eig, chosen=chosen, rule=rule, n_fields=ns,
-                 segmentations=segs)
+                 segmentations=segs, next_costs=nexts)
 
 
-def choose_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", **kwargs) -> list[int]:
+def choose_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, **kwargs) -> list[int]:
     """One automatically chosen k per mesh (see :func:`scan_k` for the parameters)."""
     return scan_k(meshes, k_range, rule=rule, keep=False, **kwargs).chosen
 
 
-def segment_auto(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = "elbow", **kwargs) -> Segmentation:
+def segment_auto(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, **kwargs) -> Segmentation:
     """``segment(meshes, k="auto")``: each mesh segmented with its automatically chosen k.
 
     The returned :class:`MeshSegmentation` s carry ``params["k_auto"]`` (the rule, the k's

@@ -149,7 +149,7 @@ def _scan_and_write(batch, fields, settings: PredictSettings, costs: list) -> li
         k = scan.chosen[b]
         write_seg(p.pred_path(k), scan.segmentations[k].meshes[b].labels)
         costs[b] = {str(kk): float(c) for kk, c in zip(scan.ks, scan.costs[b])}
-        by_rule = {r: pick_k(scan.ks, scan.costs[b], r, scan.eigenvalues[b]) for r in RULES}
+        by_rule = {r: pick_k(scan.ks, scan.costs[b], r, scan.eigenvalues[b], scan.next_costs[b]) for r in RULES}
         ri_by_k = {}
         if p.entry.has_gt:  # 1-RI of every k tried (cheap), to compare the choice with an oracle
             gts = [P.read_seg(s) for s in p.entry.seg_paths]

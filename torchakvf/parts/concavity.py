@@ -34,6 +34,15 @@ class DualEdges(NamedTuple):
         return np.clip(self.dihedral, 0.0, None) / np.pi
 
 
+def crease_weights(dihedral: np.ndarray, crease_angle: float = np.pi) -> tuple[np.ndarray, np.ndarray]:
+    """([P] concave, [P] convex) bending weights in [0, 1] of signed dihedrals [P]: a bend θ
+    counts min(|θ| / crease_angle, 1) on its side (concave θ > 0, convex θ < 0), 0 on the
+    other; crease_angle = π gives :attr:`DualEdges.concavity` (linear in the angle)."""
+    d = np.asarray(dihedral, dtype=np.float64)
+    return (np.minimum(np.clip(d, 0.0, None) / crease_angle, 1.0),
+            np.minimum(np.clip(-d, 0.0, None) / crease_angle, 1.0))
+
+
 def dual_edges(vertices: np.ndarray, faces: np.ndarray) -> DualEdges:
     """Signed dihedral angles and lengths of the edges shared by two faces.
 
@@ -67,4 +76,4 @@ def dual_edges(vertices: np.ndarray, faces: np.ndarray) -> DualEdges:
     return DualEdges(np.stack([fa, fb], axis=1), np.linalg.norm(p1 - p0, axis=1), dihedral)
 
 
-__all__ = ["DualEdges", "dual_edges"]
+__all__ = ["DualEdges", "crease_weights", "dual_edges"]

@@ -33,7 +33,9 @@ from .boundaries import (face_margins, isoline_face_labels, refine_along_isoline
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import part_generators
 from .concavity import dual_edges
-from .merge import MergeWeights, merge_parts, merged_distances, oversegment_k, partition_cost
+from .graphcut import GraphCut, graphcut_labels
+from .merge import (MergeWeights, merge_parts, merged_distances, next_merge_cost, oversegment_k,
+                    partition_cost)
 from .results import MeshSegmentation, Segmentation
 from .topology import face_adjacency
 
@@ -150,6 +152,10 @@ class SegmentOptions:
     boundary: str = "isoline"
     min_part_fraction: float = 0.01
     refine: bool = True
+    #: method "merge": boundaries re-decided by a graph cut on the dual graph after the merge
+    #: (:mod:`torchakvf.parts.graphcut`); None = off. On by default: 1-RI better on every
+    #: cross-validation fold (benchmarks/results/quality_v2.md). The paper mode never cuts.
+    graphcut: GraphCut | None = field(default_factory=GraphCut)
 
     def __post_init__(self):
         if self.boundary not in BOUNDARIES:
@@ -191,6 +197,14 @@ def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
     return oversegment_k(k, opts.merge.ratio, n_faces) if merging(opts) else int(k)
 
 
+def cluster_restarts(opts: SegmentOptions) -> int:
+    """k-means restarts of a round: the merge's own (``MergeWeights.restarts``) for an
+    over-segmentation, else ``kmeans_restarts``."""
+    if merging(opts) and opts.merge.restarts is not None:
+        return int(opts.merge.restarts)
+    return int(opts.kmeans_restarts)
+
+
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
               opts: SegmentOptions, mesh_cache: dict | None = None) -> MeshSegmentation:
     """Mesh b's parts from its clustering: boundaries, (ε > 0) connecting region, clean-up of
@@ -212,6 +226,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
     k_cluster = cluster_count(k, f1 - f0, opts)
     centers = km.centers[b, :k_cluster, :n_b].detach().cpu().numpy()
     cost = float(km.cost[b])
+    merge_next = None
     labels = km.labels[b, :f1 - f0].detach().cpu().numpy()
     vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
     coarse = batch.coarse_of(b)
@@ -233,15 +248,21 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         labels = absorb_single_neighbour_regions(labels, adjacency)
     else:
         labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=False)
+        if "dual" not in cache:
+            cache["dual"] = dual_edges(clean.vertices, clean.faces)
         if merging(opts):
             over = labels
-            if "dual" not in cache:
-                cache["dual"] = dual_edges(clean.vertices, clean.faces)
             labels = merge_parts(over, clean.faces, clean.vertices, feats, area, k, opts.merge,
                                  dual=cache["dual"])
             vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
             # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
             cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
+        if opts.graphcut is not None and merging(opts):
+            # data term: each face's distance to each part, the mean over its corners
+            face_dist = vdist[clean.faces].mean(axis=1)
+            labels = graphcut_labels(labels, face_dist, cache["dual"], area, opts.graphcut)
+        # what merging two of these parts would cost (k auto's "merge" rule reads it)
+        merge_next = next_merge_cost(labels, cache["dual"], feats, area, opts.merge)
     gens = part_generators(labels, feats, area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
     converged, residual = solve_quality(fields, b)
     return MeshSegmentation(
@@ -255,7 +276,9 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
                     coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
                     solver=opts.solver, method=opts.method,
-                    **({"k_oversegment": k_cluster, **{f"merge_{name}": float(v) for name, v in
+                    **({"graphcut": vars(opts.graphcut)} if opts.graphcut is not None and merging(opts) else {}),
+                    **({"merge_next": merge_next} if merge_next is not None else {}),
+                    **({"k_oversegment": k_cluster, **{f"merge_{name}": (None if v is None else float(v)) for name, v in
                                                        vars(opts.merge).items()}} if merging(opts) else {})),
         converged=converged, max_residual=residual)
 
@@ -336,7 +359,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
         n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
         km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
-        km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed)
+        km = spherical_kmeans(xpad, mask, km_ks, restarts=cluster_restarts(opts), seed=opts.seed)
         meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
                   if b in active else None for b in range(nb)]
         t2 = time.perf_counter()
@@ -442,6 +465,6 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 
 
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
-           "field_counts", "akvf_count", "default_n_fields", "cluster_safe_n", "per_mesh",
+           "field_counts", "akvf_count", "cluster_restarts", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
            "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]

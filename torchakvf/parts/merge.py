@@ -8,9 +8,17 @@ module then merges ADJACENT parts, cheapest first, by a cost that combines
 * boundary concavity (the minima rule): the length-weighted mean concave bending
   (:mod:`torchakvf.parts.concavity`) along their shared boundary; a boundary on smooth or
   convex surface is a poor cut, so merging across it is cheap;
-* size: the smaller part's share of the surface area (small parts merge first).
+* size: the smaller part's share of the surface area (small parts merge first), and the same
+  relative to the target part size A / k (``part_size``);
+* convex creases (``convexity``): the length-weighted mean convex bending along the boundary
+  (a boundary on a sharp ridge is also a cut people make, e.g. on mechanical parts);
+* boundary share (``cut``): 1 - L_ij / min(P_i, P_j), P the parts' boundary lengths: a part
+  mostly enclosed by its neighbour (a stripe, a patch) is cheap to merge into it.
 
     cost(i, j) = w_sym (1 - cos(m_i, m_j)) + w_cav κ_ij + w_size min(A_i, A_j) / A
+                 + w_k min(A_i, A_j) k / A + w_cvx χ_ij + w_cut (1 - L_ij / min(P_i, P_j))
+
+κ and χ saturate at ``crease_angle``: bending θ counts min(θ / crease_angle, 1) (π = linear).
 
 The region graph is a handful of [K, K] matrices (K = k' parts), so a loop over the k' - k
 merges costs nothing next to the per-face work, which is vectorized (bincount over dual edges).
@@ -23,30 +31,44 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError
-from .concavity import DualEdges, dual_edges
+from .concavity import DualEdges, crease_weights, dual_edges
 
 
 @dataclass(frozen=True)
 class MergeWeights:
-    """Weights of the merge cost and the over-segmentation factor k' = ceil(ratio k).
+    """Weights of the merge cost, the over-segmentation factor k' = ceil(ratio k) and the
+    k-means restarts of the over-segmentation (None: SegmentOptions.kmeans_restarts).
 
-    Defaults chosen by 3-fold cross-validation across the 15 labelled PSB categories (59
-    meshes, benchmarks/results/quality_cv.md) among the ratios that keep the stage within 20%
-    of the pipeline's time (1.5, 2; ratio 3 scores better but adds 33%): every fold picked
-    ratio 2, w_sym 1, w_size 0 (the size term never helped; kept for ablations) and w_cav 16
-    (8 in one fold); held-out 1-RI 0.170 against the paper mode's 0.199."""
+    Defaults (benchmarks/results/quality_v2.md): the terms by 3-fold cross-validation across
+    the 15 labelled PSB categories (59 meshes; every fold picked w_sym 1, w_cav 32, w_cvx 4 and
+    two of three the boundary-share term), then ratio, part-size prior and restarts checked on
+    two over-segmentations of the same meshes (k-means with 20 and with 5 restarts), because one
+    alone moves 1-RI by ~0.005: ratio 3 with these terms scored 0.1535 / 0.1552 against 0.1651 /
+    0.1562 for the former default terms (ratio 2 former default: 0.173). 5 restarts at 3k
+    clusters cost about what 20 at k do, so the stage stays within its time budget. ``size``
+    (share of the whole surface) and ``part_size`` never helped robustly; kept for ablations."""
 
     symmetry: float = 1.0
-    concavity: float = 16.0
+    concavity: float = 32.0
     size: float = 0.0
-    ratio: float = 2.0
+    ratio: float = 3.0
+    part_size: float = 0.0
+    convexity: float = 4.0
+    cut: float = 0.5
+    crease_angle: float = math.pi
+    restarts: int | None = 5
 
     def __post_init__(self):
-        for name in ("symmetry", "concavity", "size"):
+        for name in ("symmetry", "concavity", "size", "part_size", "convexity", "cut"):
             if not getattr(self, name) >= 0:
                 raise ParameterError(f"merge weight {name} must be >= 0, got {getattr(self, name)!r}")
         if not self.ratio >= 1:
             raise ParameterError(f"over-segmentation ratio must be >= 1, got {self.ratio!r}")
+        if self.restarts is not None and not (isinstance(self.restarts, (int, np.integer)) and self.restarts >= 1):
+            raise ParameterError(f"over-segmentation k-means restarts must be a positive integer or None, "
+                                 f"got {self.restarts!r}")
+        if not 0 < self.crease_angle <= math.pi:
+            raise ParameterError(f"crease_angle must be in (0, π] radians, got {self.crease_angle!r}")
 
 
 def oversegment_k(k: int, ratio: float, n_faces: int) -> int:
@@ -62,6 +84,7 @@ class RegionGraph:
     area : [K] part areas; mean : [K, n] area-weighted mean of the unit feature rows
     length : [K, K] symmetric shared-boundary length (0 = not adjacent)
     concave : [K, K] symmetric length-weighted sum of concavity along the shared boundary
+    convex : [K, K] the same of convex bending (None: not computed, counted as 0)
     """
 
     labels: np.ndarray
@@ -69,6 +92,7 @@ class RegionGraph:
     mean: np.ndarray
     length: np.ndarray
     concave: np.ndarray
+    convex: np.ndarray | None = None
 
     @property
     def n_parts(self) -> int:
@@ -76,11 +100,12 @@ class RegionGraph:
 
 
 def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
-                 face_area: np.ndarray) -> RegionGraph:
+                 face_area: np.ndarray, crease_angle: float = math.pi) -> RegionGraph:
     """The region adjacency graph of ``labels`` [F] on the mesh whose dual graph is ``dual``.
 
     features : [F, n] per-face untangled feature rows (normalized here, as k-means does);
     face_area : [F]. Faces with a negative label are left out of every part.
+    crease_angle : bending (radians) at which a crease counts fully (:func:`crease_weights`).
     """
     labels = np.asarray(labels)
     present = labels >= 0
@@ -100,27 +125,40 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     cut = (la != lb) & (la >= 0) & (lb >= 0)
     key = la[cut] * K + lb[cut]
     length = np.bincount(key, weights=dual.length[cut], minlength=K * K).reshape(K, K)
-    concave = np.bincount(key, weights=(dual.length * dual.concavity)[cut], minlength=K * K).reshape(K, K)
-    return RegionGraph(lab, area, mean, length + length.T, concave + concave.T)
+    cav, cvx = crease_weights(dual.dihedral, crease_angle)
+    concave = np.bincount(key, weights=(dual.length * cav)[cut], minlength=K * K).reshape(K, K)
+    convex = np.bincount(key, weights=(dual.length * cvx)[cut], minlength=K * K).reshape(K, K)
+    return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T)
 
 
-def _pair_costs(mean, area, length, concave, rows, weights: MergeWeights) -> np.ndarray:
-    """[len(rows), K] merge costs of parts ``rows`` with every part (+inf where not adjacent)."""
+def _pair_costs(mean, area, length, concave, convex, rows, weights: MergeWeights,
+                k: int = 1) -> np.ndarray:
+    """[len(rows), K] merge costs of parts ``rows`` with every part (+inf where not adjacent);
+    k : the parts wanted (the ``part_size`` term's A / k)."""
     mn = np.linalg.norm(mean, axis=1)
     cos = (mean[rows] @ mean.T) / np.maximum(np.outer(mn[rows], mn), 1e-300)
     adjacent = length[rows] > 0
     kappa = np.divide(concave[rows], length[rows], out=np.zeros(adjacent.shape), where=adjacent)
     small = np.minimum.outer(area[rows], area) / max(area.sum(), 1e-300)
     cost = (weights.symmetry * (1.0 - np.clip(cos, -1.0, 1.0)) + weights.concavity * kappa
-            + weights.size * small)
+            + (weights.size + weights.part_size * k) * small)
+    if weights.convexity > 0 and convex is not None:
+        cost += weights.convexity * np.divide(convex[rows], length[rows], out=np.zeros(adjacent.shape),
+                                              where=adjacent)
+    if weights.cut > 0:
+        perim = length.sum(axis=1)
+        share = np.divide(length[rows], np.minimum.outer(perim[rows], perim),
+                          out=np.zeros(adjacent.shape), where=adjacent)
+        cost += weights.cut * (1.0 - np.clip(share, 0.0, 1.0))
     cost[~adjacent] = np.inf
     return cost
 
 
-def merge_costs(graph: RegionGraph, weights: MergeWeights) -> np.ndarray:
-    """[K, K] cost of merging each pair of parts; +inf where not adjacent (and on the diagonal)."""
-    cost = _pair_costs(graph.mean, graph.area, graph.length, graph.concave,
-                       np.arange(graph.n_parts), weights)
+def merge_costs(graph: RegionGraph, weights: MergeWeights, k: int = 1) -> np.ndarray:
+    """[K, K] cost of merging each pair of parts; +inf where not adjacent (and on the diagonal).
+    k : the parts wanted (only the ``part_size`` term reads it)."""
+    cost = _pair_costs(graph.mean, graph.area, graph.length, graph.concave, graph.convex,
+                       np.arange(graph.n_parts), weights, k)
     np.fill_diagonal(cost, np.inf)
     return cost
 
@@ -138,7 +176,8 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     K = graph.n_parts
     area, mean = graph.area.copy(), graph.mean.copy()
     length, concave = graph.length.copy(), graph.concave.copy()
-    cost = merge_costs(graph, weights)
+    convex = np.zeros_like(concave) if graph.convex is None else graph.convex.copy()
+    cost = merge_costs(graph, weights, k)
     owner = np.arange(K)
     history = []
     for _ in range(K - k):
@@ -152,16 +191,18 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
         mean[i] = (area[i] * mean[i] + area[j] * mean[j]) / max(tot, 1e-300)
         area[i], area[j] = tot, 0.0
         mean[j] = 0.0
-        for mat in (length, concave):
+        for mat in (length, concave, convex):
             mat[i, :] += mat[j, :]
             mat[:, i] = mat[i, :]
             mat[i, i] = 0.0
             mat[j, :] = mat[:, j] = 0.0
         owner[owner == j] = i
-        row = _pair_costs(mean, area, length, concave, np.array([i]), weights)[0]
+        cost[j, :] = cost[:, j] = np.inf
+        # Only the merged part's costs change: a neighbour's perimeter is the same (its
+        # boundary with i and j is now all with i) and so are all other pairs' terms.
+        row = _pair_costs(mean, area, length, concave, convex, np.array([i]), weights, k)[0]
         row[i] = np.inf
         cost[i, :] = cost[:, i] = row
-        cost[j, :] = cost[:, j] = np.inf
     roots = np.unique(owner)
     return np.searchsorted(roots, owner), history
 
@@ -181,10 +222,22 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
     weights = MergeWeights() if weights is None else weights
     if dual is None:
         dual = dual_edges(vertices, faces)
-    graph = region_graph(labels, dual, features, face_area)
+    graph = region_graph(labels, dual, features, face_area, weights.crease_angle)
     new_id, _ = greedy_merge(graph, k, weights)
     out = np.where(graph.labels >= 0, new_id[np.maximum(graph.labels, 0)], graph.labels)
     return out.astype(np.asarray(labels).dtype, copy=False)
+
+
+def next_merge_cost(labels: np.ndarray, dual: DualEdges, features: np.ndarray, face_area: np.ndarray,
+                    weights: MergeWeights | None = None) -> float:
+    """The cost of the cheapest merge left among the parts of ``labels`` [F] (inf when no two
+    parts are adjacent): what going from k = (its part count) to k - 1 parts would cost. k auto
+    reads it: a large one means the parts are worth keeping apart. features [F, n], face_area [F]."""
+    weights = MergeWeights() if weights is None else weights
+    graph = region_graph(labels, dual, features, face_area, weights.crease_angle)
+    if graph.n_parts < 2:
+        return float("inf")
+    return float(merge_costs(graph, weights, graph.n_parts).min())
 
 
 def partition_cost(labels: np.ndarray, features: np.ndarray) -> float:
@@ -221,5 +274,5 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     return out
 
 
-__all__ = ["MergeWeights", "merged_distances", "partition_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
+__all__ = ["MergeWeights", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
            "greedy_merge", "merge_parts"]

@@ -1,0 +1,195 @@
+"""Boundaries on the creases: a multi-label graph cut on the dual graph (faces = sites).
+
+After the parts are chosen (k-means, merging), each face's part is re-decided by minimizing
+
+    E(L) = Σ_f (a_f / ā) D[f, L_f]  +  λ Σ_{(f, g) dual edges} (ℓ_fg / ℓ̄) c_fg [L_f ≠ L_g]
+
+* data term D [F, k]: the face's distance to each part (the mean over its corners of the
+  per-vertex distance fields the isolines are cut from), weighted by face area a_f;
+* smoothness: a cut across a dual edge costs its length ℓ_fg, less where the surface bends
+  concavely (the minima rule): c_fg = 1 / (1 + β w_fg), w_fg = min(θ_fg / crease_angle, 1)
+  on concave creases (θ > 0), 0 elsewhere (:func:`~torchakvf.parts.concavity.crease_weights`);
+* a band: a face may only take a part present within ``band`` dual rings of it, so the cut
+  moves boundaries and never relabels a far-away region with look-alike features (which
+  would make a part disconnected). Faces with one part in reach are fixed and only the band
+  around the boundaries goes to the solver (their edges to it become data terms).
+
+The minimization is alpha-expansion (Boykov, Veksler & Zabih 2001) with the gco library
+(Veksler & Delong) through gco-wrapper: the field's standard solver for Potts energies; with
+two labels one expansion is an exact minimum cut.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ParameterError
+from .concavity import DualEdges, crease_weights
+
+
+@dataclass(frozen=True)
+class GraphCut:
+    """Parameters of :func:`graphcut_labels`: smoothness λ (dimensionless: edge lengths over
+    the mean length, areas over the mean area), concave-crease discount β, crease_angle
+    (radians) at which a crease counts fully, band (dual rings a boundary may move).
+
+    Defaults: λ 10, β 10 chosen by 3-fold cross-validation across the labelled PSB categories
+    (every fold; λ in {0.3, 1, 3, 10}, β in {0, 10, 30}; benchmarks/results/quality_v2_graphcut*.md);
+    crease angle 45° and band 6 rings fixed beforehand, not tuned."""
+
+    smoothness: float = 10.0
+    beta: float = 10.0
+    crease_angle: float = np.pi / 4
+    band: int = 6
+
+    def __post_init__(self):
+        if not self.smoothness >= 0 or not self.beta >= 0:
+            raise ParameterError(f"graph cut smoothness and beta must be >= 0, got {self.smoothness!r}, {self.beta!r}")
+        if not 0 < self.crease_angle <= np.pi:
+            raise ParameterError(f"graph cut crease_angle must be in (0, π], got {self.crease_angle!r}")
+        if not (isinstance(self.band, (int, np.integer)) and self.band >= 0):
+            raise ParameterError(f"graph cut band must be an integer >= 0, got {self.band!r}")
+
+
+def _gco():
+    try:
+        import gco
+    except ImportError as e:   # imported here so the rest of the package works without it
+        raise ParameterError("the graph-cut stage (on by default in method 'merge') needs gco-wrapper: "
+                             "pip install gco-wrapper, or segment with SegmentOptions(graphcut=None)") from e
+    return gco
+
+
+def edge_weights(dual: DualEdges, opts: GraphCut) -> np.ndarray:
+    """[P] cost of cutting each dual edge: (ℓ / ℓ̄) / (1 + β w_concave) (see the module notes)."""
+    cav, _ = crease_weights(dual.dihedral, opts.crease_angle)
+    scale = max(float(dual.length.mean()), 1e-300) if len(dual.length) else 1.0
+    return (dual.length / scale) / (1.0 + opts.beta * cav)
+
+
+def allowed_labels(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
+    """[F, k] bool: part l occurs within ``band`` dual rings of face f (its own part always)."""
+    n = len(labels)
+    ok = labels >= 0
+    reach = sp.csr_matrix((np.ones(int(ok.sum())), (np.flatnonzero(ok), labels[ok])), shape=(n, k))
+    if band > 0 and len(pairs):
+        adj = sp.coo_matrix((np.ones(2 * len(pairs)), (np.r_[pairs[:, 0], pairs[:, 1]],
+                                                       np.r_[pairs[:, 1], pairs[:, 0]])), shape=(n, n))
+        step = (adj + sp.identity(n)).tocsr()
+        for _ in range(band):
+            reach = step @ reach
+            reach.data[:] = 1.0
+    return reach.toarray() > 0
+
+
+def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> float:
+    """E(L) = Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] (p = (a, b) = pairs[p])."""
+    labels = np.asarray(labels)
+    return float(unary[np.arange(len(labels)), labels].sum()
+                 + weights[labels[pairs[:, 0]] != labels[pairs[:, 1]]].sum())
+
+
+#: Energies go to gco as integers: the largest term maps to this many units (gco sums them in
+#: 64 bits; its own float mode keeps only 3 digits of the largest term for edge weights).
+INTEGER_UNITS = 1_000_000
+
+
+def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion (gco).
+
+    unary : [F, k] float >= 0; pairs : [P, 2] site pairs; weights : [P] >= 0. Returns [F] int64.
+    Terms are rounded to integers with :data:`INTEGER_UNITS` for the largest one.
+    """
+    gco = _gco()
+    unary = np.asarray(unary, dtype=np.float64)
+    n, k = unary.shape
+    if k == 1 or n == 0:
+        return np.zeros(n, dtype=np.int64)
+    e = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
+    keep = e[:, 0] != e[:, 1]
+    e, w = e[keep], np.asarray(weights, dtype=np.float64)[keep]
+    top = max(float(unary.max(initial=0.0)), float(w.max(initial=0.0)), 1e-300)
+    scale = INTEGER_UNITS / top
+    g = gco.GCO()
+    g.create_general_graph(n, k, energy_is_float=False)
+    try:
+        g.set_data_cost(np.ascontiguousarray(np.rint(unary * scale), dtype=np.intc))
+        if len(e):
+            g.set_all_neighbors(np.ascontiguousarray(e[:, 0], dtype=np.intc), np.ascontiguousarray(e[:, 1], dtype=np.intc),
+                                np.ascontiguousarray(np.rint(w * scale), dtype=np.intc))
+        g.set_smooth_cost(np.ascontiguousarray(1 - np.eye(k), dtype=np.intc))
+        g.expansion(-1)
+        return np.asarray(g.get_labels(), dtype=np.int64)
+    finally:
+        g.destroy_graph()
+
+
+def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, face_area: np.ndarray,
+                    opts: GraphCut | None = None) -> np.ndarray:
+    """Face labels [F] re-decided by the graph cut (see the module notes).
+
+    labels : [F] parts 0..k-1 (faces < 0 are left as they are and out of the cut);
+    distances : [F, k] each face's distance to each part (inf where a part is absent);
+    dual : the mesh's :func:`~torchakvf.parts.concavity.dual_edges`; face_area : [F].
+    """
+    opts = GraphCut() if opts is None else opts
+    labels = np.asarray(labels)
+    k = distances.shape[1]
+    if k <= 1:
+        return labels.copy()
+    sites = np.flatnonzero(labels >= 0)
+    index = np.full(len(labels), -1, dtype=np.int64)
+    index[sites] = np.arange(len(sites))
+    pa, pb = index[dual.pairs[:, 0]], index[dual.pairs[:, 1]]
+    inside = (pa >= 0) & (pb >= 0)
+    pairs = np.stack([pa[inside], pb[inside]], axis=1)
+    w = opts.smoothness * edge_weights(dual, opts)[inside]
+    area = np.asarray(face_area, dtype=np.float64)[sites]
+    d = np.asarray(distances, dtype=np.float64)[sites]
+    finite = np.isfinite(d)
+    d = np.where(finite, d, 0.0)
+    unary = d * (area / max(float(area.mean()), 1e-300))[:, None]
+    allowed = allowed_labels(labels[sites], pairs, k, opts.band) & finite
+    # A forbidden label costs more than any face could gain by taking it (its own data term
+    # plus every cut edge around it), so it is never chosen; kept finite for gco's integers.
+    own = labels[sites]
+    # Faces with one allowed part (beyond the band of every boundary) keep it: they leave the
+    # graph, and each of their edges to a free face becomes that face's cost of taking any
+    # other part (exact: the energy differs by a constant). Only the band is solved.
+    free = allowed.sum(axis=1) > 1
+    fa, fb = free[pairs[:, 0]], free[pairs[:, 1]]
+    unary = unary.copy()
+    for side, other in ((0, 1), (1, 0)):
+        edge = free[pairs[:, side]] & ~free[pairs[:, other]]
+        f_free, f_fixed = pairs[edge, side], pairs[edge, other]
+        np.add.at(unary, f_free, w[edge][:, None])                       # w for every label...
+        np.add.at(unary, (f_free, own[f_fixed]), -w[edge])               # ...but the fixed one's
+    idx = np.flatnonzero(free)
+    local = np.full(len(sites), -1, dtype=np.int64)
+    local[idx] = np.arange(len(idx))
+    both = fa & fb
+    sub_pairs = local[pairs[both]]
+    sub_w = w[both]
+    sub_unary = unary[idx]
+    incident = np.bincount(sub_pairs.ravel(), weights=np.r_[sub_w, sub_w], minlength=len(idx))
+    big = float(np.abs(sub_unary).max(initial=0.0) + incident.max(initial=0.0)) + 1.0
+    sub_unary = np.where(allowed[idx], sub_unary, big)
+    new = own.copy()
+    if len(idx):
+        new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w)
+    # A part the cut emptied (a small part inside the band of its boundary, outweighed by its
+    # cut length) gets its faces back: the cut moves boundaries, it does not change k.
+    before = np.bincount(own, minlength=k)
+    after = np.bincount(new, minlength=k)
+    gone = (before > 0) & (after == 0)
+    if gone.any():
+        back = gone[own]
+        new[back] = own[back]
+    out = labels.copy()
+    out[sites] = new
+    return out
+
+
+__all__ = ["GraphCut", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]
