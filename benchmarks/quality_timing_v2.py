@@ -25,7 +25,8 @@ from torchakvf.parts.merge import MergeWeights
 CONFIGS = {
     "paper": SegmentOptions(method="paper"),
     "former merge default (ratio 2, w_cav 16, 20 restarts)": SegmentOptions(merge=MergeWeights(
-        ratio=2.0, concavity=16.0, convexity=0.0, cut=0.0, part_size=0.0, restarts=None)),
+        ratio=2.0, concavity=16.0, convexity=0.0, cut=0.0, part_size=0.0), graphcut=None,
+        kmeans_restarts=20),
     "new merge default, no graph cut": SegmentOptions(graphcut=None),
     "new merge default + graph cut (the default)": SegmentOptions(),
 }

@@ -51,10 +51,13 @@ DEFAULT_METHOD = "merge"
 #: 1 + 8 starts to 1.7e-5 of the objective on average (the optima are near-equal); the PSB
 #: score did not get worse with fewer (benchmarks/results/segment_profile.md; it was 8).
 UNTANGLE_RESTARTS = 1
-#: k-means++ restarts per k (the lowest cost is kept). Three: the cost's winner among 20 is
-#: spread evenly over the restart indices (many near-equal local optima), and on 30 PSB meshes
-#: 3 restarts scored no worse than 20 (benchmarks/results/segment_profile.md; it was 20).
-KMEANS_RESTARTS = 3
+#: k-means++ restarts per clustering (the lowest cost is kept), also of the "merge" method's
+#: over-segmentation into 3k. Five: the cost's winner among 20 is spread evenly over the restart
+#: indices (many near-equal local optima), and the PSB score does not move with the count beyond
+#: k-means' own noise (~0.005 of 1-RI): 60 meshes, 20 -> 5 / 3 restarts 0.1729 -> 0.1710 / 0.1715
+#: (segment_profile.md); over-segmentations at 3k, 20 -> 5 restarts 0.1587 -> 0.1557
+#: (quality_v2_restarts.md). It was 20.
+KMEANS_RESTARTS = 5
 #: Eigenvalues closer than this (relative) belong to one cluster, which N must not split.
 CLUSTER_GAP = 1e-2
 #: AKVFs computed beyond the default N when the engine solves them itself, so that a degenerate
@@ -195,14 +198,6 @@ def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
     """Clusters k-means makes for a mesh segmented into k parts: k, or k' = ceil(ratio k) (at
     most its faces) when the parts are merged afterwards."""
     return oversegment_k(k, opts.merge.ratio, n_faces) if merging(opts) else int(k)
-
-
-def cluster_restarts(opts: SegmentOptions) -> int:
-    """k-means restarts of a round: the merge's own (``MergeWeights.restarts``) for an
-    over-segmentation, else ``kmeans_restarts``."""
-    if merging(opts) and opts.merge.restarts is not None:
-        return int(opts.merge.restarts)
-    return int(opts.kmeans_restarts)
 
 
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
@@ -359,7 +354,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
         n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
         km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
-        km = spherical_kmeans(xpad, mask, km_ks, restarts=cluster_restarts(opts), seed=opts.seed)
+        km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed)
         meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
                   if b in active else None for b in range(nb)]
         t2 = time.perf_counter()
@@ -465,6 +460,6 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 
 
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
-           "field_counts", "akvf_count", "cluster_restarts", "default_n_fields", "cluster_safe_n", "per_mesh",
+           "field_counts", "akvf_count", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
            "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]

@@ -36,16 +36,16 @@ from .concavity import DualEdges, crease_weights, dual_edges
 
 @dataclass(frozen=True)
 class MergeWeights:
-    """Weights of the merge cost, the over-segmentation factor k' = ceil(ratio k) and the
-    k-means restarts of the over-segmentation (None: SegmentOptions.kmeans_restarts).
+    """Weights of the merge cost and the over-segmentation factor k' = ceil(ratio k).
 
     Defaults (benchmarks/results/quality_v2.md): the terms by 3-fold cross-validation across
     the 15 labelled PSB categories (59 meshes; every fold picked w_sym 1, w_cav 32, w_cvx 4 and
     two of three the boundary-share term), then ratio, part-size prior and restarts checked on
     two over-segmentations of the same meshes (k-means with 20 and with 5 restarts), because one
     alone moves 1-RI by ~0.005: ratio 3 with these terms scored 0.1535 / 0.1552 against 0.1651 /
-    0.1562 for the former default terms (ratio 2 former default: 0.173). 5 restarts at 3k
-    clusters cost about what 20 at k do, so the stage stays within its time budget. ``size``
+    0.1562 for the former default terms (ratio 2 former default: 0.173); the k-means restarts
+    are SegmentOptions.kmeans_restarts (5: 3k clusters x 5 restarts cost about what k x 20 did,
+    so the stage stays within its time budget). ``size``
     (share of the whole surface) and ``part_size`` never helped robustly; kept for ablations."""
 
     symmetry: float = 1.0
@@ -56,7 +56,6 @@ class MergeWeights:
     convexity: float = 4.0
     cut: float = 0.5
     crease_angle: float = math.pi
-    restarts: int | None = 5
 
     def __post_init__(self):
         for name in ("symmetry", "concavity", "size", "part_size", "convexity", "cut"):
@@ -64,9 +63,6 @@ class MergeWeights:
                 raise ParameterError(f"merge weight {name} must be >= 0, got {getattr(self, name)!r}")
         if not self.ratio >= 1:
             raise ParameterError(f"over-segmentation ratio must be >= 1, got {self.ratio!r}")
-        if self.restarts is not None and not (isinstance(self.restarts, (int, np.integer)) and self.restarts >= 1):
-            raise ParameterError(f"over-segmentation k-means restarts must be a positive integer or None, "
-                                 f"got {self.restarts!r}")
         if not 0 < self.crease_angle <= math.pi:
             raise ParameterError(f"crease_angle must be in (0, π] radians, got {self.crease_angle!r}")
 
