@@ -102,6 +102,22 @@ def test_predictions_of_another_method_are_not_resumed(tiny_psb, run_by_seg):
         evaluate_psb(root, out, progress=False, method="paper", **FAST)
 
 
+def test_predictions_made_under_other_defaults_are_not_resumed(tiny_psb, run_by_seg):
+    """Every segment option is recorded, also the defaults: a folder made under another default
+    (here: the graph cut, as an older release had none) is refused, not resumed."""
+    root, _ = tiny_psb
+    out, _, _ = run_by_seg
+    recorded = json.loads((out / "settings.json").read_text())["prediction"]["options"]
+    assert recorded["graphcut"] is not None and recorded["merge"]["ratio"] > 1
+    assert recorded["kmeans_restarts"] == FAST["kmeans_restarts"]
+    settings = out / "settings.json"
+    doc = json.loads(settings.read_text())
+    doc["prediction"]["options"]["graphcut"] = None            # as if made without the cut
+    settings.write_text(json.dumps(doc))
+    with pytest.raises(TorchAKVFError, match="options"):
+        evaluate_psb(root, out, progress=False, **FAST)
+
+
 def test_merge_weights_are_recorded_in_the_settings(tiny_psb, tmp_path):
     from torchakvf.parts.merge import MergeWeights
 

@@ -136,3 +136,20 @@ def test_a_part_the_cut_would_empty_keeps_its_faces():
     out = graphcut_labels(labels, dist, d, face_areas(s.vertices, s.faces), GraphCut(smoothness=100.0, beta=0.0))
     assert set(np.unique(out)) == {0, 1}
     np.testing.assert_array_equal(out[labels == 1], 1)
+
+
+def test_segment_graphcut_switch():
+    """segment(graphcut=False) cuts no graph (recorded in params), True is the default, and a
+    wrong value is a ParameterError."""
+    from torchakvf.errors import ParameterError
+    import torchakvf as ta
+    from torchakvf.parts.engine import graphcut_option
+
+    shape = shapes.mug(h=0.12)
+    mesh = ta.Mesh(shape.vertices, shape.faces, "mug")
+    on = ta.segment(mesh, 2, seed=0, refine=False)
+    off = ta.segment(mesh, 2, seed=0, refine=False, graphcut=False)
+    assert "graphcut" in on.meshes[0].params and "graphcut" not in off.meshes[0].params
+    assert graphcut_option(True) == GraphCut() and graphcut_option(False) is None
+    with pytest.raises(ParameterError, match="graphcut"):
+        graphcut_option("yes")

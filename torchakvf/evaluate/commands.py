@@ -16,7 +16,7 @@ from ..errors import TorchAKVFError
 from ..mesh.coarse import DEFAULT_COARSE_FACES
 from ..parts.engine import METHODS
 from ..pipeline.commands import _device as parse_device
-from ..pipeline.commands import add_solver_argument
+from ..pipeline.commands import add_graph_cut_argument, add_solver_argument
 from ..pipeline.commands import _int as parse_int
 from ..pipeline.parallel import default_workers
 from .bench import DEFAULT_BASELINE_EVERY
@@ -105,6 +105,7 @@ def add_eval_arguments(p) -> None:
     p.add_argument("--default-k", type=_positive_int, default=DEFAULT_K_NO_GT,
                    help=f"parts for meshes without human segmentations (default {DEFAULT_K_NO_GT})")
     add_solver_argument(p, default=None)
+    add_graph_cut_argument(p)
     p.add_argument("--method", default=None, choices=list(METHODS),
                    help="segmentation method: merge (default: over-segment, then merge adjacent "
                         "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
@@ -149,6 +150,8 @@ def run_eval(args) -> int:
     for name in ("solver", "method"):   # only when given: a folder's settings stay comparable
         if getattr(args, name) is not None:
             seg_kwargs[name] = getattr(args, name)
+    if args.graph_cut == "off":
+        seg_kwargs["graphcut"] = None
     device = parse_device(args.device)
     summary = evaluate_psb(psb_root, args.out, categories=categories, protocol=args.protocol,
                            ids=args.ids, per_category=args.per_category, seed=args.seed,
@@ -210,6 +213,7 @@ def add_bench_arguments(p) -> None:
                    help="processes of the torchakvf runs, one thread each (default: one per CPU "
                         "core on CPU, at most 8; 1 on a GPU)")
     add_solver_argument(p, default=None)
+    add_graph_cut_argument(p)
     p.add_argument("--method", default=None, choices=list(METHODS),
                    help="segmentation method: merge (default: over-segment, then merge adjacent "
                         "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
@@ -237,6 +241,8 @@ def run_bench_command(args) -> int:
     for name in ("solver", "method"):
         if getattr(args, name) is not None:
             segment_kwargs[name] = getattr(args, name)
+    if args.graph_cut == "off":
+        segment_kwargs["graphcut"] = None
     report = run_bench(Path(args.psb or default_psb_arg()), out, limit=limit, baseline_every=every,
                        device=device, seed=seed, categories=categories, batch_faces=batch_faces,
                        segment_kwargs=segment_kwargs, workers=workers, budgets=args.budgets,

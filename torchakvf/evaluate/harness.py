@@ -179,9 +179,11 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
                          default_k=int(default_k),
                          segment_kwargs={k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
                                          for k, v in sorted(segment_kwargs.items())},
-                         # always recorded (also when left to its default): predictions of
-                         # another method, e.g. an older default, must not be resumed as these
-                         method=seg_options.method)
+                         # every option recorded, also those left to their defaults: predictions
+                         # made under other defaults (an older release's method, merge weights,
+                         # graph cut, restarts) must not be resumed as these
+                         method=seg_options.method,
+                         options=json.loads(json.dumps(dataclasses.asdict(seg_options))))
     settings_guard(out, pred_settings)
     run_settings = dict(psb_root=str(root), protocol=protocol, categories=categories if categories is None
                         else sorted({e.category for e in entries}), ids=ids if ids is None else

@@ -175,6 +175,18 @@ class SegmentOptions:
         return tuple(f.name for f in dataclass_fields(cls))
 
 
+def graphcut_option(graphcut) -> GraphCut | None:
+    """``SegmentOptions.graphcut`` from the API's ``graphcut=``: True -> the default
+    :class:`GraphCut`, False or None -> off, a GraphCut -> itself."""
+    if isinstance(graphcut, GraphCut):
+        return graphcut
+    if graphcut is None or graphcut is False:
+        return None
+    if graphcut is True:
+        return GraphCut()
+    raise ParameterError(f"graphcut must be True, False or a GraphCut, got {graphcut!r}")
+
+
 def solve_akvfs(batch: MeshBatch, n: int, opts: SegmentOptions) -> tuple[AKVFResult, list]:
     """The n smallest AKVFs of every mesh of the batch, once for every k: (result, [(mesh index,
     why it was solved at full resolution)]) as :func:`~torchakvf.fields.akvf.akvf_falling_back`."""
@@ -420,7 +432,7 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
                    kmeans_restarts: int = KMEANS_RESTARTS, untangle_restarts: int = UNTANGLE_RESTARTS,
                    boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
                    coarse_faces: int | None = None, device=None, n_akvf: int | None = None,
-                   untangled: UntangledFields | None = None) -> SegmentEachK:
+                   untangled: UntangledFields | None = None, graphcut=True) -> SegmentEachK:
     """Segment every mesh at each of its k's from one AKVF solve.
 
     meshes : MeshBatch, Mesh, list of Mesh, or an :class:`AKVFResult` to reuse (its n must
@@ -429,11 +441,14 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
     n_akvf : AKVFs to solve for (default :func:`akvf_count`: the largest default field count
         of the k's plus :data:`SPARE_FIELDS`, or the largest ``n_fields``); pass a fixed one to
         make a mesh's fields independent of the k's of the meshes sharing its batch
+    graphcut : True (default), False, or a :class:`~torchakvf.parts.graphcut.GraphCut`: see
+        ``segment``
     coarse_faces, device : how the batch is built from Mesh inputs (see ``segment``)
     the rest : as in :func:`~torchakvf.parts.segment`
     """
     opts = SegmentOptions(eps=eps, seed=seed, remedy=remedy, solver=solver, method=method,
                           merge=MergeWeights() if merge is None else merge,
+                          graphcut=graphcut_option(graphcut),
                           kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
                           boundary=boundary, min_part_fraction=min_part_fraction, refine=refine)
     if coarse_faces is not None and isinstance(meshes, (AKVFResult, MeshBatch)):
@@ -460,6 +475,6 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 
 
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
-           "field_counts", "akvf_count", "default_n_fields", "cluster_safe_n", "per_mesh",
+           "field_counts", "akvf_count", "graphcut_option", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
            "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]

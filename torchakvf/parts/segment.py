@@ -23,7 +23,7 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             kmeans_restarts: int = KMEANS_RESTARTS, untangle_restarts: int = UNTANGLE_RESTARTS,
             boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
             untangled: UntangledFields | None = None, coarse_faces: int | None = None,
-            device=None) -> Segmentation:
+            device=None, graphcut=True) -> Segmentation:
     """Segment each mesh into k parts (ε = 0) or discover parts with a connecting region (ε > 0).
 
     Parameters
@@ -37,7 +37,7 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     n_fields : fields untangled per mesh; default :func:`default_n_fields` (2k in [16, 32]),
         moved to the nearest count that does not split a degenerate cluster (:func:`cluster_safe_n`)
     remedy : mesh-quality remedy of the Killing operator ("none" = the paper's)
-    solver : the eigensolver of the AKVFs: "auto", "lanczos" or "lobpcg"
+    solver : the eigensolver of the AKVFs: "auto", "lanczos", "krylov" or "lobpcg"
         (:func:`torchakvf.fields.akvf.akvf`)
     method : "merge" (default: k-means into k' = ceil(ratio k) parts, then adjacent parts merged
         down to k by symmetry similarity and boundary concavity, :func:`~torchakvf.parts.merge.
@@ -45,6 +45,10 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
         parts: the paper's method, the output of torchakvf 0.1)
     merge : the :class:`~torchakvf.parts.merge.MergeWeights` of method "merge" (default: the
         cross-validated ones)
+    graphcut : method "merge": after merging, the part boundaries are re-decided by an
+        alpha-expansion graph cut on the dual graph (:mod:`torchakvf.parts.graphcut`): True (the
+        default, cross-validated on the PSB), False (off), or a
+        :class:`~torchakvf.parts.graphcut.GraphCut` with other parameters
     kmeans_restarts, untangle_restarts : random restarts (the best is kept)
     boundary : "isoline" (labels from the g_ij = 0 isolines of vertex-averaged features,
         smooth part boundaries) or "faces" (raw k-means labels)
@@ -67,7 +71,8 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
                          solver=solver, method=method, merge=merge, kmeans_restarts=kmeans_restarts,
                          untangle_restarts=untangle_restarts, boundary=boundary,
                          min_part_fraction=min_part_fraction, refine=refine,
-                         coarse_faces=coarse_faces, device=device, untangled=untangled)
+                         coarse_faces=coarse_faces, device=device, untangled=untangled,
+                         graphcut=graphcut)
     return res.rounds[0].segmentation()
 
 

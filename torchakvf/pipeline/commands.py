@@ -25,6 +25,13 @@ MAX_SEED = 2**63 - 1
 
 
 
+def add_graph_cut_argument(p: argparse.ArgumentParser) -> None:
+    """``--graph-cut on|off``: method merge's boundary graph cut (segment, eval)."""
+    p.add_argument("--graph-cut", default="on", choices=["on", "off"],
+                   help="method merge: re-decide the part boundaries by an alpha-expansion graph "
+                        "cut on the dual graph after merging (default on, cross-validated on the PSB)")
+
+
 def add_solver_argument(p: argparse.ArgumentParser, default) -> None:
     """``--solver``, its choices those of :func:`torchakvf.akvf` (one list for every command)."""
     p.add_argument("--solver", default=default, choices=list(SOLVERS),
@@ -160,6 +167,7 @@ def _add_segment(sub) -> None:
                         f"originals (default {DEFAULT_COARSE_FACES}, measured on the PSB; 0: full "
                         "resolution)")
     add_solver_argument(p, default="auto")
+    add_graph_cut_argument(p)
     p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS),
                    help="segmentation method: merge (default: over-segment, then merge adjacent "
                         "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
@@ -179,7 +187,7 @@ def run_segment(args) -> int:
     task = SegmentTask(k, eps=eps, seed=_seed(args.seed),
                        n_fields=n_fields, remedy=_remedy(args.remedy or DEFAULT_REMEDY),
                        formats=parse_formats(args.formats), coarse_faces=coarse or None,
-                       solver=args.solver, method=args.method)
+                       solver=args.solver, method=args.method, graphcut=args.graph_cut == "on")
     return _run(args, task, _device(args.device, check_available=not _ray_workers(args)))
 
 

@@ -7,6 +7,8 @@ converge is recorded so in the manifest (:meth:`SegmentTask.manifest_fields`).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import time
 from pathlib import Path
 
@@ -15,7 +17,7 @@ from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
 from .batches import require_edges
 from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, KMEANS_RESTARTS, SPARE_FIELDS, UNTANGLE_RESTARTS,
-                            SegmentOptions, default_n_fields, segment_each_k)
+                            SegmentOptions, default_n_fields, graphcut_option, segment_each_k)
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -36,11 +38,13 @@ class SegmentTask:
     def __init__(self, k: int, *, eps: float = 0.0, seed: int = 0, n_fields: int | None = None,
                  remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = UNTANGLE_RESTARTS,
                  kmeans_restarts: int = KMEANS_RESTARTS, coarse_faces: int | None = None, solver: str = "auto",
-                 method: str = DEFAULT_METHOD):
+                 method: str = DEFAULT_METHOD, graphcut: bool = True):
         self.k, self.eps, self.seed = int(k), float(eps), int(seed)
-        self.solver, self.method = str(solver), str(method)
-        # one-line errors before any work
-        SegmentOptions(eps=self.eps, solver=self.solver, method=self.method)
+        self.solver, self.method, self.graphcut = str(solver), str(method), bool(graphcut)
+        # one-line errors before any work; the options' merge weights and graph cut are
+        # recorded in params, so a run resumed under other defaults redoes its meshes
+        self.options = SegmentOptions(eps=self.eps, solver=self.solver, method=self.method,
+                                      graphcut=graphcut_option(self.graphcut))
         # None: segment's own choice (2k in [16, 32], moved off degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
         self.n_fields = int(n_fields) if n_fields is not None else None
@@ -57,7 +61,9 @@ class SegmentTask:
         return {"k": self.k, "eps": self.eps, "seed": self.seed, "n_fields": n_fields,
                 "remedy": self.remedy, "formats": list(self.formats),
                 "untangle_restarts": self.untangle_restarts, "kmeans_restarts": self.kmeans_restarts,
-                "coarse_faces": self.coarse_faces, "solver": self.solver, "method": self.method}
+                "coarse_faces": self.coarse_faces, "solver": self.solver, "method": self.method,
+                "merge": dataclasses.asdict(self.options.merge),
+                "graphcut": None if self.options.graphcut is None else dataclasses.asdict(self.options.graphcut)}
 
     def output_paths(self, out_dir, stem: str) -> list[Path]:
         return [Path(out_dir) / f"{stem}.{fmt}" for fmt in self.formats]
@@ -76,7 +82,8 @@ class SegmentTask:
         res = segment_each_k(batch, self.k, eps=self.eps, seed=self.seed, n_fields=self.n_fields,
                              remedy=self.remedy, solver=self.solver, method=self.method,
                              untangle_restarts=self.untangle_restarts,
-                             kmeans_restarts=self.kmeans_restarts, refine=False, n_akvf=self.n_akvf)
+                             kmeans_restarts=self.kmeans_restarts, refine=False, n_akvf=self.n_akvf,
+                             graphcut=self.graphcut)
         seg = res.segmentation(self.k)
         # The untangled fields draw the PNG's generator arrows.
         vectors = [seg.face_vectors(b) if "png" in self.formats else None for b in range(len(items))]
