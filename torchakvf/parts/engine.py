@@ -283,7 +283,8 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
                     coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
                     solver=opts.solver, method=opts.method,
-                    **({"graphcut": vars(opts.graphcut)} if opts.graphcut is not None and merging(opts) else {}),
+                    **({"graphcut": True, **{f"graphcut_{name}": float(v) for name, v in vars(opts.graphcut).items()}}
+                       if opts.graphcut is not None and merging(opts) else {}),
                     **({"merge_next": merge_next} if merge_next is not None else {}),
                     **({"k_oversegment": k_cluster, **{f"merge_{name}": (None if v is None else float(v)) for name, v in
                                                        vars(opts.merge).items()}} if merging(opts) else {})),
