@@ -160,6 +160,12 @@ def test_merged_distances_take_the_least_over_united_parts():
 def test_oversegment_k_and_parameter_errors():
     assert oversegment_k(5, 2.0, 10 ** 6) == 10 and oversegment_k(3, 1.5, 10 ** 6) == 5
     assert oversegment_k(4, 3.0, 7) == 7 and oversegment_k(4, 1.0, 100) == 4
+    # the cap on clusters beyond k: 3 x 60 = 180 capped at 60 + 8; below the cap, ceil(3k)
+    assert oversegment_k(60, 3.0, 10 ** 6, 8) == 68 and oversegment_k(2, 3.0, 10 ** 6, 8) == 6
+    assert oversegment_k(60, 3.0, 10 ** 6, 0) == 60 and oversegment_k(60, 3.0, 65, 8) == 65
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ParameterError, match="extra_max"):
+            MergeWeights(extra_max=bad)
     with pytest.raises(ParameterError):
         MergeWeights(concavity=-1.0)
     with pytest.raises(ParameterError):

@@ -209,7 +209,7 @@ def merging(opts: SegmentOptions) -> bool:
 def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
     """Clusters k-means makes for a mesh segmented into k parts: k, or k' = ceil(ratio k) (at
     most its faces) when the parts are merged afterwards."""
-    return oversegment_k(k, opts.merge.ratio, n_faces) if merging(opts) else int(k)
+    return oversegment_k(k, opts.merge.ratio, n_faces, opts.merge.extra_max) if merging(opts) else int(k)
 
 
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
@@ -286,8 +286,8 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     **({"graphcut": True, **{f"graphcut_{name}": float(v) for name, v in vars(opts.graphcut).items()}}
                        if opts.graphcut is not None and merging(opts) else {}),
                     **({"merge_next": merge_next} if merge_next is not None else {}),
-                    **({"k_oversegment": k_cluster, **{f"merge_{name}": (None if v is None else float(v)) for name, v in
-                                                       vars(opts.merge).items()}} if merging(opts) else {})),
+                    **({"k_oversegment": k_cluster, **{f"merge_{name}": float(v) for name, v in
+                                                       vars(opts.merge).items() if v is not None}} if merging(opts) else {})),
         converged=converged, max_residual=residual)
 
 

@@ -56,6 +56,8 @@ class MergeWeights:
     convexity: float = 4.0
     cut: float = 0.5
     crease_angle: float = math.pi
+    #: at most this many clusters beyond k (None: ceil(ratio k) at every k)
+    extra_max: int | None = None
 
     def __post_init__(self):
         for name in ("symmetry", "concavity", "size", "part_size", "convexity", "cut"):
@@ -65,11 +67,18 @@ class MergeWeights:
             raise ParameterError(f"over-segmentation ratio must be >= 1, got {self.ratio!r}")
         if not 0 < self.crease_angle <= math.pi:
             raise ParameterError(f"crease_angle must be in (0, π] radians, got {self.crease_angle!r}")
+        if self.extra_max is not None and not (isinstance(self.extra_max, (int, np.integer))
+                                               and not isinstance(self.extra_max, bool) and self.extra_max >= 0):
+            raise ParameterError(f"extra_max must be None or an integer >= 0, got {self.extra_max!r}")
 
 
-def oversegment_k(k: int, ratio: float, n_faces: int) -> int:
-    """k' = ceil(ratio k) parts to over-segment into, at most the face count."""
-    return int(min(max(math.ceil(ratio * k - 1e-9), k), n_faces))
+def oversegment_k(k: int, ratio: float, n_faces: int, extra_max: int | None = None) -> int:
+    """k' = ceil(ratio k) parts to over-segment into, at most k + ``extra_max`` (None: no cap)
+    and at most the face count."""
+    kp = max(math.ceil(ratio * k - 1e-9), k)
+    if extra_max is not None:
+        kp = min(kp, k + int(extra_max))
+    return int(min(kp, n_faces))
 
 
 @dataclass
