@@ -111,11 +111,15 @@ def test_predictions_made_under_other_defaults_are_not_resumed(tiny_psb, run_by_
     assert recorded["graphcut"] is not None and recorded["merge"]["ratio"] > 1
     assert recorded["kmeans_restarts"] == FAST["kmeans_restarts"]
     settings = out / "settings.json"
-    doc = json.loads(settings.read_text())
+    original = settings.read_text()          # the folder is shared by this module's tests
+    doc = json.loads(original)
     doc["prediction"]["options"]["graphcut"] = None            # as if made without the cut
-    settings.write_text(json.dumps(doc))
-    with pytest.raises(TorchAKVFError, match="options"):
-        evaluate_psb(root, out, progress=False, **FAST)
+    try:
+        settings.write_text(json.dumps(doc))
+        with pytest.raises(TorchAKVFError, match="options"):
+            evaluate_psb(root, out, progress=False, **FAST)
+    finally:
+        settings.write_text(original)
 
 
 def test_merge_weights_are_recorded_in_the_settings(tiny_psb, tmp_path):
