@@ -14,7 +14,7 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
-from ..solvers.factor import ShiftedFactor
+from ..solvers.factor import ShiftedFactor, mesh_factor
 from ..solvers.krylov import block_krylov
 from ..solvers.lanczos import shift_invert_lanczos
 from ..solvers.lobpcg import segmented_lobpcg
@@ -186,9 +186,7 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
 
     def factor_of(b: int) -> ShiftedFactor:
         if b not in factors:
-            r, c, v, _ = system.block(b)
-            lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
-            factors[b] = ShiftedFactor(r, c, v, system.mass[lo:hi], name=names[b])
+            factors[b] = mesh_factor(system, b, names[b])
         return factors[b]
 
     def solve(meshes_: list[int], count: int, solver: str):

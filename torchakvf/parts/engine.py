@@ -264,10 +264,10 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
             vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
             # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
             cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
-        if opts.graphcut is not None and merging(opts):
-            # data term: each face's distance to each part, the mean over its corners
-            face_dist = vdist[clean.faces].mean(axis=1)
-            labels = graphcut_labels(labels, face_dist, cache["dual"], area, opts.graphcut)
+            if opts.graphcut is not None:
+                # data term: each face's distance to each part, the mean over its corners
+                face_dist = vdist[clean.faces].mean(axis=1)
+                labels = graphcut_labels(labels, face_dist, cache["dual"], area, opts.graphcut)
         # what merging two of these parts would cost (k auto's "merge" rule reads it)
         merge_next = next_merge_cost(labels, cache["dual"], feats, area, opts.merge)
     gens = part_generators(labels, feats, area, unt.energies[b, :n_b].detach().cpu().numpy(), k)

@@ -73,6 +73,17 @@ class ShiftedFactor:
         return out
 
 
+def mesh_factor(system, b: int, name: str, device=None) -> ShiftedFactor:
+    """The :class:`ShiftedFactor` of mesh b of a :class:`~torchakvf.operators.killing.KillingSystem`
+    (its block of R and its S1), on ``device`` (default: the system's)."""
+    r, c, v, _ = system.block(b)
+    lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
+    mass = system.mass[lo:hi]
+    if device is not None:
+        r, c, v, mass = (t.to(device) for t in (r, c, v, mass))
+    return ShiftedFactor(r, c, v, mass, name=name)
+
+
 @contextlib.contextmanager
 def _quiet_stderr():
     """Silence CHOLMOD's C-level "not positive definite" warning during a trial factorization

@@ -33,7 +33,7 @@ import torch
 from .._threads import single_threaded
 from ..errors import ParameterError, SolverError
 from ..operators.killing import KillingSystem
-from .factor import ShiftedFactor
+from .factor import mesh_factor
 from .lobpcg import EigenResult
 
 log = logging.getLogger(__name__)
@@ -99,7 +99,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         r, c, v, size = system.block(b)
         lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
         mass = system.mass[lo:hi].to(torch.float64)
-        factor = factors[j] if factors is not None else ShiftedFactor(r, c, v, mass, name=names[j])
+        factor = factors[j] if factors is not None else mesh_factor(system, b, names[j])
         stiff = torch.sparse_coo_tensor(torch.stack([r, c]), v.to(torch.float64), (size, size),
                                         check_invariants=False).to_sparse_csr()
         dims = (lambda k: max_dim) if max_dim else (lambda k: max(10 * k, 240))

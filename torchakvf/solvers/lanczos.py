@@ -15,7 +15,7 @@ import torch
 
 from ..errors import SolverError
 from ..operators.killing import KillingSystem
-from .factor import ShiftedFactor
+from .factor import mesh_factor
 from .lobpcg import EigenResult, relative_residuals
 
 
@@ -39,8 +39,7 @@ def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed:
         r, c, v, size = system.block(b)
         lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
         mass = system.mass[lo:hi].cpu()
-        factor = (factors[b] if factors is not None else
-                  ShiftedFactor(r.cpu(), c.cpu(), v.cpu(), mass, name=names[b]))
+        factor = factors[b] if factors is not None else mesh_factor(system, b, names[b], device="cpu")
         stiff = sp.csr_matrix((v.cpu().numpy(), (r.cpu().numpy(), c.cpu().numpy())), shape=(size, size))
         count = [0]
 

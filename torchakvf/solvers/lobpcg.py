@@ -21,7 +21,7 @@ from .._threads import single_threaded
 from ..errors import SolverError
 from ..mesh.batch import owner_index
 from ..operators.killing import KillingSystem
-from .factor import ShiftedFactor
+from .factor import mesh_factor
 
 log = logging.getLogger(__name__)
 
@@ -89,11 +89,7 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     dt = torch.float64
 
     if factors is None:
-        factors = []
-        for b in range(nb):
-            r, c, v, _ = system.block(b)
-            lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
-            factors.append(ShiftedFactor(r, c, v, system.mass[lo:hi], name=names[b]))
+        factors = [mesh_factor(system, b, names[b]) for b in range(nb)]
 
     mask = torch.zeros(nb, e_max, dtype=torch.bool, device=dev)
     for b, e in enumerate(sizes):
