@@ -4,8 +4,9 @@ results is made in float64).
 
 What must hold on any BLAS, thread count or padding: the float32 path ends on a float64
 stationary point (one more float64 step gains less than the stopping tolerance) whose objective
-equals the float64 path's to within the spread of competing optima; where the optimum is well
-separated (three_blobs: three distinct blobs) the fields themselves agree. Where optima compete
+equals the float64 path's to within the spread of competing optima; on three_blobs (three distinct
+blobs) every field lives on one blob and each blob gets the same span of fields (its degenerate
+eigenvalue pairs let rotations inside one blob compete). Where optima compete
 (the bent dumbbell, exactly symmetric shapes) which one is reached may depend on round-off, so
 fields are not compared there. "Another machine" is simulated by one thread and by perturbing
 the inputs at float32's rounding level (1e-7 relative).
@@ -83,11 +84,35 @@ def test_untangle_float32_iterations_reach_a_float64_optimum(fields, reference):
         assert (gain < 10 * TOL).all(), (what, gain)       # a float64 stationary point
         rel = (b.score / reference.score - 1).abs()
         assert (rel < SCORE_RTOL).all(), (what, rel)
-        # three_blobs: a well-separated optimum, the same fields (up to order and sign).
-        cos = (reference.rotation[0].T @ b.rotation[0]).abs().max(dim=1).values
-        assert cos.min() > 1 - 1e-6, (what, cos.min())
-        fa, fb = reference.mesh_features(0), b.mesh_features(0)
-        assert (fa - fb).abs().max() < 1e-4 * fa.abs().max(), what
+        # three_blobs: every field lives on one blob, and each blob gets the same span of fields.
+        # Not the same fields: the blobs' eigenvalues come in degenerate pairs, so rotations
+        # inside one blob's span compete (which one is reached depends on the BLAS: seen on
+        # another CPU model, field cosines down to 0.74 at equal objective).
+        _assert_same_blob_spans(reference, b, what)
+
+
+def _blob_of_each_field(unt, blob_of_face: torch.Tensor) -> torch.Tensor:
+    """[n] the blob holding most of each untangled field's squared norm on three_blobs (mesh 0);
+    asserts that it holds nearly all of it (the field is localized)."""
+    feats = unt.mesh_features(0).double() ** 2                                # [F, n]
+    share = torch.stack([feats[blob_of_face == j].sum(0) for j in range(3)])  # [3, n]
+    share = share / share.sum(0)
+    assert share.max(0).values.min() > 0.99, share.max(0).values.min()
+    return share.argmax(0)
+
+
+def _assert_same_blob_spans(reference, other, what: str) -> None:
+    feats = reference.mesh_features(0).double()[None]
+    mask = torch.ones(feats.shape[:2], dtype=torch.bool)
+    blob_of_face = spherical_kmeans(feats, mask, 3, seed=0, restarts=10).labels[0]
+    ref_blob, other_blob = _blob_of_each_field(reference, blob_of_face), _blob_of_each_field(other, blob_of_face)
+    for j in range(3):
+        a = reference.rotation[0].double()[:, ref_blob == j]        # the blob's fields, in the eigenbasis
+        c = other.rotation[0].double()[:, other_blob == j]
+        assert a.shape[1] == c.shape[1] > 0, (what, j, a.shape[1], c.shape[1])
+        # principal angles between the two orthonormal column sets: all cosines 1
+        cosines = torch.linalg.svdvals(a.T @ c)
+        assert cosines.min() > 1 - 1e-6, (what, j, cosines.min())
 
 
 def _is_lloyd_fixed_point(x, mask, res, k) -> bool:
