@@ -256,7 +256,9 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     for values, vectors, residuals, _, _ in per_mesh:
         spurious = values < SPURIOUS_BELOW if drop else torch.zeros_like(values, dtype=torch.bool)
         keep = torch.argsort(spurious.to(torch.int8), stable=True)[:n]
-        lam.append(values[keep]), forms.append(vectors[:, keep]), res.append(residuals[keep])
+        # Column slices where the kept pairs lead (no spurious ones): a view, not a gather.
+        cols = slice(0, n) if bool((keep == torch.arange(len(keep), device=keep.device)).all()) else keep
+        lam.append(values[cols]), forms.append(vectors[:, cols]), res.append(residuals[cols])
         dropped.append(int(spurious.sum()))
     dev = batch.device
     eigenvalues, residuals, forms = torch.stack(lam), torch.stack(res), torch.cat(forms)
