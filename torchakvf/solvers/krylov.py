@@ -40,13 +40,20 @@ from .lobpcg import EigenResult
 
 log = logging.getLogger(__name__)
 
-#: Right-hand sides per block solve. A block Krylov space finds up to p copies of a repeated
-#: eigenvalue without relying on round-off, and the irreducible representations of the finite
-#: symmetry groups of a surface have dimension <= 5 (the icosahedral group: icospheres have
-#: 5-fold eigenvalues); block 4 was seen to miss the fifth copy of one (test
-#: test_krylov_makes_room_for_spurious_modes), so 6. CHOLMOD's cost per right-hand side is
-#: 2-3x lower at blocks of 4-8 than alone on PSB meshes.
-BLOCK = 6
+#: Right-hand sides per block solve. cholespy's CPU solve (CHOLMOD, simplicial) sweeps the
+#: factor once per 4 right-hand sides: measured on PSB 21, 4 columns cost 16.9 ms, 5-8 cost
+#: 30-37 ms, 1 costs 12 ms; so 4 per step, the fewest solves per converged pair (136 against 156
+#: at block 6 on PSB 21 and 301).
+BLOCK = 4
+#: A block-p Krylov space holds at most p copies of a repeated eigenvalue (in exact arithmetic;
+#: the irreducible representations of the finite symmetry groups of a surface have dimension
+#: <= 5, icospheres have 5-fold eigenvalues). Where p of the returned eigenvalues crowd within
+#: _CROWDED of each other, the mesh is solved again with WIDE_BLOCK right-hand sides per step
+#: (the same two sweeps through the factor as 6), which holds 8 copies.
+WIDE_BLOCK = 8
+#: Relative spread (to max(|λ|, 1)) of p eigenvalues that counts as a possible repeated one;
+#: generous: a false alarm costs one more solve, a missed copy would be a wrong answer.
+_CROWDED = 1e-3
 #: A needed pair counts as converged when its estimated residual is below this fraction of tol
 #: (the estimate is exact up to round-off; the margin absorbs that round-off).
 _SAFETY = 0.9
@@ -106,6 +113,12 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         dims = (lambda k: max_dim) if max_dim else (lambda k: max(10 * k, 240))
         lam, x, res, k = _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed,
                                    block, dims, grow)
+        if block < WIDE_BLOCK and not bool(torch.isinf(res).all()) and _crowded(lam, block):
+            log.info("%s: %d eigenvalues within %.0e of each other at block %d; solving again at "
+                     "block %d", names[j], block, _CROWDED, block, WIDE_BLOCK)
+            lam, x, res, k2 = _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed,
+                                        WIDE_BLOCK, dims, grow)
+            k += k2
         short = bool(torch.isinf(res).all())
         if not short and not bool((res[:_needed(lam, need, skip_below)] <= tol).all()):
             log.info("%s: block Krylov stopped at a basis of %d with residual %.2e > tol %.1e",
@@ -119,6 +132,14 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
     return EigenResult(eigenvalues=vals, vectors=torch.cat(vectors).to(dev), residuals=res,
                        iterations=torch.tensor(solves, dtype=torch.long, device=dev),
                        shifts=torch.tensor(shifts, dtype=torch.float64, device=dev), converged=conv)
+
+
+def _crowded(lam: torch.Tensor, p: int) -> bool:
+    """Whether some p of the eigenvalues lam (ascending) lie within _CROWDED · max(|λ|, 1)."""
+    if p < 2 or len(lam) < p:
+        return False
+    spread = lam[p - 1:] - lam[:len(lam) - p + 1]
+    return bool((spread <= _CROWDED * lam[p - 1:].abs().clamp(min=1.0)).any())
 
 
 def _needed(lam: torch.Tensor, need: int, skip_below: float | None) -> int:
