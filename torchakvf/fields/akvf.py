@@ -92,10 +92,11 @@ SPURIOUS_MARGIN = 8
 
 #: On CPU, "auto" solves meshes with at least this many edges with the block Krylov solver and
 #: smaller ones with ARPACK Lanczos (same factor). Measured crossover, ta.akvf n = 32, CPU time,
-#: Lanczos / Krylov: 0.81 at ~6,000 edges (PSB meshes decimated to 4,000 faces, also at n = 12
-#: and 20), 0.94 at 12,000, 0.96 at 14,112 (PSB 1), 1.09 at ~18,000-21,000, 1.18-1.26 at
-#: 17,832-45,594 (PSB 121, 181, 301, 21); benchmarks/results/eigensolver_fullres.md.
-KRYLOV_MIN_EDGES = 15000
+#: Lanczos / Krylov (block 4, numpy products): 0.69-1.25 at ~6,000 edges (PSB 1, 121, 181, 301
+#: decimated to 4,000 faces), 0.93-1.24 at 9,750 (the same and PSB 21 at 6,500 faces), 1.44-1.51
+#: on PSB 1, 121 and 21 at full resolution (14,112-45,594 edges);
+#: benchmarks/results/eigensolver_fullres.md.
+KRYLOV_MIN_EDGES = 10000
 
 
 def solver_for(device: torch.device, edges: int | None = None) -> str:

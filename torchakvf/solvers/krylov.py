@@ -207,14 +207,14 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         local = _mm(w * mass, near.T)
         w = w - _mm(local, near)
         coef[:, prev:filled] = local
+        wm = w * mass
         for _ in range(2):
-            wm = w * mass
-            before = (wm * w).sum(1)
+            before = _rowdot(wm, w)
             again = _mm(wm, basis.T)                      # [p, filled]
             w = w - _mm(again, basis)
             coef += again
-            after = ((w * mass) * w).sum(1)
-            if bool((after > _REORTH * before).all()):
+            wm = w * mass
+            if bool((_rowdot(wm, w) > _REORTH * before).all()):
                 break
         prev = s0
         hmat[:filled, s0:filled] = coef.T
