@@ -106,7 +106,7 @@ def solver_for(device: torch.device, edges: int | None = None) -> str:
 
     All use the same CHOLMOD shift-invert factor (one per mesh). On CPU the block
     shift-invert Krylov solver (:func:`~torchakvf.solvers.krylov.block_krylov`) keeps every
-    solve it makes, like ARPACK, but solves 6 right-hand sides per sweep through the factor and
+    solve it makes, like ARPACK, but solves 4 right-hand sides per sweep through the factor and
     converges only the n pairs asked for; on small meshes its per-step dense work costs more
     than ARPACK's single-vector steps (see :data:`KRYLOV_MIN_EDGES`). LOBPCG's dense
     Rayleigh-Ritz work (bases of 3·(n + guard) columns, every column solved each iteration) is
