@@ -557,8 +557,9 @@ def test_auto_decides_per_mesh(monkeypatch):
 
 @pytest.mark.parametrize("remedy", ["none", "smooth"])
 def test_krylov_matches_scipy_with_multiplicities(remedy):
-    """icosphere(3), n = 40: clusters of multiplicity 3, 4 and 5 (block 4 once missed a fifth
-    copy; the solver uses 6). Eigenvalues and cluster spans of the Krylov solver agree with the
+    """icosphere(3), n = 40: clusters of multiplicity 3, 4 and 5 (block 4 alone once missed a
+    fifth copy; the solver, at block 4, solves again at block 8 when 4 eigenvalues crowd
+    together). Eigenvalues and cluster spans of the Krylov solver agree with the
     independent scipy solve within the bounds their residuals and the eigen-gaps give."""
     n = 40
     res = ta.akvf(mesh_of(shapes.icosphere(3)), n=n, remedy=remedy, solver="krylov")
@@ -584,6 +585,19 @@ def test_krylov_matches_scipy_with_multiplicities(remedy):
         cos = s1_principal_cosines(w[:, a:b], w_ref[:, a:b], S1)
         sin = np.sqrt(np.clip(1 - cos ** 2, 0, None))
         assert np.all(sin <= 2 * sin_bound[a:b].max() + 1e-7), (a, b, sin, sin_bound[a:b])
+
+
+def test_krylov_crowding_guard():
+    """A repeated eigenvalue with as many copies as the block is flagged (and solved again at
+    the wide block); fewer copies or well separated values are not."""
+    from torchakvf.solvers.krylov import _crowded
+    lam = torch.tensor([0.0, 1.0, 5.0, 5.0, 5.0 + 1e-9, 5.0 + 2e-9, 9.0], dtype=torch.float64)
+    assert _crowded(lam, 4)
+    assert not _crowded(lam, 5)
+    assert not _crowded(torch.tensor([0.0, 1.0, 5.0, 5.0, 5.0, 9.0, 12.0], dtype=torch.float64), 4)
+    # Near zero the spread is absolute (1e-3), elsewhere relative to |λ|.
+    assert _crowded(torch.tensor([1e-4, 2e-4, 3e-4, 4e-4, 7.0], dtype=torch.float64), 4)
+    assert not _crowded(torch.tensor([100.0, 100.2, 100.4, 100.6], dtype=torch.float64), 4)
 
 
 def test_krylov_makes_room_for_spurious_modes():

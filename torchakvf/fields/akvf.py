@@ -92,10 +92,11 @@ SPURIOUS_MARGIN = 8
 
 #: On CPU, "auto" solves meshes with at least this many edges with the block Krylov solver and
 #: smaller ones with ARPACK Lanczos (same factor). Measured crossover, ta.akvf n = 32, CPU time,
-#: Lanczos / Krylov: 0.81 at ~6,000 edges (PSB meshes decimated to 4,000 faces, also at n = 12
-#: and 20), 0.94 at 12,000, 0.96 at 14,112 (PSB 1), 1.09 at ~18,000-21,000, 1.18-1.26 at
-#: 17,832-45,594 (PSB 121, 181, 301, 21); benchmarks/results/eigensolver_fullres.md.
-KRYLOV_MIN_EDGES = 15000
+#: Lanczos / Krylov (block 4, numpy products): 0.69-1.25 at ~6,000 edges (PSB 1, 121, 181, 301
+#: decimated to 4,000 faces), 0.93-1.24 at 9,750 (the same and PSB 21 at 6,500 faces), 1.44-1.51
+#: on PSB 1, 121 and 21 at full resolution (14,112-45,594 edges);
+#: benchmarks/results/eigensolver_fullres.md.
+KRYLOV_MIN_EDGES = 10000
 
 
 def solver_for(device: torch.device, edges: int | None = None) -> str:
@@ -105,7 +106,7 @@ def solver_for(device: torch.device, edges: int | None = None) -> str:
 
     All use the same CHOLMOD shift-invert factor (one per mesh). On CPU the block
     shift-invert Krylov solver (:func:`~torchakvf.solvers.krylov.block_krylov`) keeps every
-    solve it makes, like ARPACK, but solves 6 right-hand sides per sweep through the factor and
+    solve it makes, like ARPACK, but solves 4 right-hand sides per sweep through the factor and
     converges only the n pairs asked for; on small meshes its per-step dense work costs more
     than ARPACK's single-vector steps (see :data:`KRYLOV_MIN_EDGES`). LOBPCG's dense
     Rayleigh-Ritz work (bases of 3·(n + guard) columns, every column solved each iteration) is
@@ -256,7 +257,9 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     for values, vectors, residuals, _, _ in per_mesh:
         spurious = values < SPURIOUS_BELOW if drop else torch.zeros_like(values, dtype=torch.bool)
         keep = torch.argsort(spurious.to(torch.int8), stable=True)[:n]
-        lam.append(values[keep]), forms.append(vectors[:, keep]), res.append(residuals[keep])
+        # Column slices where the kept pairs lead (no spurious ones): a view, not a gather.
+        cols = slice(0, n) if bool((keep == torch.arange(len(keep), device=keep.device)).all()) else keep
+        lam.append(values[cols]), forms.append(vectors[:, cols]), res.append(residuals[cols])
         dropped.append(int(spurious.sum()))
     dev = batch.device
     eigenvalues, residuals, forms = torch.stack(lam), torch.stack(res), torch.cat(forms)

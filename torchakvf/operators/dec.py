@@ -7,7 +7,10 @@ as vectors. All quantities are on unit-area meshes (see :mod:`.geometry`).
 from __future__ import annotations
 
 import math
+import warnings
 
+import numpy as np
+import scipy.sparse as sp
 import torch
 
 from ..mesh.batch import MeshBatch
@@ -15,9 +18,46 @@ from .geometry import BatchGeometry
 
 
 def sparse_coo(rows, cols, vals, shape) -> torch.Tensor:
-    """Coalesced sparse COO matrix (duplicates summed)."""
-    idx = torch.stack([rows.reshape(-1), cols.reshape(-1)])
-    return torch.sparse_coo_tensor(idx, vals.reshape(-1), shape, check_invariants=False).coalesce()
+    """Coalesced sparse COO matrix (duplicates summed).
+
+    On CPU the duplicates are summed by scipy (a counting sort by row, then each short row
+    sorted): 3x faster than torch's coalesce (a global sort of the keys) on the Killing
+    operator's ~10⁶ entries, the same entries up to the order of the sums' round-off."""
+    rows, cols, vals = rows.reshape(-1), cols.reshape(-1), vals.reshape(-1)
+    if rows.device.type == "cpu":
+        mat = sp.coo_matrix((vals.numpy(), (rows.numpy(), cols.numpy())), shape=shape).tocsr()
+        mat.sum_duplicates()
+        return csr_to_coo(mat, vals.dtype)
+    idx = torch.stack([rows, cols])
+    return torch.sparse_coo_tensor(idx, vals, shape, check_invariants=False).coalesce()
+
+
+def csr_to_coo(mat: "sp.csr_matrix", dtype=torch.float64) -> torch.Tensor:
+    """A torch COO tensor (flagged coalesced) from a scipy CSR matrix in canonical format
+    (sorted, no duplicates)."""
+    n_rows = mat.shape[0]
+    row = np.repeat(np.arange(n_rows, dtype=np.int64), np.diff(mat.indptr))
+    idx = torch.from_numpy(np.stack([row, mat.indices.astype(np.int64)]))
+    return torch.sparse_coo_tensor(idx, torch.from_numpy(mat.data).to(dtype), mat.shape,
+                                   is_coalesced=True, check_invariants=False)
+
+
+def weighted_gram(dmat: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Dᵀ diag(weights) D as a coalesced COO tensor, for a coalesced COO D [m, n] and
+    weights [m] (scipy's sparse product on CPU, torch's elsewhere)."""
+    if dmat.device.type == "cpu":
+        idx = dmat.indices().numpy()
+        d = sp.csr_matrix((dmat.values().numpy(), (idx[0], idx[1])), shape=dmat.shape)
+        gram = (d.T.tocsr() @ sp.diags(weights.numpy()) @ d).tocsr()
+        gram.sum_duplicates()
+        gram.sort_indices()
+        return csr_to_coo(gram, dmat.dtype)
+    scaled = torch.sparse_coo_tensor(dmat.indices(), dmat.values() * weights[dmat.indices()[0]],
+                                     dmat.shape, check_invariants=False).coalesce()
+    with warnings.catch_warnings():
+        # torch routes sparse @ sparse through its (beta-flagged) CSR kernels.
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
+        return torch.sparse.mm(dmat.t().coalesce(), scaled).coalesce()
 
 
 def d0(batch: MeshBatch, dtype=torch.float64) -> torch.Tensor:

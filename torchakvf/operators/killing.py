@@ -11,9 +11,10 @@ closed meshes). Everything is computed on unit-area meshes, so eigenvalues are Î
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
+import numpy as np
+import scipy.sparse as sp
 import torch
 
 from ..errors import ParameterError
@@ -120,8 +121,16 @@ def _ring_average_curvature(batch: MeshBatch, theta: torch.Tensor, a_v: torch.Te
     e = batch.edges
     n = len(theta)
     idx = torch.cat([e, e.flip(1), torch.arange(n, device=e.device)[:, None].expand(-1, 2)]).t()
-    adj = torch.sparse_coo_tensor(idx, torch.ones(idx.shape[1], dtype=theta.dtype, device=e.device),
-                                  (n, n), check_invariants=False).coalesce()
+    ones = torch.ones(idx.shape[1], dtype=theta.dtype, device=e.device)
+    if e.device.type == "cpu":
+        # scipy's CSR product: torch's COO product with a dense vector is several times slower.
+        ring = sp.csr_matrix((ones.numpy(), (idx[0].numpy(), idx[1].numpy())), shape=(n, n))
+        nd = np.stack([theta.numpy(), a_v.numpy()], 1)
+        for _ in range(rings):
+            nd = ring @ nd
+        nd = torch.from_numpy(nd).to(theta.dtype)
+        return nd[:, 0] / nd[:, 1]
+    adj = torch.sparse_coo_tensor(idx, ones, (n, n), check_invariants=False).coalesce().to_sparse_csr()
     num, den = theta[:, None], a_v[:, None]
     for _ in range(rings):
         num, den = torch.sparse.mm(adj, num), torch.sparse.mm(adj, den)
@@ -179,12 +188,7 @@ def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy:
     dmat = dec.sparse_coo(torch.cat([r.reshape(-1) for r in d_rows]),
                           torch.cat([c.reshape(-1) for c in d_cols]),
                           torch.cat([v.reshape(-1) for v in d_vals]), (n_v, n_e))
-    d_scaled = torch.sparse_coo_tensor(dmat.indices(), dmat.values() / a_v[dmat.indices()[0]],
-                                       dmat.shape, check_invariants=False).coalesce()
-    with warnings.catch_warnings():
-        # torch routes sparse @ sparse through its (beta-flagged) CSR kernels.
-        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
-        ddd = torch.sparse.mm(dmat.t().coalesce(), d_scaled).coalesce()
+    ddd = dec.weighted_gram(dmat, 1.0 / a_v)
     parts.append((ddd.indices()[0], ddd.indices()[1], 2.0 * ddd.values()))
 
     if bnd is not None:
