@@ -80,9 +80,15 @@ class SurfacePoints:
 
     def interpolate(self, faces: np.ndarray, vertex_values: np.ndarray) -> np.ndarray:
         """[P, ...] linear interpolation of per-coarse-vertex values [V_coarse, ...]."""
-        corners = vertex_values[faces[self.face]]                         # [P, 3, ...]
-        w = self.bary.reshape(self.bary.shape + (1,) * (corners.ndim - 2))
-        return (corners * w).sum(axis=1)
+        vertex_values = np.asarray(vertex_values)
+        corner = faces[self.face]                                         # [P, 3]
+        shape = (len(corner),) + (1,) * (vertex_values.ndim - 1)
+        # Σ_c bary_c · value_c, added in corner order as (corners * w).sum(axis=1) adds them,
+        # without the [P, 3, ...] gather
+        out = vertex_values[corner[:, 0]] * self.bary[:, 0].reshape(shape)
+        for c in (1, 2):
+            out += vertex_values[corner[:, c]] * self.bary[:, c].reshape(shape)
+        return out
 
     def on(self, surface: CleanMesh) -> np.ndarray:
         """[P, 3] the located points themselves, on the mesh they were located on."""

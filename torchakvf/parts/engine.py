@@ -28,7 +28,7 @@ from ..fields.untangle import UntangledFields, orthomax_rotations, untangled_fro
 from ..mesh import MeshBatch
 from ..mesh.batch import pad_packed
 from ..operators.killing import DEFAULT_REMEDY
-from .boundaries import (face_margins, isoline_face_labels, refine_along_isolines,
+from .boundaries import (barycenter_values, face_margins, isoline_face_labels, refine_along_isolines,
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import part_generators
@@ -266,7 +266,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
             cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
             if opts.graphcut is not None:
                 # data term: each face's distance to each part, the mean over its corners
-                face_dist = vdist[clean.faces].mean(axis=1)
+                face_dist = barycenter_values(clean.faces, vdist)
                 labels = graphcut_labels(labels, face_dist, cache["dual"], area, opts.graphcut)
         # what merging two of these parts would cost (k auto's "merge" rule reads it)
         merge_next = next_merge_cost(labels, cache["dual"], feats, area, opts.merge)
