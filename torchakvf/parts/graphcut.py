@@ -94,6 +94,8 @@ def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np
 #: Energies go to gco as integers: the largest term maps to this many units (gco sums them in
 #: 64 bits; its own float mode keeps only 3 digits of the largest term for edge weights).
 INTEGER_UNITS = 1_000_000
+#: Alpha-expansion cycles (each tries every label once); -1: until no expansion lowers the energy.
+EXPANSION_CYCLES = -1
 
 
 def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -120,7 +122,7 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -
             g.set_all_neighbors(np.ascontiguousarray(e[:, 0], dtype=np.intc), np.ascontiguousarray(e[:, 1], dtype=np.intc),
                                 np.ascontiguousarray(np.rint(w * scale), dtype=np.intc))
         g.set_smooth_cost(np.ascontiguousarray(1 - np.eye(k), dtype=np.intc))
-        g.expansion(-1)
+        g.expansion(EXPANSION_CYCLES)
         return np.asarray(g.get_labels(), dtype=np.int64)
     finally:
         g.destroy_graph()
