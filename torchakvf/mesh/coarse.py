@@ -43,8 +43,10 @@ SAMPLE_SPACING = 0.5
 #: ... but no face is cut into more than MAX_SPLIT^2 sub-triangles (a huge sliver raises the
 #: spacing instead).
 MAX_SPLIT = 8
-#: Samples asked for first in each ball query (more where a ball holds more).
-QUERY_K = 8
+#: Samples asked for first in each ball query (more where a ball holds more). 16: the fewest
+#: tree walks in all on PSB meshes decimated to 4000 faces (1.2x less search time than 8;
+#: the answer is the exact closest face either way).
+QUERY_K = 16
 #: Ratio between the search radii of two successive query groups.
 REACH_STEP = 1.25
 #: The relaxation projects onto the fine surface with the exact search (True) or with the
