@@ -94,8 +94,10 @@ def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np
 #: Energies go to gco as integers: the largest term maps to this many units (gco sums them in
 #: 64 bits; its own float mode keeps only 3 digits of the largest term for edge weights).
 INTEGER_UNITS = 1_000_000
-#: Alpha-expansion cycles (each tries every label once); -1: until no expansion lowers the energy.
-EXPANSION_CYCLES = -1
+#: Alpha-expansion cycles (each tries every label once; -1: until no expansion lowers the
+#: energy). 2 (issue 13): on 30 PSB meshes (2 per labelled category) 1-RI 0.1414 against 0.1413
+#: until convergence (1 cycle: 0.1415); the cycles past the second change little and cost as much.
+EXPANSION_CYCLES = 2
 
 
 def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
