@@ -101,7 +101,8 @@ EXPANSION_CYCLES = 2
 
 
 def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion (gco).
+    """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion (gco),
+    :data:`EXPANSION_CYCLES` cycles over the labels.
 
     unary : [F, k] float >= 0; pairs : [P, 2] site pairs; weights : [P] >= 0. Returns [F] int64.
     Terms are rounded to integers with :data:`INTEGER_UNITS` for the largest one.
