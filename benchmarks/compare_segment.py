@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from torchakvf.evaluate import psb as P
+from torchakvf.evaluate.metrics import rand_index_error
 from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch
 from torchakvf.parts import engine as new_engine
@@ -70,7 +71,8 @@ def main():
             same += bool(np.array_equal(lab, lab2))
             same_cost += cost == cost2
             if not np.array_equal(lab, lab2):
-                print(f"  mesh {i} k {k}: labels differ on {np.mean(lab != lab2):.4f} of faces", flush=True)
+                print(f"  mesh {i} k {k}: label ids differ on {np.mean(lab != lab2):.4f} of faces, "
+                      f"1-RI between the two {rand_index_error(lab, lab2):.4f}", flush=True)
         print(f"mesh {i} ks {ks}: base {secs['base']:.2f}s new {secs['new']:.2f}s", flush=True)
     print(f"TOTAL base {secs['base']:.2f}s new {secs['new']:.2f}s ratio {secs['base'] / secs['new']:.3f}x; "
           f"labels identical {same}/{total}, costs identical {same_cost}/{total}")
