@@ -136,6 +136,7 @@ def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: in
         # mesh): one buffer for every iteration, since allocating it afresh costs as much as the GEMM.
         x_it = x.to(phase)
         sim_buf = x_it.new_empty(nb, n_max, r * k_max)
+        xw_all = x * w[..., None]                                                   # [B, N, d]
         for _ in range(max_iter):
             # Only restarts still moving iterate: settled ones (and meshes whose restarts have all
             # settled) drop out, so a slow restart does not make the others pay for its iterations.
@@ -145,22 +146,35 @@ def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: in
             if len(live) == 0:
                 break
             m = len(live)
-            act = active[live]                                                          # [m, R]
+            # every mesh live (always so for one mesh): views, not copies, of the per-mesh arrays
+            every = m == nb
+            pick = (lambda t: t) if every else (lambda t: t[live])
+            act = pick(active)                                                          # [m, R]
             q = int(act.sum(dim=1).max())
-            slot = torch.argsort((~act).to(torch.int8), dim=1, stable=True)[:, :q]      # [m, q]
-            valid = torch.gather(act, 1, slot)                                          # [m, q]
             rows = torch.arange(m, device=dev)[:, None]
-            cl = centers[live][rows, slot]                                              # [m, q, k, d]
-            new = assign(x_it[live], cl, None if absent is None else absent[live], sim_buf)[1]                     # [m, N, q]
-            lab = labels[live]
+            if q == r and bool(act.all()):
+                slot = torch.arange(r, device=dev)[None, :].expand(m, r)                # [m, q]
+                valid = act
+            else:
+                slot = torch.argsort((~act).to(torch.int8), dim=1, stable=True)[:, :q]  # [m, q]
+                valid = torch.gather(act, 1, slot)                                      # [m, q]
+            cent = pick(centers)
+            cl = cent[rows, slot]                                                       # [m, q, k, d]
+            new = assign(pick(x_it), cl, None if absent is None else pick(absent), sim_buf)[1]   # [m, N, q]
+            lab = pick(labels)
             idx = slot[:, None, :].expand(m, n_max, q)
             old = torch.gather(lab, 2, idx)
             changed = (new != old).any(dim=1) & valid                                  # [m, q]
-            labels[live] = lab.scatter(2, idx, torch.where(valid[:, None, :], new, old))
-            iters[live] += act.long()
+            lab = lab.scatter(2, idx, torch.where(valid[:, None, :], new, old))
+            if every:
+                labels = lab
+                iters += act.long()
+            else:
+                labels[live] = lab
+                iters[live] += act.long()
             # Weighted sums per (mesh, restart, cluster) by index_add, one restart at a time: a
             # one-hot GEMM would build [m, N, q, k] (260 MB at k = 81 on a 20k-face mesh).
-            xw = (x[live] * w[live, :, None]).reshape(m * n_max, d)
+            xw = pick(xw_all).reshape(m * n_max, d)
             base = (torch.arange(m, device=dev)[:, None] * (q * k_max)).expand(m, n_max).reshape(-1)
             sums = x.new_zeros(m * q * k_max, d)
             for j in range(q):
@@ -169,10 +183,12 @@ def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: in
             norm = sums.norm(dim=-1, keepdim=True)
             # An emptied cluster keeps its previous center rather than vanishing.
             moved = torch.where(norm > 0, sums / norm.clamp(min=1e-300), cl)
-            cent = centers[live]
             cent[rows.expand(m, q)[valid], slot[valid]] = moved[valid]
-            centers[live] = cent
-            active[live] = act.scatter(1, slot, changed)
+            if every:
+                active = act.scatter(1, slot, changed)
+            else:
+                centers[live] = cent
+                active[live] = act.scatter(1, slot, changed)
 
     del sim_buf, x_it
     # The final assignment, in float64, one restart at a time ([B, N, k], not [B, N, R·k]).

@@ -72,7 +72,9 @@ class CleanMesh:
         labelled face is near.
         """
         out = self.to_input_faces(np.asarray(labels, dtype=np.int64), fill=-1)
-        dropped = np.setdiff1d(np.arange(self.n_input_faces), self.face_index)
+        kept = np.zeros(self.n_input_faces, dtype=bool)
+        kept[self.face_index] = True
+        dropped = np.flatnonzero(~kept)           # np.setdiff1d's answer, without its sorts
         if len(dropped) == 0:
             return out
         n_vertices = int(self.input_faces.max()) + 1

@@ -43,8 +43,10 @@ SAMPLE_SPACING = 0.5
 #: ... but no face is cut into more than MAX_SPLIT^2 sub-triangles (a huge sliver raises the
 #: spacing instead).
 MAX_SPLIT = 8
-#: Samples asked for first in each ball query (more where a ball holds more).
-QUERY_K = 8
+#: Samples asked for first in each ball query (more where a ball holds more). 16: the fewest
+#: tree walks in all on PSB meshes decimated to 4000 faces (1.2x less search time than 8;
+#: the answer is the exact closest face either way).
+QUERY_K = 16
 #: Ratio between the search radii of two successive query groups.
 REACH_STEP = 1.25
 #: The relaxation projects onto the fine surface with the exact search (True) or with the
@@ -80,9 +82,15 @@ class SurfacePoints:
 
     def interpolate(self, faces: np.ndarray, vertex_values: np.ndarray) -> np.ndarray:
         """[P, ...] linear interpolation of per-coarse-vertex values [V_coarse, ...]."""
-        corners = vertex_values[faces[self.face]]                         # [P, 3, ...]
-        w = self.bary.reshape(self.bary.shape + (1,) * (corners.ndim - 2))
-        return (corners * w).sum(axis=1)
+        vertex_values = np.asarray(vertex_values)
+        corner = faces[self.face]                                         # [P, 3]
+        shape = (len(corner),) + (1,) * (vertex_values.ndim - 1)
+        # Σ_c bary_c · value_c, added in corner order as (corners * w).sum(axis=1) adds them,
+        # without the [P, 3, ...] gather
+        out = vertex_values[corner[:, 0]] * self.bary[:, 0].reshape(shape)
+        for c in (1, 2):
+            out += vertex_values[corner[:, c]] * self.bary[:, c].reshape(shape)
+        return out
 
     def on(self, surface: CleanMesh) -> np.ndarray:
         """[P, 3] the located points themselves, on the mesh they were located on."""

@@ -94,10 +94,15 @@ def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np
 #: Energies go to gco as integers: the largest term maps to this many units (gco sums them in
 #: 64 bits; its own float mode keeps only 3 digits of the largest term for edge weights).
 INTEGER_UNITS = 1_000_000
+#: Alpha-expansion cycles (each tries every label once; -1: until no expansion lowers the
+#: energy). 2 (issue 13): on 30 PSB meshes (2 per labelled category) 1-RI 0.1414 against 0.1413
+#: until convergence (1 cycle: 0.1415); the cycles past the second change little and cost as much.
+EXPANSION_CYCLES = 2
 
 
 def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion (gco).
+    """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion (gco),
+    :data:`EXPANSION_CYCLES` cycles over the labels.
 
     unary : [F, k] float >= 0; pairs : [P, 2] site pairs; weights : [P] >= 0. Returns [F] int64.
     Terms are rounded to integers with :data:`INTEGER_UNITS` for the largest one.
@@ -120,7 +125,7 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -
             g.set_all_neighbors(np.ascontiguousarray(e[:, 0], dtype=np.intc), np.ascontiguousarray(e[:, 1], dtype=np.intc),
                                 np.ascontiguousarray(np.rint(w * scale), dtype=np.intc))
         g.set_smooth_cost(np.ascontiguousarray(1 - np.eye(k), dtype=np.intc))
-        g.expansion(-1)
+        g.expansion(EXPANSION_CYCLES)
         return np.asarray(g.get_labels(), dtype=np.int64)
     finally:
         g.destroy_graph()

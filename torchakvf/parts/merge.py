@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from .concavity import DualEdges, crease_weights, dual_edges
+from .grouping import compact_labels, group_sums
 
 
 @dataclass(frozen=True)
@@ -118,17 +119,14 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     """
     labels = np.asarray(labels)
     present = labels >= 0
-    uniq, compact = np.unique(labels[present], return_inverse=True)
-    lab = np.full(labels.shape, -1, dtype=np.int64)
-    lab[present] = compact
-    K = len(uniq)
+    lab, K = compact_labels(labels)
+    compact = lab[present]
     feats = np.asarray(features, dtype=np.float64)
     norm = np.linalg.norm(feats, axis=1, keepdims=True)
     unit = np.divide(feats, norm, out=np.zeros_like(feats), where=norm > 0)
     w = np.asarray(face_area, dtype=np.float64)[present]
     area = np.bincount(compact, weights=w, minlength=K)
-    mean = np.zeros((K, feats.shape[1]))
-    np.add.at(mean, compact, unit[present] * w[:, None])
+    mean = group_sums(compact, unit[present] * w[:, None], K)
     mean /= np.maximum(area, 1e-300)[:, None]
     la, lb = lab[dual.pairs[:, 0]], lab[dual.pairs[:, 1]]
     cut = (la != lb) & (la >= 0) & (lb >= 0)
@@ -259,9 +257,8 @@ def partition_cost(labels: np.ndarray, features: np.ndarray) -> float:
     x = np.asarray(features, dtype=np.float64)[keep]
     norm = np.linalg.norm(x, axis=1, keepdims=True)
     unit = np.divide(x, norm, out=np.zeros_like(x), where=norm > 0)
-    lab = np.unique(labels[keep], return_inverse=True)[1]
-    centers = np.zeros((int(lab.max()) + 1 if lab.size else 0, x.shape[1]))
-    np.add.at(centers, lab, unit)
+    lab, n_parts = compact_labels(labels[keep])
+    centers = group_sums(lab, unit, n_parts)
     centers /= np.maximum(np.linalg.norm(centers, axis=1, keepdims=True), 1e-300)
     return float(np.sum(1.0 - np.einsum("ij,ij->i", unit, centers[lab])))
 
@@ -278,7 +275,10 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     ok = (before >= 0) & (after >= 0)
     k = int(after[ok].max()) + 1 if ok.any() else 0
     out = np.full((distances.shape[0], k), np.inf)
-    for old, new in np.unique(np.stack([before[ok], after[ok]], axis=1), axis=0):
+    # distinct (old, new) pairs by one small integer key and a bincount (np.unique over rows
+    # sorts F records)
+    for key in np.flatnonzero(np.bincount(before[ok].astype(np.int64) * k + after[ok])):
+        old, new = divmod(int(key), k)
         out[:, new] = np.minimum(out[:, new], distances[:, old])
     return out
 
