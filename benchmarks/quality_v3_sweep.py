@@ -171,12 +171,16 @@ def main():
     os.environ["QV3_CACHE"] = a.cache
     configs = list(dict.fromkeys(eval(a.grid, {"Config": Config, "MergeWeights": MergeWeights, "GraphCut": GraphCut,
                                                "math": math, "replace": replace})))
-    ids = [i for i in cached_ids(a.cache) if (i - 1) % 20 < a.max_index]
+    old = pickle.load(open(a.out, "rb")) if Path(a.out).exists() else {}
+    # meshes already scored for every config are not redone (sweeps can grow with the cache)
+    ids = [i for i in cached_ids(a.cache) if (i - 1) % 20 < a.max_index
+           and not all(i in old.get(c, {}) for c in configs)]
     t0 = time.perf_counter()
     res = sweep(configs, ids, a.workers)
-    old = pickle.load(open(a.out, "rb")) if Path(a.out).exists() else {}
-    old.update(res)
+    for c in configs:
+        old.setdefault(c, {}).update(res[c])
     pickle.dump(old, open(a.out, "wb"))
+    res = {c: old[c] for c in configs}
     print(f"{len(configs)} configs x {len(ids)} meshes in {time.perf_counter() - t0:.0f}s", flush=True)
     for c in sorted(res, key=lambda c: overall(per_category(res[c]), CATS)):
         t = per_category(res[c])
