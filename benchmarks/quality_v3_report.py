@@ -36,19 +36,22 @@ def main():
          "`torchakvf eval`; by-segmentation 1-RI (faces), mesh = mean over its humans, category = mean over its "
          "meshes, overall = mean over categories", f"- {len(cands)} merge configurations; folds (category index mod 3): "
          + "; ".join(f"{f}: {', '.join(t)}" for f, t in enumerate(FOLDS)),
-         "- old default = today's defaults (n 2k, sym 1, cav 32, cvx 4, cut 0.5, graph cut λ 10 β 10 band 6 crease 45°)", "",
+         "- old = the v2 defaults (n 2k, sym 1, cav 32, cvx 4, cut 0.5, graph cut λ 10 β 10 band 6 crease 45°); "
+         "old, no cut = the same without the graph cut (the like-for-like baseline of candidates marked 'no cut')", "",
          "## Cross-validation", "",
-         "| fold (held out) | chosen on the other 10 | held-out paper | held-out old | held-out chosen | all 15: chosen |",
-         "|---|---|---:|---:|---:|---:|"]
+         "| fold (held out) | chosen on the other 10 | held-out paper | held-out old | held-out old, no cut | held-out chosen | all 15: chosen |",
+         "|---|---|---:|---:|---:|---:|---:|"]
+    nocut = Config(graphcut=None)
+    oc = (lambda t: f"{overall(tables[nocut], t):.4f}") if nocut in tables else (lambda t: "-")
     for f, w in rows:
         t = FOLDS[f]
-        L.append(f"| {f} ({', '.join(t)}) | {w.name()} | {overall(tables[paper], t):.4f} | {overall(tables[old], t):.4f} | "
+        L.append(f"| {f} ({', '.join(t)}) | {w.name()} | {overall(tables[paper], t):.4f} | {overall(tables[old], t):.4f} | {oc(t)} | "
                  f"{overall(tables[w], t):.4f} | {overall(tables[w], CATS):.4f} |")
     L += ["", f"CV estimate over the 15 (each category scored by the choice made without it): **{overall(held, CATS):.4f}** "
-          f"(old default {overall(tables[old], CATS):.4f}, paper {overall(tables[paper], CATS):.4f}).", "",
+          f"(old default {overall(tables[old], CATS):.4f}, old without the cut {oc(CATS)}, paper {overall(tables[paper], CATS):.4f}).", "",
           f"## Best {a.top} on all 15", "", "| setting | overall | " + " | ".join(CATS) + " |", "|---|---:|" + "---:|" * len(CATS)]
     show = sorted(cands, key=lambda c: overall(tables[c], CATS))[:a.top]
-    for c in [paper, old] + [c for c in show if c != old]:
+    for c in [paper, old] + ([nocut] if nocut in tables else []) + [c for c in show if c not in (old, nocut)]:
         t = tables[c]
         L.append(f"| {c.name()} | {overall(t, CATS):.4f} | " + " | ".join(f"{t[x]:.3f}" for x in CATS) + " |")
     text = "\n".join(L) + "\n"

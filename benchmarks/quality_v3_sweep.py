@@ -35,17 +35,22 @@ CATS = ["Human", "Cup", "Glasses", "Airplane", "Ant", "Chair", "Octopus", "Teddy
 FOLDS = [[c for i, c in enumerate(CATS) if i % 3 == f] for f in range(3)]
 
 
+#: the v2 defaults (before this sweep): Config() is the former default; names are relative to it
+V2_WEIGHTS = MergeWeights(symmetry=1.0, concavity=32.0, size=0.0, ratio=3.0, part_size=0.0, convexity=4.0, cut=0.5,
+                          crease_angle=math.pi, extra_max=16)
+
+
 @dataclass(frozen=True)
 class Config:
     rule: str = "2k"
-    merge: MergeWeights | None = MergeWeights()   # None: the paper mode (k-means into k)
+    merge: MergeWeights | None = V2_WEIGHTS   # None: the paper mode (k-means into k)
     graphcut: GraphCut | None = GraphCut()
     guard: float | None = None
 
     def name(self) -> str:
         if self.merge is None:
             return "paper"
-        w, d = self.merge, MergeWeights()
+        w, d = self.merge, V2_WEIGHTS
         s = [f"n {self.rule}"] + [f"{f} {getattr(w, f):g}" for f in ("symmetry", "concavity", "convexity", "cut", "part_size", "size")
                                   if getattr(w, f) != getattr(d, f)]
         if self.graphcut is None:
@@ -170,7 +175,7 @@ def main():
     CACHE = a.cache
     os.environ["QV3_CACHE"] = a.cache
     configs = list(dict.fromkeys(eval(a.grid, {"Config": Config, "MergeWeights": MergeWeights, "GraphCut": GraphCut,
-                                               "math": math, "replace": replace})))
+                                               "math": math, "replace": replace, "V2": V2_WEIGHTS})))
     old = pickle.load(open(a.out, "rb")) if Path(a.out).exists() else {}
     # meshes already scored for every config are not redone (sweeps can grow with the cache)
     ids = [i for i in cached_ids(a.cache) if (i - 1) % 20 < a.max_index
