@@ -90,7 +90,7 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
         return real(f, ns, **kw)
 
     monkeypatch.setattr(engine, "orthomax_rotations", spy)
-    ks = [[2, 3, 10, 11], [2, 3]]          # mesh 0: n = 16, 16, 20, 22; mesh 1 sits out rounds 3, 4
+    ks = [[2, 3, 6, 7], [2, 3]]            # mesh 0: n = 16, 16, 18, 21 (3k); mesh 1 sits out rounds 3, 4
     opts = engine.SegmentOptions(seed=0, refine=False, kmeans_restarts=4, untangle_restarts=2)
     rounds = list(engine.segment_rounds(fields, ks, opts))
     pairs = [(b, n) for c in calls for b, n in c.items()]
@@ -110,3 +110,20 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
             ref = engine.cut_parts(fields.batch, fields, unt, km, b, rnd.ks[b], opts)
             np.testing.assert_array_equal(rnd.meshes[b].labels, ref.labels)
             assert rnd.meshes[b].cost == ref.cost
+
+
+def test_default_field_counts_by_method(fields):
+    """The paper's N = 2k, the merge method's 3k (it clusters into about 3k), clamped to [16, 32]."""
+    assert [engine.default_n_fields(k) for k in (2, 8, 11, 20)] == [16, 16, 22, 32]
+    assert [engine.default_n_fields(k, "merge") for k in (2, 5, 6, 7, 11, 20)] == [16, 16, 18, 21, 32, 32]
+    with pytest.raises(ta.errors.ParameterError, match="method"):
+        engine.default_n_fields(3, "nope")
+    assert engine.akvf_count([[7]], method="paper") == 16 + engine.SPARE_FIELDS
+    assert engine.akvf_count([[7]]) == 21 + engine.SPARE_FIELDS            # the default method: merge
+    lam = fields.eigenvalues.detach().cpu()
+    for method in ("paper", "merge"):
+        n = engine.default_n_fields(7, method)
+        want = [engine.cluster_safe_n(lam[b], n, floor=max(7, n // 2)) for b in range(2)]
+        assert engine.field_counts(fields, 7, method=method) == want
+    rnd = next(engine.segment_rounds(fields, 7, engine.SegmentOptions(refine=False, kmeans_restarts=1)))
+    assert [int(n) for n in rnd.untangled.n_fields] == engine.field_counts(fields, 7)

@@ -77,9 +77,21 @@ AKVF_TOL = akvf.__kwdefaults__["tol"]
 KMEANS_MAX_ITER = 15
 
 
-def default_n_fields(k: int) -> int:
-    """The paper's N = 2k, clamped to [16, 32]."""
-    return int(min(max(2 * k, 16), 32))
+#: Untangled fields per part wanted, by method, before the clamp to [16, 32]. "paper": the
+#: paper's N = 2k. "merge": 3k, since its k-means makes k' = 3k clusters (at most k + 16) from
+#: them. On the 15 labelled PSB categories (benchmarks/results/quality_v3.md; former merge
+#: weights) 3k against 2k: 1-RI 0.1466 / 0.1528 with the graph cut (48 meshes), 0.1557 / 0.1579
+#: without it (74 meshes), not worse in any cross-validation fold; 2k' (32 from k = 6 on) was
+#: better on one fold and worse on the other two. The paper mode keeps 2k.
+FIELDS_PER_PART = {"paper": 2, "merge": 3}
+
+
+def default_n_fields(k: int, method: str = "paper") -> int:
+    """Fields untangled for k parts: :data:`FIELDS_PER_PART` [method] x k, clamped to [16, 32]
+    (method "paper", the default here: the paper's N = 2k)."""
+    if method not in FIELDS_PER_PART:
+        raise ParameterError(f"method must be one of {tuple(FIELDS_PER_PART)}, got {method!r}")
+    return int(min(max(FIELDS_PER_PART[method] * k, 16), 32))
 
 
 def cluster_safe_n(eigenvalues, n: int, floor: int = 1) -> int:
@@ -115,20 +127,21 @@ def per_mesh(value, nb: int, what: str) -> list[int]:
     return [int(v) for v in vals]
 
 
-def _default_or_given(ks: list[int], n_fields, nb: int) -> list[int]:
-    return [default_n_fields(kb) for kb in ks] if n_fields is None else per_mesh(n_fields, nb, "n_fields")
+def _default_or_given(ks: list[int], n_fields, nb: int, method: str) -> list[int]:
+    return [default_n_fields(kb, method) for kb in ks] if n_fields is None else per_mesh(n_fields, nb, "n_fields")
 
 
-def field_counts(fields: AKVFResult, k, n_fields=None) -> list[int]:
+def field_counts(fields: AKVFResult, k, n_fields=None, method: str = DEFAULT_METHOD) -> list[int]:
     """The number of fields untangled per mesh for these k.
 
-    Default (``n_fields=None``): the paper's 2k clamped to [16, 32], moved by
-    :func:`cluster_safe_n` off a degenerate cluster of the mesh's computed eigenvalues;
-    otherwise ``n_fields`` (one int or one per mesh), which must not exceed ``fields.n``.
+    Default (``n_fields=None``): :func:`default_n_fields` of k and the method (the paper's 2k,
+    the merge method's 3k, clamped to [16, 32]), moved by :func:`cluster_safe_n` off a
+    degenerate cluster of the mesh's computed eigenvalues; otherwise ``n_fields`` (one int or
+    one per mesh), which must not exceed ``fields.n``.
     """
     nb = len(fields.batch)
     ks = per_mesh(k, nb, "k")
-    ns = _default_or_given(ks, n_fields, nb)
+    ns = _default_or_given(ks, n_fields, nb, method)
     if max(ns) > fields.n:
         raise ParameterError(f"n_fields up to {max(ns)} asked for, but the AKVFs given have n = {fields.n}")
     if n_fields is None:
@@ -137,13 +150,14 @@ def field_counts(fields: AKVFResult, k, n_fields=None) -> list[int]:
     return ns
 
 
-def akvf_count(ks, n_fields=None) -> int:
+def akvf_count(ks, n_fields=None, method: str = DEFAULT_METHOD) -> int:
     """AKVFs to solve for so that every k of ``ks`` (one list of k's per mesh) finds its fields:
-    the largest ``n_fields`` when given, else the largest default count plus :data:`SPARE_FIELDS`."""
+    the largest ``n_fields`` when given, else the largest default count (of the method) plus
+    :data:`SPARE_FIELDS`."""
     if n_fields is not None:
         ns = [n_fields] if isinstance(n_fields, (int, np.integer)) else list(n_fields)
         return max(per_mesh(ns, len(ns), "n_fields"))
-    return default_n_fields(max(max(kb) for kb in ks)) + SPARE_FIELDS
+    return default_n_fields(max(max(kb) for kb in ks), method) + SPARE_FIELDS
 
 
 @dataclass(frozen=True)
@@ -362,7 +376,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         t0 = time.perf_counter()
         active = [b for b in range(nb) if r < len(ks[b])]
         round_ks = [ks[b][r] if r < len(ks[b]) else PAD_K for b in range(nb)]
-        ns = field_counts(fields, round_ks, n_fields)
+        ns = field_counts(fields, round_ks, n_fields, opts.method)
         if untangled is not None:
             if untangled.source is not fields or any(int(untangled.n_fields[b]) != ns[b] for b in active):
                 raise ParameterError(f"the untangled fields given are for n = {list(untangled.n_fields)} "
@@ -470,7 +484,7 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
     else:
         batch = as_batch(meshes, device=device, coarse_faces=coarse_faces)
         ks = check_ks(batch, ks)
-        fields, fell_back = solve_akvfs(batch, akvf_count(ks, n_fields) if n_akvf is None else n_akvf, opts)
+        fields, fell_back = solve_akvfs(batch, akvf_count(ks, n_fields, opts.method) if n_akvf is None else n_akvf, opts)
     t1 = time.perf_counter()
     out = SegmentEachK(fields=fields, fell_back=fell_back, meshes=[{} for _ in range(len(fields.batch))],
                        seconds={"akvf": t1 - t0, "untangle": 0.0, "cluster": 0.0})
@@ -486,4 +500,4 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
            "field_counts", "akvf_count", "graphcut_option", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
-           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "SPARE_FIELDS", "PAD_K", "AKVF_TOL"]
+           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "SPARE_FIELDS", "FIELDS_PER_PART", "PAD_K", "AKVF_TOL"]

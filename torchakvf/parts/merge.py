@@ -47,15 +47,20 @@ class MergeWeights:
     0.1562 for the former default terms (ratio 2 former default: 0.173); the k-means restarts
     are SegmentOptions.kmeans_restarts (5: 3k clusters x 5 restarts cost about what k x 20 did,
     so the stage stays within its time budget). ``size``
-    (share of the whole surface) and ``part_size`` never helped robustly; kept for ablations."""
+    (share of the whole surface) and ``part_size`` never helped robustly; kept for ablations.
+
+    v3 (benchmarks/results/quality_v3.md): with the merge method's fields at 3k (engine.
+    FIELDS_PER_PART) and every mesh of 7 per category (101 meshes), w_cav 16 was chosen in every
+    cross-validation fold (32 before) and the boundary share at 0.25 (0.5 before; folds: 0.25,
+    0.25, 0); w_cvx 4 kept (folds: 4, 0, 8)."""
 
     symmetry: float = 1.0
-    concavity: float = 32.0
+    concavity: float = 16.0
     size: float = 0.0
     ratio: float = 3.0
     part_size: float = 0.0
     convexity: float = 4.0
-    cut: float = 0.5
+    cut: float = 0.25
     crease_angle: float = math.pi
     #: at most this many clusters beyond k (None: ceil(ratio k) at every k). 16: on the 15
     #: labelled PSB categories (300 meshes) 1-RI 0.1625 against 0.1622 uncapped (within each

@@ -34,7 +34,8 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     eps : width of the connecting region in cosine-distance units (0 = plain segmentation);
         faces whose two closest parts differ by less than eps at the barycenter get label -1
     seed : seeds untangling restarts and k-means seeding (per mesh, batch-independent)
-    n_fields : fields untangled per mesh; default :func:`default_n_fields` (2k in [16, 32]),
+    n_fields : fields untangled per mesh; default :func:`default_n_fields` (2k in [16, 32]; 3k
+        with method "merge"),
         moved to the nearest count that does not split a degenerate cluster (:func:`cluster_safe_n`)
     remedy : mesh-quality remedy of the Killing operator ("none" = the paper's)
     solver : the eigensolver of the AKVFs: "auto", "lanczos", "krylov" or "lobpcg"

@@ -45,10 +45,10 @@ class SegmentTask:
         # recorded in params, so a run resumed under other defaults redoes its meshes
         self.options = SegmentOptions(eps=self.eps, solver=self.solver, method=self.method,
                                       graphcut=graphcut_option(self.graphcut))
-        # None: segment's own choice (2k in [16, 32], moved off degenerate eigenvalue clusters),
+        # None: segment's own choice (2k in [16, 32], 3k with method "merge", moved off degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
         self.n_fields = int(n_fields) if n_fields is not None else None
-        self.n_akvf = self.n_fields if n_fields is not None else default_n_fields(self.k) + SPARE_FIELDS
+        self.n_akvf = self.n_fields if n_fields is not None else default_n_fields(self.k, self.method) + SPARE_FIELDS
         self.remedy, self.formats = remedy, tuple(formats)
         self.untangle_restarts, self.kmeans_restarts = int(untangle_restarts), int(kmeans_restarts)
         # Solve on meshes decimated to about this many faces (None: full resolution); the
