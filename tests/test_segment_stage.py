@@ -104,7 +104,7 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
         x, mask = pad_packed(unt.features.double(), fields.batch.face_ptr)
         n_faces = (fields.batch.face_ptr[1:] - fields.batch.face_ptr[:-1]).tolist()
         km_ks = [engine.cluster_count(rnd.ks[b], n_faces[b], opts) if b in rnd.active else 1 for b in range(2)]
-        km = spherical_kmeans(x, mask, km_ks, restarts=4, seed=0)
+        km = spherical_kmeans(x, mask, km_ks, restarts=4, seed=0, max_iter=engine.KMEANS_MAX_ITER)
         for b in rnd.active:
             assert rnd.untangled.n_fields[b] == ns[b]
             ref = engine.cut_parts(fields.batch, fields, unt, km, b, rnd.ks[b], opts)
