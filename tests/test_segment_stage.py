@@ -127,3 +127,18 @@ def test_default_field_counts_by_method(fields):
         assert engine.field_counts(fields, 7, method=method) == want
     rnd = next(engine.segment_rounds(fields, 7, engine.SegmentOptions(refine=False, kmeans_restarts=1)))
     assert [int(n) for n in rnd.untangled.n_fields] == engine.field_counts(fields, 7)
+
+
+def test_iteration_caps_are_recorded_options(fields):
+    """The k-means iteration cap and the graph cut's expansion cycles change the answer, so they
+    are options (validated) and land in each segmentation's params (resume compares them)."""
+    from torchakvf.parts.graphcut import GraphCut
+    with pytest.raises(ta.errors.ParameterError, match="kmeans_max_iter"):
+        engine.SegmentOptions(kmeans_max_iter=0)
+    with pytest.raises(ta.errors.ParameterError, match="cycles"):
+        GraphCut(cycles=0)
+    opts = engine.SegmentOptions(seed=0, refine=False, kmeans_max_iter=7, graphcut=GraphCut(cycles=3))
+    rnd = next(engine.segment_rounds(fields, [[3], [3]], opts))
+    params = rnd.meshes[0].params
+    assert params["kmeans_max_iter"] == 7 and params["graphcut_cycles"] == 3.0
+    assert "kmeans_max_iter" in engine.SegmentOptions.names()

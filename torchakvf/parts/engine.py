@@ -172,6 +172,8 @@ class SegmentOptions:
     method: str = DEFAULT_METHOD
     merge: MergeWeights = field(default_factory=MergeWeights)
     kmeans_restarts: int = KMEANS_RESTARTS
+    #: Lloyd iterations per precision phase of each clustering (:data:`KMEANS_MAX_ITER`)
+    kmeans_max_iter: int = KMEANS_MAX_ITER
     untangle_restarts: int = UNTANGLE_RESTARTS
     boundary: str = "isoline"
     min_part_fraction: float = 0.01
@@ -190,6 +192,8 @@ class SegmentOptions:
             raise ParameterError(f"method must be one of {METHODS}, got {self.method!r}")
         if not (self.eps >= 0):
             raise ParameterError(f"eps must be >= 0, got {self.eps!r}")
+        if not (isinstance(self.kmeans_max_iter, (int, np.integer)) and self.kmeans_max_iter >= 1):
+            raise ParameterError(f"kmeans_max_iter must be an integer >= 1, got {self.kmeans_max_iter!r}")
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
@@ -301,6 +305,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         cost=cost,
         params=dict(k=k, eps=opts.eps, seed=opts.seed, n_fields=n_b, remedy=opts.remedy,
                     boundary=opts.boundary, kmeans_restarts=opts.kmeans_restarts,
+                    kmeans_max_iter=opts.kmeans_max_iter,
                     untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
                     coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
                     solver=opts.solver, method=opts.method,
@@ -389,7 +394,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
         km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
         km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed,
-                              max_iter=KMEANS_MAX_ITER)
+                              max_iter=opts.kmeans_max_iter)
         meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
                   if b in active else None for b in range(nb)]
         t2 = time.perf_counter()

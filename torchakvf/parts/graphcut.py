@@ -29,11 +29,18 @@ from ..errors import ParameterError
 from .concavity import DualEdges, crease_weights
 
 
+#: Alpha-expansion cycles (each tries every label once; -1: until no expansion lowers the
+#: energy). 2 (issue 13): on 30 PSB meshes (2 per labelled category) 1-RI 0.1414 against 0.1413
+#: until convergence (1 cycle: 0.1415); the cycles past the second change little and cost as much.
+EXPANSION_CYCLES = 2
+
+
 @dataclass(frozen=True)
 class GraphCut:
     """Parameters of :func:`graphcut_labels`: smoothness λ (dimensionless: edge lengths over
     the mean length, areas over the mean area), concave-crease discount β, crease_angle
-    (radians) at which a crease counts fully, band (dual rings a boundary may move).
+    (radians) at which a crease counts fully, band (dual rings a boundary may move), cycles
+    (alpha-expansion cycles, :data:`EXPANSION_CYCLES`; -1: until no expansion lowers the energy).
 
     Defaults: λ 10, β 10 chosen by 3-fold cross-validation across the labelled PSB categories
     (every fold; λ in {0.3, 1, 3, 10}, β in {0, 10, 30}; benchmarks/results/quality_v2_graphcut*.md);
@@ -43,6 +50,7 @@ class GraphCut:
     beta: float = 10.0
     crease_angle: float = np.pi / 4
     band: int = 6
+    cycles: int = EXPANSION_CYCLES
 
     def __post_init__(self):
         if not self.smoothness >= 0 or not self.beta >= 0:
@@ -51,6 +59,8 @@ class GraphCut:
             raise ParameterError(f"graph cut crease_angle must be in (0, π], got {self.crease_angle!r}")
         if not (isinstance(self.band, (int, np.integer)) and self.band >= 0):
             raise ParameterError(f"graph cut band must be an integer >= 0, got {self.band!r}")
+        if not (isinstance(self.cycles, (int, np.integer)) and (self.cycles >= 1 or self.cycles == -1)):
+            raise ParameterError(f"graph cut cycles must be an integer >= 1, or -1 (until converged), got {self.cycles!r}")
 
 
 def _gco():
@@ -94,15 +104,12 @@ def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np
 #: Energies go to gco as integers: the largest term maps to this many units (gco sums them in
 #: 64 bits; its own float mode keeps only 3 digits of the largest term for edge weights).
 INTEGER_UNITS = 1_000_000
-#: Alpha-expansion cycles (each tries every label once; -1: until no expansion lowers the
-#: energy). 2 (issue 13): on 30 PSB meshes (2 per labelled category) 1-RI 0.1414 against 0.1413
-#: until convergence (1 cycle: 0.1415); the cycles past the second change little and cost as much.
-EXPANSION_CYCLES = 2
 
 
-def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
+                    cycles: int = EXPANSION_CYCLES) -> np.ndarray:
     """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion (gco),
-    :data:`EXPANSION_CYCLES` cycles over the labels.
+    ``cycles`` cycles over the labels (-1: until converged).
 
     unary : [F, k] float >= 0; pairs : [P, 2] site pairs; weights : [P] >= 0. Returns [F] int64.
     Terms are rounded to integers with :data:`INTEGER_UNITS` for the largest one.
@@ -125,7 +132,7 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -
             g.set_all_neighbors(np.ascontiguousarray(e[:, 0], dtype=np.intc), np.ascontiguousarray(e[:, 1], dtype=np.intc),
                                 np.ascontiguousarray(np.rint(w * scale), dtype=np.intc))
         g.set_smooth_cost(np.ascontiguousarray(1 - np.eye(k), dtype=np.intc))
-        g.expansion(EXPANSION_CYCLES)
+        g.expansion(int(cycles))
         return np.asarray(g.get_labels(), dtype=np.int64)
     finally:
         g.destroy_graph()
@@ -183,7 +190,7 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     sub_unary = np.where(allowed[idx], sub_unary, big)
     new = own.copy()
     if len(idx):
-        new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w)
+        new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w, opts.cycles)
     # A part the cut emptied (a small part inside the band of its boundary, outweighed by its
     # cut length) gets its faces back: the cut moves boundaries, it does not change k.
     before = np.bincount(own, minlength=k)
