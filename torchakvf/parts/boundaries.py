@@ -10,7 +10,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..mesh.batch import mesh_edges
 from .grouping import group_sums
 
 
@@ -67,50 +66,69 @@ class RefinedMesh:
 def refine_along_isolines(vertices: np.ndarray, faces: np.ndarray, vdist: np.ndarray) -> RefinedMesh:
     """Cut every face whose corners belong to different parts along the isolines g_ij = 0.
 
+    vertices : [V, 3]; faces : [F, 3]; vdist : [V, k] distance of each vertex to each part
+    (:func:`vertex_distances`); a vertex belongs to its closest part.
+
     Cut points sit on edges, shared by both faces of an edge, so the refined mesh stays
     watertight. A face with two parts is cut by a straight segment; one with three parts is
-    split around its barycenter.
+    split around its barycenter. Row order: the uniform faces first (in face order), then the
+    triangles of each cut face in face order (3 for two parts, 6 for three); vertices: the
+    input's, then one cut point per cut edge (edges in (i, j), i < j, lexicographic order),
+    then the barycenters of the three-part faces in face order.
     """
     vlab = vdist.argmin(axis=1)
-    edges, face_edges, _ = mesh_edges(faces)
-    i, j = edges[:, 0], edges[:, 1]
-    cut = vlab[i] != vlab[j]
+    flab = vlab[faces]                                   # [F, 3] part of each corner
+    uniform = (flab[:, 0] == flab[:, 1]) & (flab[:, 1] == flab[:, 2])
+    cut_faces = np.flatnonzero(~uniform)
+    v, lab = faces[cut_faces], flab[cut_faces]           # [C, 3]
+    # Half-edge k of a face joins v_k -> v_{k+1}; it is cut where its ends' parts differ. Only
+    # cut edges get a point, so the edge numbering is that of the cut edges alone (sorted like
+    # every edge of the mesh would be, lexicographically by (i, j), i < j).
+    head = np.roll(v, -1, axis=1)
+    half_cut = lab != np.roll(lab, -1, axis=1)           # [C, 3]
+    lo, hi = np.minimum(v, head)[half_cut], np.maximum(v, head)[half_cut]
+    n = int(faces.max()) + 1 if len(faces) else 1
+    ukey, point = np.unique(lo.astype(np.int64) * n + hi, return_inverse=True)
+    i, j = ukey // n, ukey % n
     # Zero of g = d_a - d_b along the edge, a = label(i), b = label(j).
     gi = vdist[i, vlab[i]] - vdist[i, vlab[j]]
     gj = vdist[j, vlab[i]] - vdist[j, vlab[j]]
-    t = np.clip(np.where(cut, gi / np.where(cut, gi - gj, 1.0), 0.5), 0.0, 1.0)
-    new_points = vertices[i[cut]] * (1 - t[cut, None]) + vertices[j[cut]] * t[cut, None]
-    point_of_edge = np.full(len(edges), -1)
-    point_of_edge[cut] = len(vertices) + np.arange(int(cut.sum()))
-    verts = [vertices, new_points]
+    t = np.clip(gi / (gi - gj), 0.0, 1.0)
+    new_points = vertices[i] * (1 - t[:, None]) + vertices[j] * t[:, None]
     n_verts = len(vertices) + len(new_points)
+    m = np.full(v.shape, -1, dtype=np.int64)             # cut point on half-edge k, or -1
+    m[half_cut] = len(vertices) + point.reshape(-1)
 
-    out_f, out_l, out_p = [], [], []
-    flab = vlab[faces]
-    uniform = (flab[:, 0] == flab[:, 1]) & (flab[:, 1] == flab[:, 2])
-    out_f.append(faces[uniform]), out_l.append(flab[uniform, 0]), out_p.append(np.flatnonzero(uniform))
-    centroids = []
-    for f in np.flatnonzero(~uniform):
-        v = faces[f]
-        lab = flab[f]
-        m = point_of_edge[face_edges[f]]                 # cut point on edge k (v_k -> v_k+1) or -1
-        if len(set(lab.tolist())) == 2:
-            # The lone corner k is the one whose two edges are both cut.
-            k = int(np.flatnonzero((m >= 0) & (np.roll(m, 1) >= 0))[0])
-            a, b, c = v[k], v[(k + 1) % 3], v[(k + 2) % 3]
-            mab, mca = m[k], m[(k + 2) % 3]
-            tris = [(a, mab, mca), (mab, b, c), (mab, c, mca)]
-            labs = [lab[k], lab[(k + 1) % 3], lab[(k + 1) % 3]]
-        else:
-            centre = n_verts + len(centroids)
-            centroids.append(vertices[v].mean(axis=0))
-            tris, labs = [], []
-            for k in range(3):
-                tris += [(v[k], m[k], centre), (v[k], centre, m[(k + 2) % 3])]
-                labs += [lab[k], lab[k]]
-        out_f.append(np.array(tris)), out_l.append(np.array(labs)), out_p.append(np.full(len(tris), f))
-    if centroids:
-        verts.append(np.array(centroids))
-    return RefinedMesh(vertices=np.concatenate(verts), faces=np.concatenate(out_f).astype(np.int64),
-                       labels=np.concatenate(out_l).astype(np.int64),
-                       parent=np.concatenate(out_p).astype(np.int64))
+    three = (lab[:, 0] != lab[:, 1]) & (lab[:, 1] != lab[:, 2]) & (lab[:, 0] != lab[:, 2])
+    n_tris = np.where(three, 6, 3)
+    first = len(faces) - len(cut_faces) + np.cumsum(n_tris) - n_tris   # first output row per cut face
+    n_out = len(faces) - len(cut_faces) + int(n_tris.sum())
+    out_f = np.empty((n_out, 3), dtype=np.int64)
+    out_l = np.empty(n_out, dtype=np.int64)
+    n_uniform = len(faces) - len(cut_faces)
+    out_f[:n_uniform], out_l[:n_uniform] = faces[uniform], flab[uniform, 0]
+    parent = np.concatenate([np.flatnonzero(uniform), np.repeat(cut_faces, n_tris)])
+
+    # Two parts: the lone corner k is the one whose two edges (k and k - 1) are both cut.
+    two = np.flatnonzero(~three)
+    k = np.argmax(half_cut[two] & np.roll(half_cut[two], 1, axis=1), axis=1)
+    k1, k2 = (k + 1) % 3, (k + 2) % 3
+    a, b, c = v[two, k], v[two, k1], v[two, k2]
+    mab, mca = m[two, k], m[two, k2]
+    rows = first[two][:, None] + np.arange(3)
+    out_f[rows] = np.stack([np.stack([a, mab, mca], 1), np.stack([mab, b, c], 1),
+                            np.stack([mab, c, mca], 1)], axis=1)
+    out_l[rows] = np.stack([lab[two, k], lab[two, k1], lab[two, k1]], axis=1)
+
+    # Three parts: two triangles per corner around the face's barycenter.
+    tri = np.flatnonzero(three)
+    centre = n_verts + np.arange(len(tri))
+    vt, mt, lt = v[tri], m[tri], lab[tri]
+    rows = first[tri][:, None] + np.arange(6)
+    out_f[rows] = np.stack([np.stack(pair, 1) for kk in range(3) for pair in
+                            ((vt[:, kk], mt[:, kk], centre), (vt[:, kk], centre, mt[:, (kk + 2) % 3]))], axis=1)
+    out_l[rows] = np.repeat(lt, 2, axis=1)
+    verts = [vertices, new_points]
+    if len(tri):
+        verts.append(vertices[vt].mean(axis=1))
+    return RefinedMesh(vertices=np.concatenate(verts), faces=out_f, labels=out_l, parent=parent.astype(np.int64))
