@@ -1,7 +1,8 @@
 """``refine_along_isolines`` (numpy, no per-face loop) gives the per-face loop's RefinedMesh
 bitwise: same vertices, faces, labels and parents, in the same row order (issue 12/13).
 
-The loop below is the implementation the vectorized one replaced, kept as the reference."""
+The loop below is the implementation the vectorized one replaced, kept as the reference.
+Also: ``barycenter_values`` by blocks of faces against the whole-mesh gather mean."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,7 +12,7 @@ import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.mesh.batch import mesh_edges
 from torchakvf.parts import engine
-from torchakvf.parts.boundaries import RefinedMesh, refine_along_isolines
+from torchakvf.parts.boundaries import RefinedMesh, barycenter_values, isoline_face_labels, refine_along_isolines
 
 
 def reference_refine(vertices: np.ndarray, faces: np.ndarray, vdist: np.ndarray) -> RefinedMesh:
@@ -154,3 +155,14 @@ def test_psb_mesh_full_resolution(psb, recorded):
     rng = np.random.default_rng(7)
     centres = clean.vertices[rng.choice(len(clean.vertices), 7, replace=False)]
     check(clean.vertices, clean.faces, np.linalg.norm(clean.vertices[:, None] - centres[None], axis=-1))
+
+
+@pytest.mark.parametrize("k", [1, 7, 40])
+def test_barycenter_values_by_blocks_are_the_gather_mean(k):
+    """Several blocks (and a short last one) give ``vdist[faces].mean(axis=1)`` bitwise."""
+    rng = np.random.default_rng(8)
+    faces = rng.integers(0, 3000, (20011, 3))
+    vdist = rng.random((3000, k))
+    got = barycenter_values(faces, vdist)
+    assert got.dtype == vdist.dtype and got.tobytes() == vdist[faces].mean(axis=1).tobytes()
+    assert isoline_face_labels(faces, vdist).tobytes() == vdist[faces].mean(axis=1).argmin(axis=1).tobytes()
