@@ -4,8 +4,9 @@ process, interleaved per mesh, process CPU time (issue 13).
 The baseline is the package at a git revision extracted under another top-level name
 (``git archive REV torchakvf`` renamed to ``torchakvf_base``; every import inside the package
 is relative). Both get the same AKVFs per mesh (n = 36, coarse 4000 faces, as eval solves
-them), every human segment count of the mesh as its k's, ``refine=False`` as eval segments.
-Reported: CPU seconds per side and whether the labels (and costs) of every (mesh, k) agree.
+them), every human segment count of the mesh as its k's, ``refine=False`` as eval segments
+(``--refine``: refine=True, and the refined meshes are compared bitwise too). Reported: CPU
+seconds per side and whether the labels (and costs) of every (mesh, k) agree.
 
     mkdir -p /tmp/segbase && git archive main torchakvf | tar -x -C /tmp/segbase \
         && mv /tmp/segbase/torchakvf /tmp/segbase/torchakvf_base
@@ -19,27 +20,13 @@ import cProfile
 import pstats
 import time
 
-import numpy as np
 import torch
 
+from segment_compare_common import AnswerComparison, segment_answers
 from torchakvf.evaluate import psb as P
-from torchakvf.evaluate.metrics import rand_index_error
 from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch
 from torchakvf.parts import engine as new_engine
-
-
-def run(eng, fields, ks, prof=None):
-    t0 = time.process_time()
-    if prof is not None:
-        prof.enable()
-    out = {}
-    for rnd in eng.segment_rounds(fields, [ks], eng.SegmentOptions(refine=False)):
-        m = rnd.meshes[0]
-        out[rnd.ks[0]] = (np.asarray(m.labels).copy(), float(m.cost))
-    if prof is not None:
-        prof.disable()
-    return out, time.process_time() - t0
 
 
 def main():
@@ -48,6 +35,8 @@ def main():
     ap.add_argument("--profile", choices=["new", "base"], default=None)
     ap.add_argument("--top", type=int, default=40)
     ap.add_argument("--callers", default="", help="comma-separated function names whose callers to print")
+    ap.add_argument("--refine", action="store_true", help="segment with refine=True (the refined "
+                    "meshes are compared bitwise too); default refine=False, as eval")
     a = ap.parse_args()
     torch.set_num_threads(1)
     import torchakvf_base.parts.engine as base_engine
@@ -55,7 +44,7 @@ def main():
     engines = {"base": base_engine, "new": new_engine}
     secs = {"base": 0.0, "new": 0.0}
     prof = cProfile.Profile() if a.profile else None
-    same = total = same_cost = 0
+    comparison = AnswerComparison()
     for j, i in enumerate(int(v) for v in a.ids.split(",")):
         e = ents[i]
         ks = sorted(set(P.human_segment_counts(e)))
@@ -63,19 +52,17 @@ def main():
         fields, _ = new_engine.solve_akvfs(mb, 36, new_engine.SegmentOptions(refine=False))
         res = {}
         for name in (["base", "new"] if j % 2 == 0 else ["new", "base"]):
-            res[name], s = run(engines[name], fields, ks, prof if a.profile == name else None)
+            res[name], s = segment_answers(engines[name], fields, [ks], engines[name].SegmentOptions(refine=a.refine),
+                                           prof if a.profile == name else None, clock=time.process_time)
             secs[name] += s
-        for k, (lab, cost) in res["base"].items():
-            lab2, cost2 = res["new"][k]
-            total += 1
-            same += bool(np.array_equal(lab, lab2))
-            same_cost += cost == cost2
-            if not np.array_equal(lab, lab2):
-                print(f"  mesh {i} k {k}: label ids differ on {np.mean(lab != lab2):.4f} of faces, "
-                      f"1-RI between the two {rand_index_error(lab, lab2):.4f}", flush=True)
+        for d in comparison.add(res["base"], res["new"]):
+            print(f"  mesh {i} k {d.key[1]}: label ids differ on {d.changed:.4f} of faces, "
+                  f"1-RI between the two {d.rand_error:.4f}", flush=True)
         print(f"mesh {i} ks {ks}: base {secs['base']:.2f}s new {secs['new']:.2f}s", flush=True)
+    c = comparison
     print(f"TOTAL base {secs['base']:.2f}s new {secs['new']:.2f}s ratio {secs['base'] / secs['new']:.3f}x; "
-          f"labels identical {same}/{total}, costs identical {same_cost}/{total}")
+          f"labels identical {c.same_labels}/{c.total}, costs identical {c.same_cost}/{c.total}"
+          + (f", refined meshes identical {c.same_refined}/{c.total}" if a.refine else ""))
     if prof is not None:
         pstats.Stats(prof).sort_stats("tottime").print_stats(a.top)
         for name in filter(None, a.callers.split(",")):

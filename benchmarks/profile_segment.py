@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from segment_compare_common import AnswerComparison, segment_answers
 from torchakvf.evaluate import psb as P
-from torchakvf.evaluate.metrics import rand_index_error
 from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch
 from torchakvf.parts import engine as new_engine
@@ -89,17 +89,6 @@ class StageClock:
         return run
 
 
-def run_rounds(eng, fields, ks, opts):
-    """{(b, k): (labels, cost)} of segment_rounds in module ``eng``, and its wall seconds."""
-    t0 = time.perf_counter()
-    out = {}
-    for rnd in eng.segment_rounds(fields, ks, opts):
-        for b in rnd.active:
-            m = rnd.meshes[b]
-            out[(b, rnd.ks[b])] = (np.asarray(m.labels), float(m.cost))
-    return out, time.perf_counter() - t0
-
-
 def load_batches(ids, batch_meshes, coarse_faces, seed):
     entries = {e.mesh_id: e for e in P.find_psb_meshes(P.default_psb_root())}
     for i in range(0, len(ids), batch_meshes):
@@ -117,7 +106,7 @@ def profile(a) -> dict:
     clocks = {"baseline": StageClock(base["engine"]), "new": StageClock(new_engine)}
     engines = {"baseline": base["engine"], "new": new_engine}
     wall = {"baseline": 0.0, "new": 0.0}
-    same_labels = same_cost = total = 0
+    comparison = AnswerComparison()
     differ = []
     for j, (part, ks, fields) in enumerate(load_batches(a.ids, a.batch_meshes, a.coarse_faces, a.seed)):
         res = {}
@@ -129,18 +118,12 @@ def profile(a) -> dict:
                 km, unt = (int(v) for v in a.new_restarts.split(","))
                 opts = engines[name].SegmentOptions(seed=a.seed, refine=False, kmeans_restarts=km,
                                                     untangle_restarts=unt)
-            res[name], s = run_rounds(engines[name], fields, ks, opts)
+            res[name], s = segment_answers(engines[name], fields, ks, opts, clock=time.perf_counter)
             wall[name] += s
-        for key, (lab, cost) in res["baseline"].items():
-            lab2, cost2 = res["new"][key]
-            total += 1
-            same_labels += bool(np.array_equal(lab, lab2))
-            same_cost += cost == cost2
-            if not np.array_equal(lab, lab2):
-                differ.append((part[key[0]], key[1], float(rand_index_error(lab, lab2))))
+        differ += [(part[d.key[0]], d.key[1], d.rand_error) for d in comparison.add(res["baseline"], res["new"])]
         print(f"batch {part}: baseline {clocks['baseline'].seconds} new {clocks['new'].seconds}", flush=True)
-    return dict(wall=wall, stages={n: c.seconds for n, c in clocks.items()}, total=total,
-                same_labels=same_labels, same_cost=same_cost, differ=differ)
+    return dict(wall=wall, stages={n: c.seconds for n, c in clocks.items()}, total=comparison.total,
+                same_labels=comparison.same_labels, same_cost=comparison.same_cost, differ=differ)
 
 
 def winrates(a) -> dict:
