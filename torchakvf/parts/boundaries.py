@@ -116,11 +116,11 @@ def refine_along_isolines(vertices: np.ndarray, faces: np.ndarray, vdist: np.nda
 
     three = (lab[:, 0] != lab[:, 1]) & (lab[:, 1] != lab[:, 2]) & (lab[:, 0] != lab[:, 2])
     n_tris = np.where(three, 6, 3)
-    first = len(faces) - len(cut_faces) + np.cumsum(n_tris) - n_tris   # first output row per cut face
-    n_out = len(faces) - len(cut_faces) + int(n_tris.sum())
+    n_uniform = len(faces) - len(cut_faces)
+    first = n_uniform + np.cumsum(n_tris) - n_tris       # first output row of each cut face
+    n_out = n_uniform + int(n_tris.sum())
     out_f = np.empty((n_out, 3), dtype=np.int64)
     out_l = np.empty(n_out, dtype=np.int64)
-    n_uniform = len(faces) - len(cut_faces)
     out_f[:n_uniform], out_l[:n_uniform] = faces[uniform], flab[uniform, 0]
     parent = np.concatenate([np.flatnonzero(uniform), np.repeat(cut_faces, n_tris)])
 
