@@ -101,7 +101,107 @@ def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: in
     x : [B, N, d] unit rows (0 on padding); w : [B, N] weights (0 on padding)
     centers : [B, R, k, d] seeds; center_ok : [B, k] which centers exist (None: all of them)
     Returns labels [B, N, R], cost [B, R] = Σ w (1 - cos), iterations [B, R], centers [B, R, k, d].
+
+    One mesh on CPU with all its centers (every call of :func:`spherical_kmeans` there) takes
+    :func:`_lloyd_one_mesh`, the same arithmetic without the batch's bookkeeping; any other
+    call :func:`_lloyd_batched`.
     """
+    if len(x) == 1 and x.device.type == "cpu" and (center_ok is None or bool(center_ok.all())):
+        return _lloyd_one_mesh(x, w, centers, max_iter, iteration_dtype)
+    return _lloyd_batched(x, w, centers, max_iter, iteration_dtype, center_ok)
+
+
+def _lloyd_one_mesh(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+                    iteration_dtype: torch.dtype):
+    """:func:`_lloyd_batched` for one mesh (x [1, N, d], w [1, N], centers [1, R, k, d]) with
+    every center present, on CPU, bitwise.
+
+    The same products of the same shapes and layouts, the same cluster sums in the same order:
+    each iteration's active restarts, in index order, side by side (the batched path's slots
+    for one mesh, which has no padding restarts). What goes is the per-iteration bookkeeping on
+    small tensors (slot gathers of centers and labels, scatters back, boolean-mask writes):
+    which restarts are active is a Python list, read back once per iteration, and while all of
+    them are, labels and centers are replaced, not written into.
+    """
+    _, n_rows, d = x.shape
+    r, k = centers.shape[1], centers.shape[2]
+    centers = centers.clone(memory_format=torch.contiguous_format)  # as the batched path's slot copies
+    labels = torch.full((1, n_rows, r), -1, dtype=torch.long)
+    iters = [0] * r
+    phases = [iteration_dtype] if iteration_dtype == torch.float64 else [iteration_dtype, torch.float64]
+    xw = (x * w[..., None]).reshape(n_rows, d)
+    sim_buf = x_it = None
+    for phase in phases:
+        sim_buf = x_it = None   # free the previous phase's buffers before this phase allocates its own
+        act = list(range(r))                                                       # active restarts
+        x_it = x.to(phase)
+        sim_buf = x_it.new_empty(1, n_rows, r * k)
+        for _ in range(max_iter):
+            if not act:
+                break
+            q = len(act)
+            every = q == r
+            cl = centers if every else centers[:, act]                             # [1, q, k, d]
+            new = _nearest(x_it, cl, None, sim_buf)[1]                             # [1, N, q]
+            old = labels if every else labels[:, :, act]
+            changed = (new != old).any(dim=1)[0].tolist()
+            if every:
+                labels = new
+            else:
+                labels[:, :, act] = new
+            for j in act:
+                iters[j] += 1
+            # the batched path's sums for one mesh: restart j's clusters at rows j k .. j k + k - 1
+            sums = x.new_zeros(q * k, d)
+            for j in range(q):
+                sums.index_add_(0, j * k + new[0, :, j], xw)
+            sums = sums.reshape(1, q, k, d)
+            norm = sums.norm(dim=-1, keepdim=True)
+            # An emptied cluster keeps its previous center rather than vanishing.
+            moved = torch.where(norm > 0, sums / norm.clamp(min=1e-300), cl)
+            if every:
+                centers = moved
+            else:
+                centers[:, act] = moved
+            act = [j for j, moving in zip(act, changed) if moving]
+    del sim_buf, x_it
+    labels, cost = _final_assignment(x, w, centers, None)
+    return labels, cost, torch.tensor([iters], dtype=torch.long), centers
+
+
+def _nearest(xb: torch.Tensor, cb: torch.Tensor, absent_b: torch.Tensor | None, out: torch.Tensor | None = None):
+    """(cosine to the nearest center [b, N, q], its index [b, N, q]) for rows xb [b, N, d] and
+    the centers cb [b, q, k, d] of q restarts, side by side in one GEMM (the rows are never
+    copied q times). absent_b [b, 1, 1, k]: centers that do not exist (None: all do); out: a
+    buffer of at least b·N·q·k elements of xb's dtype for the similarities."""
+    m, n_max = xb.shape[:2]
+    q, k_max, d = cb.shape[1:]
+    if out is not None:
+        out = out.view(-1)[:m * n_max * q * k_max].view(m, n_max, q * k_max)
+    sim = torch.matmul(xb, cb.reshape(m, q * k_max, d).transpose(1, 2).to(xb.dtype), out=out)
+    sim = sim.view(m, n_max, q, k_max)
+    if absent_b is not None:
+        sim.masked_fill_(absent_b, _NEG)
+    return sim.max(-1)
+
+
+def _final_assignment(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, absent: torch.Tensor | None):
+    """Labels [B, N, R] and cost [B, R] = Σ w (1 - cos) of the float64 assignment to centers
+    [B, R, k, d], one restart at a time ([B, N, k], not [B, N, R·k])."""
+    nb, n_max = x.shape[:2]
+    r = centers.shape[1]
+    labels = torch.empty(nb, n_max, r, dtype=torch.long, device=x.device)
+    cost = x.new_empty(nb, r)
+    for j in range(r):
+        best_sim, labels[:, :, j] = (t[..., 0] for t in _nearest(x, centers[:, j:j + 1], absent))
+        cost[:, j] = ((1 - best_sim) * w).sum(1)                                    # [B]
+    return labels, cost
+
+
+def _lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+                   iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
+    """:func:`_lloyd` for any batch on any device: each iteration the live meshes' active
+    restarts are gathered into slots, the results scattered back."""
     nb, n_max, d = x.shape
     r, k_max = centers.shape[1], centers.shape[2]
     dev, dt = x.device, x.dtype
@@ -109,18 +209,9 @@ def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: in
     ragged = center_ok is not None and not bool(center_ok.all())
     absent = None if center_ok is None else ~center_ok[:, None, None, :]          # [B, 1, 1, k]
 
-    # The R restarts' centers sit side by side, [B, R·k, d], so one GEMM against the rows
-    # serves every restart and the rows are never copied R times (R x the features' memory).
+
     def assign(xb, cb, absent_b, out=None):
-        """Labels [b, N, q] and cosine to the assigned center [b, N, q] for centers [b, q, k, d]."""
-        m, q = cb.shape[:2]
-        if out is not None:
-            out = out.view(-1)[:m * n_max * q * k_max].view(m, n_max, q * k_max)
-        sim = torch.matmul(xb, cb.reshape(m, q * k_max, d).transpose(1, 2).to(xb.dtype), out=out)
-        sim = sim.view(m, n_max, q, k_max)
-        if ragged:
-            sim.masked_fill_(absent_b, _NEG)
-        return sim.max(-1)
+        return _nearest(xb, cb, absent_b if ragged else None, out)
 
     labels = torch.full((nb, n_max, r), -1, dtype=torch.long, device=dev)
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
@@ -191,12 +282,7 @@ def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: in
                 active[live] = act.scatter(1, slot, changed)
 
     del sim_buf, x_it
-    # The final assignment, in float64, one restart at a time ([B, N, k], not [B, N, R·k]).
-    labels = torch.empty(nb, n_max, r, dtype=torch.long, device=dev)
-    cost = x.new_empty(nb, r)
-    for j in range(r):
-        best_sim, labels[:, :, j] = (t[..., 0] for t in assign(x, centers[:, j:j + 1], absent))
-        cost[:, j] = ((1 - best_sim) * w).sum(1)                                    # [B]
+    labels, cost = _final_assignment(x, w, centers, absent if ragged else None)
     return labels, cost, iters, centers
 
 
