@@ -80,18 +80,31 @@ def edge_weights(dual: DualEdges, opts: GraphCut) -> np.ndarray:
 
 
 def allowed_labels(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
-    """[F, k] bool: part l occurs within ``band`` dual rings of face f (its own part always)."""
+    """[F, k] bool: part l occurs within ``band`` dual rings of face f (its own part always).
+
+    Each face's reachable parts are a bit set ([F, ceil(k / 64)] uint64 words); a ring ORs in
+    the sets of the face's dual neighbours (one gather and one OR-reduce per ring over the
+    faces' sorted neighbour lists), which is what ``band`` products with (adjacency +
+    identity), clipped to 1, compute as counts."""
+    labels = np.asarray(labels)
     n = len(labels)
+    words = max((k + 63) // 64, 1)
     ok = labels >= 0
-    reach = sp.csr_matrix((np.ones(int(ok.sum())), (np.flatnonzero(ok), labels[ok])), shape=(n, k))
+    own = np.flatnonzero(ok)
+    bits = np.zeros((n, words), dtype=np.uint64)
+    lab = labels[ok].astype(np.int64)
+    bits[own, lab // 64] = np.left_shift(np.uint64(1), (lab % 64).astype(np.uint64))
     if band > 0 and len(pairs):
-        adj = sp.coo_matrix((np.ones(2 * len(pairs)), (np.r_[pairs[:, 0], pairs[:, 1]],
-                                                       np.r_[pairs[:, 1], pairs[:, 0]])), shape=(n, n))
-        step = (adj + sp.identity(n)).tocsr()
+        src = np.r_[pairs[:, 0], pairs[:, 1]].astype(np.int64)
+        dst = np.r_[pairs[:, 1], pairs[:, 0]].astype(np.int64)
+        order = np.argsort(src, kind="stable")
+        src, dst = src[order], dst[order]
+        starts = np.flatnonzero(np.r_[True, src[1:] != src[:-1]])
+        rows = src[starts]
         for _ in range(band):
-            reach = step @ reach
-            reach.data[:] = 1.0
-    return reach.toarray() > 0
+            bits[rows] |= np.bitwise_or.reduceat(bits[dst], starts, axis=0)
+    shift = np.arange(k, dtype=np.uint64) % np.uint64(64)
+    return (bits[:, np.arange(k) // 64] >> shift[None, :]) & np.uint64(1) == 1
 
 
 def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> float:
@@ -139,12 +152,13 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
 
 
 def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, face_area: np.ndarray,
-                    opts: GraphCut | None = None) -> np.ndarray:
+                    opts: GraphCut | None = None, cut_cost: np.ndarray | None = None) -> np.ndarray:
     """Face labels [F] re-decided by the graph cut (see the module notes).
 
     labels : [F] parts 0..k-1 (faces < 0 are left as they are and out of the cut);
     distances : [F, k] each face's distance to each part (inf where a part is absent);
-    dual : the mesh's :func:`~torchakvf.parts.concavity.dual_edges`; face_area : [F].
+    dual : the mesh's :func:`~torchakvf.parts.concavity.dual_edges`; face_area : [F];
+    cut_cost : [P] ``edge_weights(dual, opts)`` if at hand (it depends on the mesh alone).
     """
     opts = GraphCut() if opts is None else opts
     labels = np.asarray(labels)
@@ -157,35 +171,37 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     pa, pb = index[dual.pairs[:, 0]], index[dual.pairs[:, 1]]
     inside = (pa >= 0) & (pb >= 0)
     pairs = np.stack([pa[inside], pb[inside]], axis=1)
-    w = opts.smoothness * edge_weights(dual, opts)[inside]
+    if cut_cost is None:
+        cut_cost = edge_weights(dual, opts)
+    w = opts.smoothness * cut_cost[inside]
     area = np.asarray(face_area, dtype=np.float64)[sites]
-    d = np.asarray(distances, dtype=np.float64)[sites]
-    finite = np.isfinite(d)
-    d = np.where(finite, d, 0.0)
-    unary = d * (area / max(float(area.mean()), 1e-300))[:, None]
-    allowed = allowed_labels(labels[sites], pairs, k, opts.band) & finite
-    # A forbidden label costs more than any face could gain by taking it (its own data term
-    # plus every cut edge around it), so it is never chosen; kept finite for gco's integers.
     own = labels[sites]
+    allowed = allowed_labels(own, pairs, k, opts.band)
     # Faces with one allowed part (beyond the band of every boundary) keep it: they leave the
     # graph, and each of their edges to a free face becomes that face's cost of taking any
-    # other part (exact: the energy differs by a constant). Only the band is solved.
+    # other part (exact: the energy differs by a constant). Only the band is solved, so the
+    # data terms are built for its faces alone (row by row the same numbers).
+    d = np.asarray(distances, dtype=np.float64)[sites]
+    finite = np.isfinite(d)
+    allowed &= finite
     free = allowed.sum(axis=1) > 1
-    fa, fb = free[pairs[:, 0]], free[pairs[:, 1]]
-    unary = unary.copy()
-    for side, other in ((0, 1), (1, 0)):
-        edge = free[pairs[:, side]] & ~free[pairs[:, other]]
-        f_free, f_fixed = pairs[edge, side], pairs[edge, other]
-        np.add.at(unary, f_free, w[edge][:, None])                       # w for every label...
-        np.add.at(unary, (f_free, own[f_fixed]), -w[edge])               # ...but the fixed one's
     idx = np.flatnonzero(free)
     local = np.full(len(sites), -1, dtype=np.int64)
     local[idx] = np.arange(len(idx))
+    d_free = d[idx]
+    sub_unary = np.where(finite[idx], d_free, 0.0) * (area[idx] / max(float(area.mean()), 1e-300))[:, None]
+    fa, fb = free[pairs[:, 0]], free[pairs[:, 1]]
+    for side, other in ((0, 1), (1, 0)):
+        edge = free[pairs[:, side]] & ~free[pairs[:, other]]
+        f_free, f_fixed = local[pairs[edge, side]], pairs[edge, other]
+        np.add.at(sub_unary, f_free, w[edge][:, None])                   # w for every label...
+        np.add.at(sub_unary, (f_free, own[f_fixed]), -w[edge])           # ...but the fixed one's
     both = fa & fb
     sub_pairs = local[pairs[both]]
     sub_w = w[both]
-    sub_unary = unary[idx]
     incident = np.bincount(sub_pairs.ravel(), weights=np.r_[sub_w, sub_w], minlength=len(idx))
+    # A forbidden label costs more than any face could gain by taking it (its own data term
+    # plus every cut edge around it), so it is never chosen; kept finite for gco's integers.
     big = float(np.abs(sub_unary).max(initial=0.0) + incident.max(initial=0.0)) + 1.0
     sub_unary = np.where(allowed[idx], sub_unary, big)
     new = own.copy()
