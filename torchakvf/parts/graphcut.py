@@ -82,29 +82,30 @@ def edge_weights(dual: DualEdges, opts: GraphCut) -> np.ndarray:
 def allowed_labels(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
     """[F, k] bool: part l occurs within ``band`` dual rings of face f (its own part always).
 
-    Each face's reachable parts are a bit set ([F, ceil(k / 64)] uint64 words); a ring ORs in
-    the sets of the face's dual neighbours (one gather and one OR-reduce per ring over the
-    faces' sorted neighbour lists), which is what ``band`` products with (adjacency +
-    identity), clipped to 1, compute as counts."""
+    Each face's reachable parts are a bit set (ceil(k / 64) uint64 words); a ring ORs into
+    each face the sets its dual neighbours had before the ring, which is what ``band``
+    products with (adjacency + identity), clipped to 1, compute as counts. Only the edges
+    whose two sets differ change anything, and they are few (the boundaries' bands)."""
     labels = np.asarray(labels)
     n = len(labels)
     words = max((k + 63) // 64, 1)
     ok = labels >= 0
-    own = np.flatnonzero(ok)
-    bits = np.zeros((n, words), dtype=np.uint64)
     lab = labels[ok].astype(np.int64)
-    bits[own, lab // 64] = np.left_shift(np.uint64(1), (lab % 64).astype(np.uint64))
+    bits = np.zeros((words, n), dtype=np.uint64)
+    bits[lab // 64, np.flatnonzero(ok)] = np.left_shift(np.uint64(1), (lab % 64).astype(np.uint64))
     if band > 0 and len(pairs):
-        src = np.r_[pairs[:, 0], pairs[:, 1]].astype(np.int64)
-        dst = np.r_[pairs[:, 1], pairs[:, 0]].astype(np.int64)
-        order = np.argsort(src, kind="stable")
-        src, dst = src[order], dst[order]
-        starts = np.flatnonzero(np.r_[True, src[1:] != src[:-1]])
-        rows = src[starts]
-        for _ in range(band):
-            bits[rows] |= np.bitwise_or.reduceat(bits[dst], starts, axis=0)
-    shift = np.arange(k, dtype=np.uint64) % np.uint64(64)
-    return (bits[:, np.arange(k) // 64] >> shift[None, :]) & np.uint64(1) == 1
+        a = np.ascontiguousarray(pairs[:, 0], dtype=np.intp)
+        b = np.ascontiguousarray(pairs[:, 1], dtype=np.intp)
+        for row in bits:                  # a view: updated in place, word by word
+            for _ in range(band):
+                ra, rb = row[a], row[b]   # the sets before this ring
+                diff = np.flatnonzero(ra != rb)
+                if not len(diff):
+                    break
+                np.bitwise_or.at(row, a[diff], rb[diff])
+                np.bitwise_or.at(row, b[diff], ra[diff])
+    as_bytes = np.ascontiguousarray(bits.T, dtype="<u8").view(np.uint8).reshape(n, 8 * words)
+    return np.unpackbits(as_bytes, axis=1, bitorder="little")[:, :k].view(bool)
 
 
 def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> float:
