@@ -120,15 +120,15 @@ def _graphcut_inputs_full_size(labels, distances, dual, face_area, opts):
     return np.where(allowed[idx], sub_unary, big), sub_pairs, sub_w
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed):
-    v, f, labels = _sphere_labels(3, 5, seed)
+@pytest.mark.parametrize("seed,k", [(0, 5), (1, 5), (2, 5), (3, 70)])
+def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed, k):
+    v, f, labels = _sphere_labels(3, k, seed)
     labels = labels.copy()
     rng = np.random.default_rng(seed)
     labels[rng.random(len(labels)) < 0.02] = -1                     # a few faces out of the cut
     dual = dual_edges(v, f)
     area = face_areas(v, f)
-    dist = rng.random((len(labels), 5))
+    dist = rng.random((len(labels), k))
     dist[rng.random(dist.shape) < 0.05] = np.inf
     opts = gc.GraphCut(smoothness=2.0, band=2)
     seen = []
@@ -147,6 +147,7 @@ def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed):
         for a, b in zip(got, ref):
             np.testing.assert_array_equal(a, b)                      # bitwise
     assert (out[labels < 0] == labels[labels < 0]).all()
+    assert 0 < len(ref[0]) < (labels >= 0).sum()                     # a band, not every face
 
 
 # ---------------------------------------------------------------- small-piece clean-up
@@ -268,3 +269,34 @@ def test_segment_rounds_with_caches_kept_across_k_equal_one_k_at_a_time():
         np.testing.assert_array_equal(together[k].labels, alone.labels)
         assert together[k].cost == alone.cost
         assert together[k].params == alone.params
+
+
+def _generators_loop(labels, features, face_area, energies, n_parts, min_share=0.5):
+    """part_generators with a masked sum per part."""
+    density = features ** 2 * face_area[:, None]
+    total = np.maximum(density.sum(axis=0), 1e-300)
+    share = np.stack([density[labels == p].sum(axis=0) for p in range(n_parts)]) / total
+    out = [[] for _ in range(n_parts)]
+    home = share.argmax(axis=0)
+    for i in range(features.shape[1]):
+        p = int(home[i])
+        if share[p, i] >= min_share:
+            out[p].append((i, float(share[p, i]), float(energies[i])))
+    return [sorted(g, key=lambda t: t[2]) for g in out]
+
+
+@pytest.mark.parametrize("n_fields", [1, 2, 16])
+def test_part_generators_equal_a_masked_sum_per_part(n_fields):
+    from torchakvf.parts.generators import part_generators
+    v, f, labels = _sphere_labels(3, 6, seed=n_fields)
+    labels = labels.copy()
+    labels[::23] = -1                                                # connecting region
+    labels[labels == 5] = 9                                          # beyond n_parts: in no part
+    rng = np.random.default_rng(n_fields)
+    feats = np.abs(rng.normal(size=(len(f), n_fields))) * (labels[:, None] + 2.0)
+    area = face_areas(v, f)
+    energies = rng.random(n_fields)
+    got = part_generators(labels, feats, area, energies, 5, min_share=0.3)
+    ref = _generators_loop(labels, feats, area, energies, 5, min_share=0.3)
+    assert [[(g.field, g.share, g.energy) for g in part] for part in got] == ref    # bitwise shares
+    assert part_generators(labels, feats, area, energies, 0) == []

@@ -79,13 +79,9 @@ def edge_weights(dual: DualEdges, opts: GraphCut) -> np.ndarray:
     return (dual.length / scale) / (1.0 + opts.beta * cav)
 
 
-def allowed_labels(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
-    """[F, k] bool: part l occurs within ``band`` dual rings of face f (its own part always).
-
-    Each face's reachable parts are a bit set (ceil(k / 64) uint64 words); a ring ORs into
-    each face the sets its dual neighbours had before the ring, which is what ``band``
-    products with (adjacency + identity), clipped to 1, compute as counts. Only the edges
-    whose two sets differ change anything, and they are few (the boundaries' bands)."""
+def _reach_bits(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
+    """[ceil(k / 64), F] uint64: bit l of face f's words set where part l occurs within
+    ``band`` dual rings of f (:func:`allowed_labels` as bit sets)."""
     labels = np.asarray(labels)
     n = len(labels)
     words = max((k + 63) // 64, 1)
@@ -104,8 +100,30 @@ def allowed_labels(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> 
                     break
                 np.bitwise_or.at(row, a[diff], rb[diff])
                 np.bitwise_or.at(row, b[diff], ra[diff])
-    as_bytes = np.ascontiguousarray(bits.T, dtype="<u8").view(np.uint8).reshape(n, 8 * words)
+    return bits
+
+
+def _unpack(bits: np.ndarray, k: int) -> np.ndarray:
+    """[F, k] bool from [words, F] uint64 bit sets (bit l of word l // 64)."""
+    n = bits.shape[1]
+    as_bytes = np.ascontiguousarray(bits.T, dtype="<u8").view(np.uint8).reshape(n, 8 * bits.shape[0])
     return np.unpackbits(as_bytes, axis=1, bitorder="little")[:, :k].view(bool)
+
+
+def _several(bits: np.ndarray) -> np.ndarray:
+    """[F] bool: more than one bit set in face f's words."""
+    one_word = (bits & (bits - np.uint64(1))) != 0          # a word with two bits or more
+    return one_word.any(axis=0) | ((bits != 0).sum(axis=0) > 1)
+
+
+def allowed_labels(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
+    """[F, k] bool: part l occurs within ``band`` dual rings of face f (its own part always).
+
+    Each face's reachable parts are a bit set (ceil(k / 64) uint64 words); a ring ORs into
+    each face the sets its dual neighbours had before the ring, which is what ``band``
+    products with (adjacency + identity), clipped to 1, compute as counts. Only the edges
+    whose two sets differ change anything, and they are few (the boundaries' bands)."""
+    return _unpack(_reach_bits(labels, pairs, k, band), k)
 
 
 def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> float:
@@ -177,20 +195,24 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     w = opts.smoothness * cut_cost[inside]
     area = np.asarray(face_area, dtype=np.float64)[sites]
     own = labels[sites]
-    allowed = allowed_labels(own, pairs, k, opts.band)
     # Faces with one allowed part (beyond the band of every boundary) keep it: they leave the
     # graph, and each of their edges to a free face becomes that face's cost of taking any
     # other part (exact: the energy differs by a constant). Only the band is solved, so the
-    # data terms are built for its faces alone (row by row the same numbers).
-    d = np.asarray(distances, dtype=np.float64)[sites]
-    finite = np.isfinite(d)
-    allowed &= finite
-    free = allowed.sum(axis=1) > 1
-    idx = np.flatnonzero(free)
+    # allowed parts and data terms are built for its faces alone (row by row the same numbers):
+    # a face reaching one part is fixed whatever its distances.
+    bits = _reach_bits(own, pairs, k, opts.band)
+    cand = np.flatnonzero(_several(bits))
+    d_cand = np.asarray(distances, dtype=np.float64)[sites[cand]]
+    finite_cand = np.isfinite(d_cand)
+    allowed_cand = _unpack(bits[:, cand], k) & finite_cand
+    free_cand = allowed_cand.sum(axis=1) > 1
+    idx = cand[free_cand]
+    free = np.zeros(len(sites), dtype=bool)
+    free[idx] = True
     local = np.full(len(sites), -1, dtype=np.int64)
     local[idx] = np.arange(len(idx))
-    d_free = d[idx]
-    sub_unary = np.where(finite[idx], d_free, 0.0) * (area[idx] / max(float(area.mean()), 1e-300))[:, None]
+    sub_unary = (np.where(finite_cand[free_cand], d_cand[free_cand], 0.0)
+                 * (area[idx] / max(float(area.mean()), 1e-300))[:, None])
     fa, fb = free[pairs[:, 0]], free[pairs[:, 1]]
     for side, other in ((0, 1), (1, 0)):
         edge = free[pairs[:, side]] & ~free[pairs[:, other]]
@@ -204,7 +226,7 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     # A forbidden label costs more than any face could gain by taking it (its own data term
     # plus every cut edge around it), so it is never chosen; kept finite for gco's integers.
     big = float(np.abs(sub_unary).max(initial=0.0) + incident.max(initial=0.0)) + 1.0
-    sub_unary = np.where(allowed[idx], sub_unary, big)
+    sub_unary = np.where(allowed_cand[free_cand], sub_unary, big)
     new = own.copy()
     if len(idx):
         new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w, opts.cycles)

@@ -144,11 +144,13 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     labels = np.asarray(labels)
     present = labels >= 0
     lab, K = compact_labels(labels)
-    compact = lab[present]
+    every = bool(present.all())           # the usual case: no subset copies
+    compact = lab if every else lab[present]
     unit = unit_rows(features) if unit is None else unit
-    w = np.asarray(face_area, dtype=np.float64)[present]
+    w = np.asarray(face_area, dtype=np.float64)
+    w = w if every else w[present]
     area = np.bincount(compact, weights=w, minlength=K)
-    mean = group_sums(compact, unit[present] * w[:, None], K)
+    mean = group_sums(compact, (unit if every else unit[present]) * w[:, None], K)
     mean /= np.maximum(area, 1e-300)[:, None]
     la, lb = lab[dual.pairs[:, 0]], lab[dual.pairs[:, 1]]
     cut = (la != lb) & (la >= 0) & (lb >= 0)
