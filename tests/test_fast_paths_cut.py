@@ -150,6 +150,23 @@ def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed, k):
     assert 0 < len(ref[0]) < (labels >= 0).sum()                     # a band, not every face
 
 
+def test_corner_means_rows_are_barycenter_values_rows_and_cut_the_same():
+    from torchakvf.parts.boundaries import barycenter_values
+    v, f, labels = _sphere_labels(3, 4, seed=8)
+    rng = np.random.default_rng(8)
+    vdist = rng.random((len(v), 4))
+    vdist[rng.random(vdist.shape) < 0.01] = np.inf
+    full = barycenter_values(f, vdist)
+    cm = gc.CornerMeans(f, vdist)
+    assert cm.shape == full.shape
+    rows = np.flatnonzero(rng.random(len(f)) < 0.3)
+    np.testing.assert_array_equal(cm[rows], full[rows])
+    dual, area = dual_edges(v, f), face_areas(v, f)
+    opts = gc.GraphCut(band=3)
+    np.testing.assert_array_equal(gc.graphcut_labels(labels, cm, dual, area, opts),
+                                  gc.graphcut_labels(labels, full, dual, area, opts))
+
+
 # ---------------------------------------------------------------- small-piece clean-up
 
 def _remove_small_parts_loop(labels, adjacency, face_area, min_fraction, into_connecting):
@@ -228,6 +245,17 @@ def test_unit_rows_of_a_subset_are_the_subset_of_unit_rows():
     np.testing.assert_array_equal(unit_rows(x[keep]), unit_rows(x)[keep])
 
 
+def _partition_cost_plain(labels, feats):
+    """Σ_f (1 - cos(x_f, c_p)) with each center the normalized sum of its part's unit rows."""
+    norm = np.linalg.norm(feats, axis=1, keepdims=True)
+    x = np.divide(feats, norm, out=np.zeros_like(feats), where=norm > 0)
+    uniq, inv = np.unique(labels, return_inverse=True)
+    centers = np.zeros((len(uniq), feats.shape[1]))
+    np.add.at(centers, inv, x)
+    centers /= np.linalg.norm(centers, axis=1, keepdims=True)
+    return float(np.sum(1.0 - np.einsum("ij,ij->i", x, centers[inv])))
+
+
 def test_region_graph_and_costs_with_shared_arrays_are_those_computed_afresh():
     v, f, labels = _sphere_labels(3, 9, seed=4)
     labels = labels * 3 - 1                                          # ids -1, 2, 5, ...: gaps, one unlabelled
@@ -249,6 +277,9 @@ def test_region_graph_and_costs_with_shared_arrays_are_those_computed_afresh():
     assert next_merge_cost(labels, dual, feats, area, weights) == \
         next_merge_cost(labels, dual, feats, area, weights, unit=unit, bends=bends)
     assert partition_cost(labels, feats) == partition_cost(labels, feats, unit=unit)
+    every = labels + 1                                               # every face in a part
+    assert partition_cost(every, feats) == partition_cost(every, feats, unit=unit)
+    assert partition_cost(every, feats) == _partition_cost_plain(every, feats)
 
 
 def test_segment_rounds_with_caches_kept_across_k_equal_one_k_at_a_time():

@@ -28,12 +28,12 @@ from ..fields.untangle import UntangledFields, orthomax_rotations, untangled_fro
 from ..mesh import MeshBatch
 from ..mesh.batch import pad_packed
 from ..operators.killing import DEFAULT_REMEDY
-from .boundaries import (barycenter_values, face_margins, isoline_face_labels, refine_along_isolines,
+from .boundaries import (face_margins, isoline_face_labels, refine_along_isolines,
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import part_generators
 from .concavity import dual_edges
-from .graphcut import GraphCut, edge_weights, graphcut_labels
+from .graphcut import CornerMeans, GraphCut, edge_weights, graphcut_labels
 from .merge import (MergeWeights, boundary_bends, merge_parts, merged_distances, next_merge_cost,
                     oversegment_k, partition_cost, unit_rows)
 from .results import MeshSegmentation, Segmentation
@@ -298,7 +298,8 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
             cost = partition_cost(labels, feats, unit=unit) * (f1 - f0) / len(labels)
             if opts.graphcut is not None:
                 # data term: each face's distance to each part, the mean over its corners
-                face_dist = barycenter_values(clean.faces, vdist)
+                # (made for the faces the cut reads: those near a boundary)
+                face_dist = CornerMeans(clean.faces, vdist)
                 cut_key = ("cut_cost", opts.graphcut)
                 if cut_key not in cache:
                     cache[cut_key] = edge_weights(dual, opts.graphcut)

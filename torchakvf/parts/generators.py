@@ -38,7 +38,8 @@ def part_generators(labels: np.ndarray, features: np.ndarray, face_area: np.ndar
         # One pass, the faces' rows added in order: a per-part density[labels == p].sum(axis=0)
         # (numpy adds the rows of an [m, n > 1] array one after another) in the same order.
         mine = (labels >= 0) & (labels < n_parts)
-        share = group_sums(labels[mine], density[mine], n_parts) / total
+        share = (group_sums(labels, density, n_parts) if mine.all()
+                 else group_sums(labels[mine], density[mine], n_parts)) / total
     else:
         share = np.stack([density[labels == p].sum(axis=0) for p in range(n_parts)]) / total
     home = share.argmax(axis=0)

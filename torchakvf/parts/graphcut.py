@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ParameterError
+from .boundaries import barycenter_values
 from .concavity import DualEdges, crease_weights
 
 
@@ -61,6 +62,24 @@ class GraphCut:
             raise ParameterError(f"graph cut band must be an integer >= 0, got {self.band!r}")
         if not (isinstance(self.cycles, (int, np.integer)) and (self.cycles >= 1 or self.cycles == -1)):
             raise ParameterError(f"graph cut cycles must be an integer >= 1, or -1 (until converged), got {self.cycles!r}")
+
+
+@dataclass(frozen=True)
+class CornerMeans:
+    """[F, k] values per face as the mean over its corners of per-vertex values [V, k]
+    (:func:`~torchakvf.parts.boundaries.barycenter_values`), made only for the rows read:
+    ``cm[rows]`` is ``barycenter_values(faces, vertex_values)[rows]``, bitwise (row by row the
+    same sums). The graph cut reads the band's rows alone."""
+
+    faces: np.ndarray
+    vertex_values: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return len(self.faces), self.vertex_values.shape[1]
+
+    def __getitem__(self, rows) -> np.ndarray:
+        return barycenter_values(self.faces[rows], self.vertex_values)
 
 
 def _gco():
@@ -175,7 +194,8 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     """Face labels [F] re-decided by the graph cut (see the module notes).
 
     labels : [F] parts 0..k-1 (faces < 0 are left as they are and out of the cut);
-    distances : [F, k] each face's distance to each part (inf where a part is absent);
+    distances : [F, k] each face's distance to each part (inf where a part is absent): an
+        array, or anything with ``shape`` and row indexing such as :class:`CornerMeans`;
     dual : the mesh's :func:`~torchakvf.parts.concavity.dual_edges`; face_area : [F];
     cut_cost : [P] ``edge_weights(dual, opts)`` if at hand (it depends on the mesh alone).
     """
@@ -202,7 +222,7 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     # a face reaching one part is fixed whatever its distances.
     bits = _reach_bits(own, pairs, k, opts.band)
     cand = np.flatnonzero(_several(bits))
-    d_cand = np.asarray(distances, dtype=np.float64)[sites[cand]]
+    d_cand = np.asarray(distances[sites[cand]], dtype=np.float64)
     finite_cand = np.isfinite(d_cand)
     allowed_cand = _unpack(bits[:, cand], k) & finite_cand
     free_cand = allowed_cand.sum(axis=1) > 1
@@ -243,4 +263,4 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     return out
 
 
-__all__ = ["GraphCut", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]
+__all__ = ["GraphCut", "CornerMeans", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]

@@ -283,8 +283,13 @@ def partition_cost(labels: np.ndarray, features: np.ndarray, *, unit: np.ndarray
     labels : [F]; features : [F, n]; unit : :func:`unit_rows` (features) if at hand."""
     labels = np.asarray(labels)
     keep = labels >= 0
-    unit = unit_rows(np.asarray(features, dtype=np.float64)[keep]) if unit is None else unit[keep]
-    lab, n_parts = compact_labels(labels[keep])
+    every = bool(keep.all())               # the usual case: no subset copies
+    if unit is None:
+        x = np.asarray(features, dtype=np.float64)
+        unit = unit_rows(x if every else x[keep])
+    elif not every:
+        unit = unit[keep]
+    lab, n_parts = compact_labels(labels if every else labels[keep])
     centers = group_sums(lab, unit, n_parts)
     centers /= np.maximum(np.linalg.norm(centers, axis=1, keepdims=True), 1e-300)
     return float(np.sum(1.0 - np.einsum("ij,ij->i", unit, centers[lab])))
