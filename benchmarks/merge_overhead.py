@@ -7,7 +7,8 @@ runs four times: {baseline, this checkout} x {SegmentOptions() (method "merge"),
 SegmentOptions(method="paper")}, all with ``refine=False`` as eval segments; the order of the four
 rotates with the mesh. Reported: CPU seconds of each, the merge / paper ratio of each side,
 baseline / checkout per method, whether the labels and costs of every (mesh, k) agree, and with
-``--profile`` a per-function cProfile (process clock) of the merge runs of both sides.
+``--profile`` a per-function cProfile (process clock) of all four (profiling slows call-heavy
+code more: take the ratios from a run without it).
 
 The baseline is the package at a git revision extracted as ``torchakvf_base`` (see
 benchmarks/compare_segment.py for the ``git archive`` recipe):
@@ -32,10 +33,10 @@ from torchakvf.mesh import MeshBatch
 from torchakvf.parts import engine as new_engine
 
 #: Functions whose per-call cost the report lists (cumulative process CPU seconds).
-WATCH = ("cut_parts", "graphcut_labels", "potts_expansion", "expansion", "allowed_labels", "merge_parts",
+WATCH = ("segment_rounds", "_round_untangled", "spherical_kmeans", "cut_parts", "graphcut_labels", "potts_expansion", "expansion", "allowed_labels", "merge_parts",
          "region_graph", "greedy_merge", "next_merge_cost", "partition_cost", "remove_small_parts",
          "piece_neighbours", "labelled_pieces", "merged_distances", "part_generators", "barycenter_values",
-         "isoline_face_labels", "vertex_distances", "spherical_kmeans", "segment_rounds")
+         "isoline_face_labels", "vertex_distances")
 
 
 def run(eng, fields, ks, method: str, prof=None):
@@ -75,7 +76,7 @@ def main():
     engines = {"base": base_engine, "new": new_engine}
     runs = [(side, method) for side in ("base", "new") for method in ("merge", "paper")]
     secs = {r: 0.0 for r in runs}
-    profs = {side: cProfile.Profile(time.process_time) for side in engines} if a.profile else {}
+    profs = {r: cProfile.Profile(time.process_time) for r in runs} if a.profile else {}
     same = {m: [0, 0, 0] for m in ("merge", "paper")}     # labels equal, costs equal, total
     for j, i in enumerate(int(v) for v in a.ids.split(",")):
         e = ents[i]
@@ -85,7 +86,7 @@ def main():
         res = {}
         for r in runs[j % 4:] + runs[:j % 4]:
             side, method = r
-            prof = profs.get(side) if method == "merge" else None
+            prof = profs.get(r)
             res[r], s = run(engines[side], fields, ks, method, prof)
             secs[r] += s
         for method in ("merge", "paper"):
@@ -109,18 +110,21 @@ def main():
         lab, cost, tot = same[method]
         print(f"{method}: base / new {b / n:.3f}x; labels identical {lab}/{tot}, costs identical {cost}/{tot}")
     if profs:
-        cum = {side: cumulative(p) for side, p in profs.items()}
+        cum = {r: cumulative(p) for r, p in profs.items()}
         print()
-        print("| function (merge runs) | base calls | base cum s | new calls | new cum s |")
-        print("|---|---|---|---|---|")
+        print("| function | " + " | ".join(f"{s}/{m} calls | {s}/{m} cum s" for s, m in runs) + " |")
+        print("|---" * (1 + 2 * len(runs)) + "|")
         for name in WATCH:
-            bc, bs = cum["base"].get(name, (0, 0.0))
-            nc, ns = cum["new"].get(name, (0, 0.0))
-            print(f"| {name} | {bc} | {bs:.3f} | {nc} | {ns:.3f} |")
-        for side, p in profs.items():
-            if a.top:
-                print(f"\n--- {side}: top {a.top} by tottime")
-                pstats.Stats(p).sort_stats("tottime").print_stats(a.top)
+            cells = []
+            for r in runs:
+                c, t = cum[r].get(name, (0, 0.0))
+                cells += [str(c), f"{t:.3f}"]
+            print(f"| {name} | " + " | ".join(cells) + " |")
+        if a.top:
+            for r, p in profs.items():
+                if r[1] == "merge":
+                    print(f"\n--- {r[0]}/merge: top {a.top} by tottime")
+                    pstats.Stats(p).sort_stats("tottime").print_stats(a.top)
 
 
 if __name__ == "__main__":
