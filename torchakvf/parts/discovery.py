@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .topology import labelled_pieces, piece_neighbours
+from .topology import labelled_pieces, piece_label_counts, piece_neighbours
 
 CONNECTING = -1
 
@@ -46,18 +46,30 @@ def remove_small_parts(labels: np.ndarray, adjacency: np.ndarray, face_area: np.
     total = face_area.sum()
     n_pieces, piece = labelled_pieces(out, adjacency)
     area = np.bincount(piece, weights=face_area, minlength=n_pieces)
-    neighbours = piece_neighbours(piece, out, adjacency)
-    # Smallest first, so a small piece can join a neighbour that itself survives.
-    for p in np.argsort(area):
-        if area[p] >= min_fraction * total:
-            break
-        faces = piece == p
-        if out[faces][0] == CONNECTING:
-            continue
-        if into_connecting:
-            out[faces] = CONNECTING
-            continue
-        cand = {lab: c for lab, c in neighbours.get(int(p), {}).items() if lab != CONNECTING}
-        if cand:
-            out[faces] = max(cand, key=cand.get)
+    # The pieces the smallest-first scan visits before its first piece of min_fraction or more.
+    # Each visited piece is relabelled from the input labels alone (its neighbours' labels as
+    # they were), so the scan's order does not change the result and all go at once.
+    order = np.argsort(area)
+    stop = np.flatnonzero(area[order] >= min_fraction * total)
+    small = np.zeros(n_pieces, dtype=bool)
+    small[order[:stop[0] if len(stop) else n_pieces]] = True
+    own = np.empty(n_pieces, dtype=out.dtype)
+    own[piece] = out                      # a piece's faces share one label
+    small &= own != CONNECTING
+    if into_connecting:
+        out[small[piece]] = CONNECTING
+        return out
+    # Each small piece joins the neighbouring label (not the connecting region) it shares the
+    # most edges with; ties go to the label piece_neighbours met first.
+    p, lab, count, first = piece_label_counts(piece, out, adjacency)
+    keep = (lab != CONNECTING) & small[p]
+    p, lab, count, first = p[keep], lab[keep], count[keep], first[keep]
+    best = np.lexsort((first, -count, p))
+    head = best[np.r_[True, p[best][1:] != p[best][:-1]]] if len(best) else best
+    target = np.full(n_pieces, CONNECTING, dtype=np.int64)
+    moved = np.zeros(n_pieces, dtype=bool)
+    target[p[head]] = lab[head]
+    moved[p[head]] = True
+    faces = moved[piece]
+    out[faces] = target[piece[faces]]
     return out

@@ -28,14 +28,14 @@ from ..fields.untangle import UntangledFields, orthomax_rotations, untangled_fro
 from ..mesh import MeshBatch
 from ..mesh.batch import pad_packed
 from ..operators.killing import DEFAULT_REMEDY
-from .boundaries import (barycenter_values, face_margins, isoline_face_labels, refine_along_isolines,
+from .boundaries import (face_margins, isoline_face_labels, refine_along_isolines,
                          vertex_distances)
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .generators import part_generators
 from .concavity import dual_edges
-from .graphcut import GraphCut, graphcut_labels
-from .merge import (MergeWeights, merge_parts, merged_distances, next_merge_cost, oversegment_k,
-                    partition_cost)
+from .graphcut import CornerMeans, GraphCut, edge_weights, graphcut_labels
+from .merge import (MergeWeights, boundary_bends, merge_parts, merged_distances, next_merge_cost,
+                    oversegment_k, partition_cost, unit_rows)
 from .results import MeshSegmentation, Segmentation
 from .topology import face_adjacency
 
@@ -282,19 +282,30 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=False)
         if "dual" not in cache:
             cache["dual"] = dual_edges(clean.vertices, clean.faces)
+        dual = cache["dual"]
+        # per mesh (kept across k): the dual edges' bending sums at the merge's crease angle
+        bends_key = ("bends", opts.merge.crease_angle)
+        if bends_key not in cache:
+            cache[bends_key] = boundary_bends(dual, opts.merge.crease_angle)
+        bends = cache[bends_key]
+        unit = unit_rows(feats)    # per k: the merge, its cost and the next merge's all read them
         if merging(opts):
             over = labels
             labels = merge_parts(over, clean.faces, clean.vertices, feats, area, k, opts.merge,
-                                 dual=cache["dual"])
+                                 dual=dual, unit=unit, bends=bends)
             vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
             # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
-            cost = partition_cost(labels, feats) * (f1 - f0) / len(labels)
+            cost = partition_cost(labels, feats, unit=unit) * (f1 - f0) / len(labels)
             if opts.graphcut is not None:
                 # data term: each face's distance to each part, the mean over its corners
-                face_dist = barycenter_values(clean.faces, vdist)
-                labels = graphcut_labels(labels, face_dist, cache["dual"], area, opts.graphcut)
+                # (made for the faces the cut reads: those near a boundary)
+                face_dist = CornerMeans(clean.faces, vdist)
+                cut_key = ("cut_cost", opts.graphcut)
+                if cut_key not in cache:
+                    cache[cut_key] = edge_weights(dual, opts.graphcut)
+                labels = graphcut_labels(labels, face_dist, dual, area, opts.graphcut, cut_cost=cache[cut_key])
         # what merging two of these parts would cost (k auto's "merge" rule reads it)
-        merge_next = next_merge_cost(labels, cache["dual"], feats, area, opts.merge)
+        merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends)
     gens = part_generators(labels, feats, area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
     converged, residual = solve_quality(fields, b)
     return MeshSegmentation(

@@ -5,6 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .grouping import group_sums
+
 
 @dataclass(frozen=True)
 class SymmetryGenerator:
@@ -29,10 +31,17 @@ def part_generators(labels: np.ndarray, features: np.ndarray, face_area: np.ndar
     """
     density = features ** 2 * face_area[:, None]                         # ∫|X_i|^2 per face
     total = np.maximum(density.sum(axis=0), 1e-300)
-    share = np.stack([density[labels == p].sum(axis=0) for p in range(n_parts)]) / total
     out: list[list[SymmetryGenerator]] = [[] for _ in range(n_parts)]
     if n_parts == 0:
         return out
+    if density.shape[1] > 1:
+        # One pass, the faces' rows added in order: a per-part density[labels == p].sum(axis=0)
+        # (numpy adds the rows of an [m, n > 1] array one after another) in the same order.
+        mine = (labels >= 0) & (labels < n_parts)
+        share = (group_sums(labels, density, n_parts) if mine.all()
+                 else group_sums(labels[mine], density[mine], n_parts)) / total
+    else:
+        share = np.stack([density[labels == p].sum(axis=0) for p in range(n_parts)]) / total
     home = share.argmax(axis=0)
     for i in range(features.shape[1]):
         p = int(home[i])

@@ -23,9 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import ParameterError
+from .boundaries import barycenter_values
 from .concavity import DualEdges, crease_weights
 
 
@@ -63,6 +63,24 @@ class GraphCut:
             raise ParameterError(f"graph cut cycles must be an integer >= 1, or -1 (until converged), got {self.cycles!r}")
 
 
+@dataclass(frozen=True)
+class CornerMeans:
+    """[F, k] values per face as the mean over its corners of per-vertex values [V, k]
+    (:func:`~torchakvf.parts.boundaries.barycenter_values`), made only for the rows read:
+    ``cm[rows]`` is ``barycenter_values(faces, vertex_values)[rows]``, bitwise (row by row the
+    same sums). The graph cut reads the band's rows alone."""
+
+    faces: np.ndarray
+    vertex_values: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return len(self.faces), self.vertex_values.shape[1]
+
+    def __getitem__(self, rows) -> np.ndarray:
+        return barycenter_values(self.faces[rows], self.vertex_values)
+
+
 def _gco():
     try:
         import gco
@@ -79,19 +97,51 @@ def edge_weights(dual: DualEdges, opts: GraphCut) -> np.ndarray:
     return (dual.length / scale) / (1.0 + opts.beta * cav)
 
 
-def allowed_labels(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
-    """[F, k] bool: part l occurs within ``band`` dual rings of face f (its own part always)."""
+def _reach_bits(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
+    """[ceil(k / 64), F] uint64: bit l of face f's words set where part l occurs within
+    ``band`` dual rings of f (:func:`allowed_labels` as bit sets)."""
+    labels = np.asarray(labels)
     n = len(labels)
+    words = max((k + 63) // 64, 1)
     ok = labels >= 0
-    reach = sp.csr_matrix((np.ones(int(ok.sum())), (np.flatnonzero(ok), labels[ok])), shape=(n, k))
+    lab = labels[ok].astype(np.int64)
+    bits = np.zeros((words, n), dtype=np.uint64)
+    bits[lab // 64, np.flatnonzero(ok)] = np.left_shift(np.uint64(1), (lab % 64).astype(np.uint64))
     if band > 0 and len(pairs):
-        adj = sp.coo_matrix((np.ones(2 * len(pairs)), (np.r_[pairs[:, 0], pairs[:, 1]],
-                                                       np.r_[pairs[:, 1], pairs[:, 0]])), shape=(n, n))
-        step = (adj + sp.identity(n)).tocsr()
-        for _ in range(band):
-            reach = step @ reach
-            reach.data[:] = 1.0
-    return reach.toarray() > 0
+        a = np.ascontiguousarray(pairs[:, 0], dtype=np.intp)
+        b = np.ascontiguousarray(pairs[:, 1], dtype=np.intp)
+        for row in bits:                  # a view: updated in place, word by word
+            for _ in range(band):
+                ra, rb = row[a], row[b]   # the sets before this ring
+                diff = np.flatnonzero(ra != rb)
+                if not len(diff):
+                    break
+                np.bitwise_or.at(row, a[diff], rb[diff])
+                np.bitwise_or.at(row, b[diff], ra[diff])
+    return bits
+
+
+def _unpack(bits: np.ndarray, k: int) -> np.ndarray:
+    """[F, k] bool from [words, F] uint64 bit sets (bit l of word l // 64)."""
+    n = bits.shape[1]
+    as_bytes = np.ascontiguousarray(bits.T, dtype="<u8").view(np.uint8).reshape(n, 8 * bits.shape[0])
+    return np.unpackbits(as_bytes, axis=1, bitorder="little")[:, :k].view(bool)
+
+
+def _several(bits: np.ndarray) -> np.ndarray:
+    """[F] bool: more than one bit set in face f's words."""
+    one_word = (bits & (bits - np.uint64(1))) != 0          # a word with two bits or more
+    return one_word.any(axis=0) | ((bits != 0).sum(axis=0) > 1)
+
+
+def allowed_labels(labels: np.ndarray, pairs: np.ndarray, k: int, band: int) -> np.ndarray:
+    """[F, k] bool: part l occurs within ``band`` dual rings of face f (its own part always).
+
+    Each face's reachable parts are a bit set (ceil(k / 64) uint64 words); a ring ORs into
+    each face the sets its dual neighbours had before the ring, which is what ``band``
+    products with (adjacency + identity), clipped to 1, compute as counts. Only the edges
+    whose two sets differ change anything, and they are few (the boundaries' bands)."""
+    return _unpack(_reach_bits(labels, pairs, k, band), k)
 
 
 def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray) -> float:
@@ -139,12 +189,14 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
 
 
 def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, face_area: np.ndarray,
-                    opts: GraphCut | None = None) -> np.ndarray:
+                    opts: GraphCut | None = None, cut_cost: np.ndarray | None = None) -> np.ndarray:
     """Face labels [F] re-decided by the graph cut (see the module notes).
 
     labels : [F] parts 0..k-1 (faces < 0 are left as they are and out of the cut);
-    distances : [F, k] each face's distance to each part (inf where a part is absent);
-    dual : the mesh's :func:`~torchakvf.parts.concavity.dual_edges`; face_area : [F].
+    distances : [F, k] each face's distance to each part (inf where a part is absent): an
+        array, or anything with ``shape`` and row indexing such as :class:`CornerMeans`;
+    dual : the mesh's :func:`~torchakvf.parts.concavity.dual_edges`; face_area : [F];
+    cut_cost : [P] ``edge_weights(dual, opts)`` if at hand (it depends on the mesh alone).
     """
     opts = GraphCut() if opts is None else opts
     labels = np.asarray(labels)
@@ -157,37 +209,43 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     pa, pb = index[dual.pairs[:, 0]], index[dual.pairs[:, 1]]
     inside = (pa >= 0) & (pb >= 0)
     pairs = np.stack([pa[inside], pb[inside]], axis=1)
-    w = opts.smoothness * edge_weights(dual, opts)[inside]
+    if cut_cost is None:
+        cut_cost = edge_weights(dual, opts)
+    w = opts.smoothness * cut_cost[inside]
     area = np.asarray(face_area, dtype=np.float64)[sites]
-    d = np.asarray(distances, dtype=np.float64)[sites]
-    finite = np.isfinite(d)
-    d = np.where(finite, d, 0.0)
-    unary = d * (area / max(float(area.mean()), 1e-300))[:, None]
-    allowed = allowed_labels(labels[sites], pairs, k, opts.band) & finite
-    # A forbidden label costs more than any face could gain by taking it (its own data term
-    # plus every cut edge around it), so it is never chosen; kept finite for gco's integers.
     own = labels[sites]
     # Faces with one allowed part (beyond the band of every boundary) keep it: they leave the
     # graph, and each of their edges to a free face becomes that face's cost of taking any
-    # other part (exact: the energy differs by a constant). Only the band is solved.
-    free = allowed.sum(axis=1) > 1
-    fa, fb = free[pairs[:, 0]], free[pairs[:, 1]]
-    unary = unary.copy()
-    for side, other in ((0, 1), (1, 0)):
-        edge = free[pairs[:, side]] & ~free[pairs[:, other]]
-        f_free, f_fixed = pairs[edge, side], pairs[edge, other]
-        np.add.at(unary, f_free, w[edge][:, None])                       # w for every label...
-        np.add.at(unary, (f_free, own[f_fixed]), -w[edge])               # ...but the fixed one's
-    idx = np.flatnonzero(free)
+    # other part (exact: the energy differs by a constant). Only the band is solved, so the
+    # allowed parts and data terms are built for its faces alone (row by row the same numbers):
+    # a face reaching one part is fixed whatever its distances.
+    bits = _reach_bits(own, pairs, k, opts.band)
+    cand = np.flatnonzero(_several(bits))
+    d_cand = np.asarray(distances[sites[cand]], dtype=np.float64)
+    finite_cand = np.isfinite(d_cand)
+    allowed_cand = _unpack(bits[:, cand], k) & finite_cand
+    free_cand = allowed_cand.sum(axis=1) > 1
+    idx = cand[free_cand]
+    free = np.zeros(len(sites), dtype=bool)
+    free[idx] = True
     local = np.full(len(sites), -1, dtype=np.int64)
     local[idx] = np.arange(len(idx))
+    sub_unary = (np.where(finite_cand[free_cand], d_cand[free_cand], 0.0)
+                 * (area[idx] / max(float(area.mean()), 1e-300))[:, None])
+    fa, fb = free[pairs[:, 0]], free[pairs[:, 1]]
+    for side, other in ((0, 1), (1, 0)):
+        edge = free[pairs[:, side]] & ~free[pairs[:, other]]
+        f_free, f_fixed = local[pairs[edge, side]], pairs[edge, other]
+        np.add.at(sub_unary, f_free, w[edge][:, None])                   # w for every label...
+        np.add.at(sub_unary, (f_free, own[f_fixed]), -w[edge])           # ...but the fixed one's
     both = fa & fb
     sub_pairs = local[pairs[both]]
     sub_w = w[both]
-    sub_unary = unary[idx]
     incident = np.bincount(sub_pairs.ravel(), weights=np.r_[sub_w, sub_w], minlength=len(idx))
+    # A forbidden label costs more than any face could gain by taking it (its own data term
+    # plus every cut edge around it), so it is never chosen; kept finite for gco's integers.
     big = float(np.abs(sub_unary).max(initial=0.0) + incident.max(initial=0.0)) + 1.0
-    sub_unary = np.where(allowed[idx], sub_unary, big)
+    sub_unary = np.where(allowed_cand[free_cand], sub_unary, big)
     new = own.copy()
     if len(idx):
         new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w, opts.cycles)
@@ -204,4 +262,4 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     return out
 
 
-__all__ = ["GraphCut", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]
+__all__ = ["GraphCut", "CornerMeans", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]

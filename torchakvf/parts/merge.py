@@ -114,32 +114,51 @@ class RegionGraph:
         return len(self.area)
 
 
+def unit_rows(features: np.ndarray) -> np.ndarray:
+    """[F, n] the feature rows scaled to unit length (zero rows stay zero), as k-means sees
+    them. Row by row, so the rows of a subset are those of the whole."""
+    feats = np.asarray(features, dtype=np.float64)
+    norm = np.linalg.norm(feats, axis=1, keepdims=True)
+    return np.divide(feats, norm, out=np.zeros_like(feats), where=norm > 0)
+
+
+def boundary_bends(dual: DualEdges, crease_angle: float = math.pi) -> tuple[np.ndarray, np.ndarray]:
+    """([P] length x concave weight, [P] length x convex weight) of each dual edge
+    (:func:`crease_weights` at ``crease_angle``): what a shared boundary sums. Depends on the
+    mesh alone, so a caller segmenting one mesh at many k can keep it."""
+    cav, cvx = crease_weights(dual.dihedral, crease_angle)
+    return dual.length * cav, dual.length * cvx
+
+
 def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
-                 face_area: np.ndarray, crease_angle: float = math.pi) -> RegionGraph:
+                 face_area: np.ndarray, crease_angle: float = math.pi, *,
+                 unit: np.ndarray | None = None, bends: tuple | None = None) -> RegionGraph:
     """The region adjacency graph of ``labels`` [F] on the mesh whose dual graph is ``dual``.
 
     features : [F, n] per-face untangled feature rows (normalized here, as k-means does);
     face_area : [F]. Faces with a negative label are left out of every part.
     crease_angle : bending (radians) at which a crease counts fully (:func:`crease_weights`).
+    unit, bends : :func:`unit_rows` (features) and :func:`boundary_bends` (dual, crease_angle)
+        if at hand (then ``features`` is not read).
     """
     labels = np.asarray(labels)
     present = labels >= 0
     lab, K = compact_labels(labels)
-    compact = lab[present]
-    feats = np.asarray(features, dtype=np.float64)
-    norm = np.linalg.norm(feats, axis=1, keepdims=True)
-    unit = np.divide(feats, norm, out=np.zeros_like(feats), where=norm > 0)
-    w = np.asarray(face_area, dtype=np.float64)[present]
+    every = bool(present.all())           # the usual case: no subset copies
+    compact = lab if every else lab[present]
+    unit = unit_rows(features) if unit is None else unit
+    w = np.asarray(face_area, dtype=np.float64)
+    w = w if every else w[present]
     area = np.bincount(compact, weights=w, minlength=K)
-    mean = group_sums(compact, unit[present] * w[:, None], K)
+    mean = group_sums(compact, (unit if every else unit[present]) * w[:, None], K)
     mean /= np.maximum(area, 1e-300)[:, None]
     la, lb = lab[dual.pairs[:, 0]], lab[dual.pairs[:, 1]]
     cut = (la != lb) & (la >= 0) & (lb >= 0)
     key = la[cut] * K + lb[cut]
     length = np.bincount(key, weights=dual.length[cut], minlength=K * K).reshape(K, K)
-    cav, cvx = crease_weights(dual.dihedral, crease_angle)
-    concave = np.bincount(key, weights=(dual.length * cav)[cut], minlength=K * K).reshape(K, K)
-    convex = np.bincount(key, weights=(dual.length * cvx)[cut], minlength=K * K).reshape(K, K)
+    bent_cav, bent_cvx = boundary_bends(dual, crease_angle) if bends is None else bends
+    concave = np.bincount(key, weights=bent_cav[cut], minlength=K * K).reshape(K, K)
+    convex = np.bincount(key, weights=bent_cvx[cut], minlength=K * K).reshape(K, K)
     return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T)
 
 
@@ -221,48 +240,56 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
 
 def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, features: np.ndarray,
                 face_area: np.ndarray, k: int, weights: MergeWeights | None = None,
-                dual: DualEdges | None = None) -> np.ndarray:
+                dual: DualEdges | None = None, *, unit: np.ndarray | None = None,
+                bends: tuple | None = None) -> np.ndarray:
     """Labels [F] of an over-segmentation merged down to k adjacent-part unions.
 
     labels : [F] int part per face (negative = no part, kept as is); faces [F, 3] and
     vertices [V, 3] the mesh they live on (outward-oriented); features : [F, n] untangled
     per-face features; face_area : [F]; k : parts wanted; weights : :class:`MergeWeights`
-    (default: the cross-validated ones); dual : :func:`dual_edges` of the mesh, if at hand.
+    (default: the cross-validated ones); dual : :func:`dual_edges` of the mesh, if at hand;
+    unit, bends : :func:`unit_rows` (features), :func:`boundary_bends` (dual, the weights'
+    crease angle), if at hand.
     Returns labels in 0..k_out-1 (k_out = k unless fewer parts were given or no adjacent pair
     was left, e.g. more connected components than k).
     """
     weights = MergeWeights() if weights is None else weights
     if dual is None:
         dual = dual_edges(vertices, faces)
-    graph = region_graph(labels, dual, features, face_area, weights.crease_angle)
+    graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends)
     new_id, _ = greedy_merge(graph, k, weights)
     out = np.where(graph.labels >= 0, new_id[np.maximum(graph.labels, 0)], graph.labels)
     return out.astype(np.asarray(labels).dtype, copy=False)
 
 
 def next_merge_cost(labels: np.ndarray, dual: DualEdges, features: np.ndarray, face_area: np.ndarray,
-                    weights: MergeWeights | None = None) -> float:
+                    weights: MergeWeights | None = None, *, unit: np.ndarray | None = None,
+                    bends: tuple | None = None) -> float:
     """The cost of the cheapest merge left among the parts of ``labels`` [F] (inf when no two
     parts are adjacent): what going from k = (its part count) to k - 1 parts would cost. k auto
-    reads it: a large one means the parts are worth keeping apart. features [F, n], face_area [F]."""
+    reads it: a large one means the parts are worth keeping apart. features [F, n], face_area [F];
+    unit, bends : as :func:`merge_parts` takes them."""
     weights = MergeWeights() if weights is None else weights
-    graph = region_graph(labels, dual, features, face_area, weights.crease_angle)
+    graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends)
     if graph.n_parts < 2:
         return float("inf")
     return float(merge_costs(graph, weights, graph.n_parts).min())
 
 
-def partition_cost(labels: np.ndarray, features: np.ndarray) -> float:
+def partition_cost(labels: np.ndarray, features: np.ndarray, *, unit: np.ndarray | None = None) -> float:
     """Spherical k-means cost Σ_f (1 - cos(x_f, c_p)) of a given partition, each part's center
     c_p the normalized sum of its unit feature rows (the optimal one): the k-means objective
     of the merged parts, comparable across k (k auto reads it). Faces labelled < 0 are left out.
-    labels : [F]; features : [F, n]."""
+    labels : [F]; features : [F, n]; unit : :func:`unit_rows` (features) if at hand."""
     labels = np.asarray(labels)
     keep = labels >= 0
-    x = np.asarray(features, dtype=np.float64)[keep]
-    norm = np.linalg.norm(x, axis=1, keepdims=True)
-    unit = np.divide(x, norm, out=np.zeros_like(x), where=norm > 0)
-    lab, n_parts = compact_labels(labels[keep])
+    every = bool(keep.all())               # the usual case: no subset copies
+    if unit is None:
+        x = np.asarray(features, dtype=np.float64)
+        unit = unit_rows(x if every else x[keep])
+    elif not every:
+        unit = unit[keep]
+    lab, n_parts = compact_labels(labels if every else labels[keep])
     centers = group_sums(lab, unit, n_parts)
     centers /= np.maximum(np.linalg.norm(centers, axis=1, keepdims=True), 1e-300)
     return float(np.sum(1.0 - np.einsum("ij,ij->i", unit, centers[lab])))
@@ -288,5 +315,5 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     return out
 
 
-__all__ = ["MergeWeights", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
+__all__ = ["MergeWeights", "unit_rows", "boundary_bends", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
            "greedy_merge", "merge_parts"]

@@ -38,3 +38,23 @@ def piece_neighbours(piece: np.ndarray, labels: np.ndarray, adjacency: np.ndarra
             d = out.setdefault(p, {})
             d[lab] = d.get(lab, 0) + 1
     return out
+
+
+def piece_label_counts(piece: np.ndarray, labels: np.ndarray, adjacency: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`piece_neighbours` as arrays: (piece [M], neighbouring label [M], shared edges [M],
+    first [M]) for each distinct (piece, label) pair, ordered by piece then label. ``first`` is
+    the pair's rank in the order piece_neighbours inserts its dict keys (the edges' a-sides
+    first, then their b-sides, each in edge order), so ties can be broken as a max over that
+    dict would break them."""
+    a, b = adjacency[:, 0], adjacency[:, 1]
+    cross = piece[a] != piece[b]
+    p = np.r_[piece[a][cross], piece[b][cross]].astype(np.int64)
+    lab = np.r_[labels[b][cross], labels[a][cross]].astype(np.int64)
+    if len(p) == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty, empty, empty
+    span = int(lab.max()) - int(lab.min()) + 1
+    key = p * span + (lab - lab.min())
+    uniq, first, counts = np.unique(key, return_index=True, return_counts=True)
+    return uniq // span, uniq % span + lab.min(), counts, first
