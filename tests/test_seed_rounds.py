@@ -118,7 +118,12 @@ def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
         assert float(km.cost[0]) == float(km.restart_costs[0].min())
     second = [r.meshes[0].labels.copy() for r in segment_rounds(blob_fields, [[2, 3, 4]], opts)]
     assert all((a == b).all() for a, b in zip(first, second))
-    # off (the default): no init, kmeans_restarts every round
+    # off: no init, kmeans_restarts every round
+    calls.clear()
+    list(segment_rounds(blob_fields, [[2, 3]], SegmentOptions(refine=False, graphcut=None, kmeans_seeded_restarts=0)))
+    assert [(c[0], c[1]) for c in calls] == [(SegmentOptions().kmeans_restarts, None)] * 2
+    # the default
     calls.clear()
     list(segment_rounds(blob_fields, [[2, 3]], SegmentOptions(refine=False, graphcut=None)))
-    assert [(c[0], c[1]) for c in calls] == [(SegmentOptions().kmeans_restarts, None)] * 2
+    assert [c[0] for c in calls] == [SegmentOptions().kmeans_restarts, engine_mod.KMEANS_SEEDED_RESTARTS]
+    assert calls[1][1][0] is not None

@@ -78,6 +78,16 @@ AKVF_TOL = akvf.__kwdefaults__["tol"]
 KMEANS_MAX_ITER = 15
 
 
+#: Restarts of a mesh's k-means rounds after its first (0: every round from scratch with
+#: kmeans_restarts): one k-means++ start and, last, a warm start from the centroids (in the
+#: round's features) of the mesh's previous round's clusters, the new clusters k-means++
+#: (issue 13). On 30 PSB meshes (2 per labelled category; benchmarks/results/seed_rounds.md),
+#: same run: segment stage 0.86-0.89x of from-scratch, its k-means 0.50x; the warm start is the
+#: restart kept in 50 of 89 rounds; 1-RI 0.1381 against 0.1373 (3 restarts: 0.1384; 1, the warm
+#: start alone: costs up to 16% higher).
+KMEANS_SEEDED_RESTARTS = 2
+
+
 #: Untangled fields per part wanted, by method, before the clamp to [16, 32]. "paper": the
 #: paper's N = 2k. "merge": 3k, since its k-means makes k' = 3k clusters (at most k + 16) from
 #: them. On the 15 labelled PSB categories (benchmarks/results/quality_v3.md; former merge
@@ -175,10 +185,10 @@ class SegmentOptions:
     kmeans_restarts: int = KMEANS_RESTARTS
     #: Lloyd iterations per precision phase of each clustering (:data:`KMEANS_MAX_ITER`)
     kmeans_max_iter: int = KMEANS_MAX_ITER
-    #: 0 (off): every round's k-means starts from scratch (kmeans_restarts k-means++ starts).
-    #: m >= 1: a mesh's rounds after its first run m restarts, the last of them seeded from its
-    #: previous round's clustering (:func:`segment_rounds`; benchmarks/results/seed_rounds.md)
-    kmeans_seeded_restarts: int = 0
+    #: k-means restarts of a mesh's rounds after its first, the last of them seeded from its
+    #: previous round's clustering (:data:`KMEANS_SEEDED_RESTARTS`); 0: every round from
+    #: scratch with kmeans_restarts k-means++ starts (:func:`segment_rounds`)
+    kmeans_seeded_restarts: int = KMEANS_SEEDED_RESTARTS
     untangle_restarts: int = UNTANGLE_RESTARTS
     boundary: str = "isoline"
     min_part_fraction: float = 0.01
@@ -549,4 +559,4 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
            "field_counts", "akvf_count", "graphcut_option", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
-           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "SPARE_FIELDS", "FIELDS_PER_PART", "PAD_K", "AKVF_TOL"]
+           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "KMEANS_SEEDED_RESTARTS", "SPARE_FIELDS", "FIELDS_PER_PART", "PAD_K", "AKVF_TOL"]
