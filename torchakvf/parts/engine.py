@@ -79,13 +79,15 @@ KMEANS_MAX_ITER = 15
 
 
 #: Restarts of a mesh's k-means rounds after its first (0: every round from scratch with
-#: kmeans_restarts): one k-means++ start and, last, a warm start from the centroids (in the
+#: kmeans_restarts). 2 was measured: one k-means++ start and, last, a warm start from the centroids (in the
 #: round's features) of the mesh's previous round's clusters, the new clusters k-means++
 #: (issue 13). On 30 PSB meshes (2 per labelled category; benchmarks/results/seed_rounds.md),
 #: same run: segment stage 0.86-0.89x of from-scratch, its k-means 0.50x; the warm start is the
 #: restart kept in 50 of 89 rounds; 1-RI 0.1381 against 0.1373 (3 restarts: 0.1384; 1, the warm
-#: start alone: costs up to 16% higher).
-KMEANS_SEEDED_RESTARTS = 2
+#: start alone: costs up to 16% higher). Off (0) by default: with it, a mesh's clustering at k
+#: depends on its earlier k's, so segment_each_k no longer equals segment at each k alone
+#: (tests/test_segmentation.py::test_segment_each_k_equals_segment_per_k).
+KMEANS_SEEDED_RESTARTS = 0
 
 
 #: Untangled fields per part wanted, by method, before the clamp to [16, 32]. "paper": the
