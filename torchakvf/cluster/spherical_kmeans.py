@@ -31,7 +31,7 @@ class KMeansResult:
 
 def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 20,
                      max_iter: int = 100, seed: int = 0, weights: torch.Tensor | None = None,
-                     iteration_dtype: torch.dtype = torch.float32) -> KMeansResult:
+                     iteration_dtype: torch.dtype = torch.float32, init=None) -> KMeansResult:
     """Cluster the rows of each mesh by cosine similarity.
 
     x : [B, N_max, d] padded feature rows (normalized here); mask : [B, N_max] bool
@@ -45,6 +45,11 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         float32 ones stopped until no label changes, so the partition returned is a float64
         fixed point; seeding, cluster sums, the final assignment and the cost that picks the
         restart are float64. tests/test_precision.py checks float32 against float64.
+    init : optional [B] list, each None or a [j_b, d] tensor of 1 <= j_b <= k_b seed centers
+        (normalized here) for mesh b: its LAST restart starts from them, the other k_b - j_b
+        centers chosen k-means++-style (given the seeds) with that restart's own draws; the
+        other restarts, and meshes with None, are seeded as without ``init``. E.g. the previous
+        k's clustering of the same mesh (:func:`~torchakvf.parts.engine.segment_rounds`).
     """
     nb, n_max, d = x.shape
     ks = [int(k)] * nb if isinstance(k, numbers.Integral) else [int(v) for v in k]
@@ -68,6 +73,14 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         draws[b, :, :ks[b]] = torch.rand(r, ks[b], generator=torch.Generator().manual_seed(seed), dtype=dt)
     draws = draws.to(dev)                                                          # [B, R, k_max]
     centers = _kmeanspp(x, w, draws, center_ok)                                    # [B, R, k_max, d]
+    if init is not None:
+        if len(init) != nb:
+            raise ParameterError(f"init has {len(init)} entries for {nb} meshes")
+        for b, seeds in enumerate(init):
+            if seeds is not None:
+                end = int(torch.nonzero(mask[b]).max()) + 1   # the same rows in any batch
+                centers[b, r - 1, :ks[b]] = _kmeanspp_from(x[b, :end], w[b, :end], seeds,
+                                                           draws[b, r - 1, :ks[b]], b)
 
     if dev.type == "cpu":
         # On CPU each mesh iterates alone with its own k: no padded centers (computed, masked and
@@ -284,6 +297,36 @@ def _lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_
     del sim_buf, x_it
     labels, cost = _final_assignment(x, w, centers, absent if ragged else None)
     return labels, cost, iters, centers
+
+
+def _kmeanspp_from(x: torch.Tensor, w: torch.Tensor, seeds: torch.Tensor, u: torch.Tensor,
+                   b: int) -> torch.Tensor:
+    """One mesh's k centers: the given seeds, then k-means++ draws for the rest.
+
+    x : [N, d] unit rows (0 on padding); w : [N] weights; seeds : [j, d] (normalized here,
+    1 <= j <= k); u : [k] uniforms (u[c] picks center c, so u[:j] go unused).
+    Returns [k, d]: the seeds, then rows drawn with probability ∝ weight · (1 - cos to the
+    nearest center so far)^2 (uniform over the rows of positive weight where that is 0).
+    """
+    k = len(u)
+    if seeds.dim() != 2 or seeds.shape[1] != x.shape[1] or not 1 <= len(seeds) <= k:
+        raise ParameterError(f"init of mesh {b} must be [j, {x.shape[1]}] with 1 <= j <= {k}, "
+                             f"got {list(seeds.shape)}")
+    seeds = torch.nn.functional.normalize(seeds.to(x.dtype).to(x.device), dim=-1)
+    out = x.new_zeros(k, x.shape[1])
+    out[:len(seeds)] = seeds
+    nearest = (1 - x @ seeds.T).min(dim=1).values                                  # [N]
+    for c in range(len(seeds), k):
+        prob = w * nearest.clamp(min=0) ** 2
+        cdf = prob.cumsum(0)
+        if float(cdf[-1]) > 0:
+            pick = int(torch.searchsorted(cdf, (u[c] * cdf[-1]).reshape(1)).clamp(max=len(x) - 1))
+        else:
+            valid = (w > 0).to(x.dtype).cumsum(0)
+            pick = int(torch.searchsorted(valid, (u[c] * valid[-1]).reshape(1)).clamp(max=len(x) - 1))
+        out[c] = x[pick]
+        nearest = torch.minimum(nearest, 1 - x @ out[c])
+    return out
 
 
 def _kmeanspp(x: torch.Tensor, w: torch.Tensor, u: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:

@@ -20,6 +20,7 @@ import time
 from dataclasses import dataclass, field, fields as dataclass_fields
 
 import numpy as np
+import torch
 
 from ..cluster import spherical_kmeans
 from ..errors import ParameterError
@@ -75,6 +76,18 @@ AKVF_TOL = akvf.__kwdefaults__["tol"]
 #: 0.1410); restarts still moving after 15 iterations creep by a few faces per iteration, and
 #: the restart kept is the lowest-cost one either way.
 KMEANS_MAX_ITER = 15
+
+
+#: Restarts of a mesh's k-means rounds after its first (0: every round from scratch with
+#: kmeans_restarts). 2 was measured: one k-means++ start and, last, a warm start from the centroids (in the
+#: round's features) of the mesh's previous round's clusters, the new clusters k-means++
+#: (issue 13). On 30 PSB meshes (2 per labelled category; benchmarks/results/seed_rounds.md),
+#: same run: segment stage 0.86-0.89x of from-scratch, its k-means 0.50x; the warm start is the
+#: restart kept in 50 of 89 rounds; 1-RI 0.1381 against 0.1373 (3 restarts: 0.1384; 1, the warm
+#: start alone: costs up to 16% higher). Off (0) by default: with it, a mesh's clustering at k
+#: depends on its earlier k's, so segment_each_k no longer equals segment at each k alone
+#: (tests/test_segmentation.py::test_segment_each_k_equals_segment_per_k).
+KMEANS_SEEDED_RESTARTS = 0
 
 
 #: Untangled fields per part wanted, by method, before the clamp to [16, 32]. "paper": the
@@ -174,6 +187,10 @@ class SegmentOptions:
     kmeans_restarts: int = KMEANS_RESTARTS
     #: Lloyd iterations per precision phase of each clustering (:data:`KMEANS_MAX_ITER`)
     kmeans_max_iter: int = KMEANS_MAX_ITER
+    #: k-means restarts of a mesh's rounds after its first, the last of them seeded from its
+    #: previous round's clustering (:data:`KMEANS_SEEDED_RESTARTS`); 0: every round from
+    #: scratch with kmeans_restarts k-means++ starts (:func:`segment_rounds`)
+    kmeans_seeded_restarts: int = KMEANS_SEEDED_RESTARTS
     untangle_restarts: int = UNTANGLE_RESTARTS
     boundary: str = "isoline"
     min_part_fraction: float = 0.01
@@ -194,6 +211,9 @@ class SegmentOptions:
             raise ParameterError(f"eps must be >= 0, got {self.eps!r}")
         if not (isinstance(self.kmeans_max_iter, (int, np.integer)) and self.kmeans_max_iter >= 1):
             raise ParameterError(f"kmeans_max_iter must be an integer >= 1, got {self.kmeans_max_iter!r}")
+        if not (isinstance(self.kmeans_seeded_restarts, (int, np.integer)) and self.kmeans_seeded_restarts >= 0):
+            raise ParameterError(f"kmeans_seeded_restarts must be an integer >= 0, "
+                                 f"got {self.kmeans_seeded_restarts!r}")
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
@@ -386,6 +406,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
     rotations = {}      # (mesh, n) -> MeshRotation: a mesh is untangled once per field count
     assembled = {}      # tuple of per-mesh counts -> UntangledFields shared by the rounds that agree
     mesh_caches = [{} for _ in range(nb)]
+    prev_labels = [None] * nb   # kmeans_seeded_restarts: each mesh's k-means labels of its last round
     if untangled is not None:
         assembled[tuple(int(v) for v in untangled.n_fields)] = untangled
     for r in range(max(len(kb) for kb in ks)):
@@ -404,13 +425,48 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
         n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
         km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
-        km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed,
-                              max_iter=opts.kmeans_max_iter)
+        if opts.kmeans_seeded_restarts and r > 0:
+            # Warm start: each active mesh's last restart begins at the centroids, in this
+            # round's features, of its previous round's clusters (the extra clusters k-means++).
+            init = [previous_centroids(xpad[b], mask[b], prev_labels[b], km_ks[b]) if b in active else None
+                    for b in range(nb)]
+            km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_seeded_restarts, seed=opts.seed,
+                                  max_iter=opts.kmeans_max_iter, init=init)
+        else:
+            km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed,
+                                  max_iter=opts.kmeans_max_iter)
+        if opts.kmeans_seeded_restarts:
+            for b in active:
+                prev_labels[b] = km.labels[b]
         meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
                   if b in active else None for b in range(nb)]
         t2 = time.perf_counter()
         yield KRound(ks=round_ks, active=active, meshes=meshes, untangled=unt,
                      seconds={"untangle": t1 - t0, "cluster": t2 - t1})
+
+
+def previous_centroids(x: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor, k: int) -> torch.Tensor | None:
+    """Seed centers for one mesh from a previous clustering of its rows.
+
+    x : [N_max, d] padded feature rows (this round's); mask : [N_max]; labels : [N_max] the
+    previous round's cluster of each row (-1 on padding); k : clusters of this round.
+    Returns [j, d] unit centroids (rows normalized, then summed per cluster: spherical k-means'
+    center of the cluster) of the previous clusters that are not empty, the heaviest k of them
+    if there are more (the k's of a mesh need not be ascending), or None if there are none.
+    """
+    xn = torch.nn.functional.normalize(x.double(), dim=-1)
+    keep = mask & (labels >= 0)
+    lab = labels[keep]
+    if len(lab) == 0:
+        return None
+    sums = xn.new_zeros(int(lab.max()) + 1, x.shape[1]).index_add_(0, lab, xn[keep])
+    norm = sums.norm(dim=-1)
+    ok = torch.nonzero(norm > 0).reshape(-1)
+    if len(ok) == 0:
+        return None
+    if len(ok) > k:
+        ok = ok[torch.argsort(-norm[ok], stable=True)[:k]].sort().values
+    return sums[ok] / norm[ok, None]
 
 
 def _round_untangled(fields: AKVFResult, ns: list, active: list, rotations: dict, assembled: dict,
@@ -516,4 +572,4 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
            "field_counts", "akvf_count", "graphcut_option", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
-           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "SPARE_FIELDS", "FIELDS_PER_PART", "PAD_K", "AKVF_TOL"]
+           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "KMEANS_SEEDED_RESTARTS", "SPARE_FIELDS", "FIELDS_PER_PART", "PAD_K", "AKVF_TOL"]
