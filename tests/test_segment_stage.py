@@ -137,8 +137,10 @@ def test_iteration_caps_are_recorded_options(fields):
         engine.SegmentOptions(kmeans_max_iter=0)
     with pytest.raises(ta.errors.ParameterError, match="cycles"):
         GraphCut(cycles=0)
-    opts = engine.SegmentOptions(seed=0, refine=False, kmeans_max_iter=7, graphcut=GraphCut(cycles=3))
+    opts = engine.SegmentOptions(seed=0, refine=False, kmeans_max_iter=7, graphcut=GraphCut(cycles=3),
+                                 kmeans_seeded_restarts=1)
     rnd = next(engine.segment_rounds(fields, [[3], [3]], opts))
     params = rnd.meshes[0].params
     assert params["kmeans_max_iter"] == 7 and params["graphcut_cycles"] == 3.0
+    assert params["kmeans_seeded_restarts"] == 1
     assert "kmeans_max_iter" in engine.SegmentOptions.names()
