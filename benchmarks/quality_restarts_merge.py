@@ -91,8 +91,6 @@ def main():
     ap.add_argument("--restarts", default="5,3,2")
     ap.add_argument("--per-category", type=int, default=4)
     ap.add_argument("--no-share-akvf", action="store_true")
-    ap.add_argument("--paper", action="store_true", help="also run the paper mode (5 restarts) last, "
-                    "as the time budget's reference")
     ap.add_argument("--json", default="benchmarks/results/quality_restarts_merge.json")
     a = ap.parse_args()
     torch.set_num_threads(1)
@@ -113,16 +111,6 @@ def main():
         print(r, json.dumps(res[f"{i}_R{r}"]), flush=True)
         Path(a.json).write_text(json.dumps({"ids": ids, "results": res}, indent=1))
     # a restart count run twice: the fold view shows its last run
-    if a.paper:
-        clock.akvf = clock.segment = 0.0
-        t0, w0 = time.process_time(), time.perf_counter()
-        s = H.evaluate_psb(P.default_psb_root(), Path(a.out) / "paper", ids=ids, metrics="rand", workers=1,
-                           plot=False, progress=False, coarse_faces=4000, method="paper", kmeans_restarts=5)
-        res["paper_R5"] = {"overall": s.overall_categories["rand_index_error"], "cpu_total": time.process_time() - t0,
-                           "cpu_akvf": clock.akvf, "cpu_segment": clock.segment, "wall": time.perf_counter() - w0,
-                           "per_category": {c: v["rand_index_error"] for c, v in s.per_category.items()}}
-        print("paper", json.dumps(res["paper_R5"]), flush=True)
-        Path(a.json).write_text(json.dumps({"ids": ids, "results": res}, indent=1))
     per_cat = {r: res[f"{i}_R{r}"]["per_category"] for i, r in enumerate(configs)}
     print("\n".join(folds_view(per_cat, list(dict.fromkeys(configs)), configs[0])))
 
