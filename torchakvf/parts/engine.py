@@ -202,8 +202,8 @@ class SegmentOptions:
             raise ParameterError(f"eps must be >= 0, got {self.eps!r}")
         if self.kmeans_restarts is None:
             object.__setattr__(self, "kmeans_restarts", KMEANS_RESTARTS_BY_METHOD[self.method])
-        if not (isinstance(self.kmeans_restarts, (int, np.integer)) and not isinstance(self.kmeans_restarts, (bool, np.bool_))
-                and self.kmeans_restarts >= 1):
+        r = self.kmeans_restarts
+        if not (isinstance(r, (int, np.integer)) and not isinstance(r, (bool, np.bool_)) and r >= 1):
             raise ParameterError(f"kmeans_restarts must be an integer >= 1, got {self.kmeans_restarts!r}")
         object.__setattr__(self, "kmeans_restarts", int(self.kmeans_restarts))
         if not (isinstance(self.kmeans_max_iter, (int, np.integer)) and self.kmeans_max_iter >= 1):
