@@ -144,3 +144,30 @@ def test_iteration_caps_are_recorded_options(fields):
     assert params["kmeans_max_iter"] == 7 and params["graphcut_cycles"] == 3.0
     assert params["kmeans_seeded_restarts"] == 1
     assert "kmeans_max_iter" in engine.SegmentOptions.names()
+
+
+def test_kmeans_restarts_default_by_method(fields, monkeypatch):
+    """kmeans_restarts None resolves to the method's default (merge 3, paper 5), an explicit
+    count is kept, bad ones are refused, and the int used is what each segmentation records."""
+    assert engine.KMEANS_RESTARTS_BY_METHOD == {"paper": 5, "merge": 3}
+    assert engine.SegmentOptions().kmeans_restarts == 3                   # default method: merge
+    assert engine.SegmentOptions(method="paper").kmeans_restarts == 5
+    assert engine.SegmentOptions(method="paper", kmeans_restarts=np.int64(2)).kmeans_restarts == 2
+    for bad in (0, 2.5, True):
+        with pytest.raises(ta.errors.ParameterError, match="kmeans_restarts"):
+            engine.SegmentOptions(kmeans_restarts=bad)
+    used = []
+    real = engine.spherical_kmeans
+
+    def spy(*args, restarts, **kw):
+        used.append(restarts)
+        return real(*args, restarts=restarts, **kw)
+
+    monkeypatch.setattr(engine, "spherical_kmeans", spy)
+    for method, want in (("merge", 3), ("paper", 5)):
+        rnd = next(engine.segment_rounds(fields, [[3], [3]], engine.SegmentOptions(method=method, refine=False)))
+        assert used[-1] == want
+        rec = rnd.meshes[0].params["kmeans_restarts"]
+        assert rec == want and type(rec) is int
+    seg = ta.segment(fields, 3, refine=False)                             # segment's default: None
+    assert used[-1] == 3 and seg.meshes[0].params["kmeans_restarts"] == 3

@@ -57,8 +57,14 @@ UNTANGLE_RESTARTS = 1
 #: indices (many near-equal local optima), and the PSB score does not move with the count beyond
 #: k-means' own noise (~0.005 of 1-RI): 60 meshes, 20 -> 5 / 3 restarts 0.1729 -> 0.1710 / 0.1715
 #: (segment_profile.md); over-segmentations at 3k, 20 -> 5 restarts 0.1587 -> 0.1557
-#: (quality_v2_restarts.md). It was 20.
+#: (quality_v2_restarts.md). It was 20. The paper mode's default (:data:`KMEANS_RESTARTS_BY_METHOD`).
 KMEANS_RESTARTS = 5
+#: k-means++ restarts by method when SegmentOptions.kmeans_restarts is None. "merge": 3, since its
+#: over-segmentation into 3k is merged afterwards: 60 PSB meshes (20c+1..20c+4 of the 15 labelled
+#: categories, eval harness, coarse 4000) 5 / 3 / 2 restarts 1-RI 0.1444 / 0.1433 / 0.1457, 3
+#: chosen on every cross-validation fold's other two folds (held-out vs 5: -0.0009, -0.0034,
+#: +0.0009); segment-stage CPU 158.0 / 138.4 / 131.7 s (benchmarks/results/quality_restarts_merge.md).
+KMEANS_RESTARTS_BY_METHOD = {"paper": KMEANS_RESTARTS, "merge": 3}
 #: Eigenvalues closer than this (relative) belong to one cluster, which N must not split.
 CLUSTER_GAP = 1e-2
 #: AKVFs computed beyond the default N when the engine solves them itself, so that a degenerate
@@ -184,7 +190,9 @@ class SegmentOptions:
     solver: str = "auto"
     method: str = DEFAULT_METHOD
     merge: MergeWeights = field(default_factory=MergeWeights)
-    kmeans_restarts: int = KMEANS_RESTARTS
+    #: None = the method's default (:data:`KMEANS_RESTARTS_BY_METHOD`), resolved on construction
+    #: (the recorded value, ``params["kmeans_restarts"]``, is the int used)
+    kmeans_restarts: int | None = None
     #: Lloyd iterations per precision phase of each clustering (:data:`KMEANS_MAX_ITER`)
     kmeans_max_iter: int = KMEANS_MAX_ITER
     #: k-means restarts of a mesh's rounds after its first, the last of them seeded from its
@@ -209,6 +217,12 @@ class SegmentOptions:
             raise ParameterError(f"method must be one of {METHODS}, got {self.method!r}")
         if not (self.eps >= 0):
             raise ParameterError(f"eps must be >= 0, got {self.eps!r}")
+        if self.kmeans_restarts is None:
+            object.__setattr__(self, "kmeans_restarts", KMEANS_RESTARTS_BY_METHOD[self.method])
+        r = self.kmeans_restarts
+        if not (isinstance(r, (int, np.integer)) and not isinstance(r, (bool, np.bool_)) and r >= 1):
+            raise ParameterError(f"kmeans_restarts must be an integer >= 1, got {self.kmeans_restarts!r}")
+        object.__setattr__(self, "kmeans_restarts", int(self.kmeans_restarts))
         if not (isinstance(self.kmeans_max_iter, (int, np.integer)) and self.kmeans_max_iter >= 1):
             raise ParameterError(f"kmeans_max_iter must be an integer >= 1, got {self.kmeans_max_iter!r}")
         if not (isinstance(self.kmeans_seeded_restarts, (int, np.integer)) and self.kmeans_seeded_restarts >= 0):
@@ -524,7 +538,7 @@ class SegmentEachK:
 def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None,
                    remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = DEFAULT_METHOD,
                    merge: MergeWeights | None = None,
-                   kmeans_restarts: int = KMEANS_RESTARTS, untangle_restarts: int = UNTANGLE_RESTARTS,
+                   kmeans_restarts: int | None = None, untangle_restarts: int = UNTANGLE_RESTARTS,
                    boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
                    coarse_faces: int | None = None, device=None, n_akvf: int | None = None,
                    untangled: UntangledFields | None = None, graphcut=True) -> SegmentEachK:
@@ -572,4 +586,5 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
            "field_counts", "akvf_count", "graphcut_option", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
-           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "KMEANS_SEEDED_RESTARTS", "SPARE_FIELDS", "FIELDS_PER_PART", "PAD_K", "AKVF_TOL"]
+           "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "KMEANS_RESTARTS_BY_METHOD", "KMEANS_SEEDED_RESTARTS", "SPARE_FIELDS",
+           "FIELDS_PER_PART", "PAD_K", "AKVF_TOL"]

@@ -20,7 +20,7 @@ from .results import MeshSegmentation, Segmentation
 def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
             remedy: str = DEFAULT_REMEDY, solver: str = "auto", method: str = DEFAULT_METHOD,
             merge: MergeWeights | None = None,
-            kmeans_restarts: int = KMEANS_RESTARTS, untangle_restarts: int = UNTANGLE_RESTARTS,
+            kmeans_restarts: int | None = None, untangle_restarts: int = UNTANGLE_RESTARTS,
             boundary: str = "isoline", min_part_fraction: float = 0.01, refine: bool = True,
             untangled: UntangledFields | None = None, coarse_faces: int | None = None,
             device=None, graphcut=True) -> Segmentation:
@@ -50,7 +50,8 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
         alpha-expansion graph cut on the dual graph (:mod:`torchakvf.parts.graphcut`): True (the
         default, cross-validated on the PSB), False (off), or a
         :class:`~torchakvf.parts.graphcut.GraphCut` with other parameters
-    kmeans_restarts, untangle_restarts : random restarts (the best is kept)
+    kmeans_restarts, untangle_restarts : random restarts (the best is kept); kmeans_restarts
+        None: the method's default (engine.KMEANS_RESTARTS_BY_METHOD: paper 5, merge 3)
     boundary : "isoline" (labels from the g_ij = 0 isolines of vertex-averaged features,
         smooth part boundaries) or "faces" (raw k-means labels)
     min_part_fraction : connected pieces of a part below this fraction of the area are

@@ -16,7 +16,7 @@ from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
 from .batches import require_edges
-from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, KMEANS_RESTARTS, SPARE_FIELDS, UNTANGLE_RESTARTS,
+from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, SPARE_FIELDS, UNTANGLE_RESTARTS,
                             SegmentOptions, default_n_fields, graphcut_option, segment_each_k)
 
 
@@ -37,20 +37,20 @@ class SegmentTask:
 
     def __init__(self, k: int, *, eps: float = 0.0, seed: int = 0, n_fields: int | None = None,
                  remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = UNTANGLE_RESTARTS,
-                 kmeans_restarts: int = KMEANS_RESTARTS, coarse_faces: int | None = None, solver: str = "auto",
+                 kmeans_restarts: int | None = None, coarse_faces: int | None = None, solver: str = "auto",
                  method: str = DEFAULT_METHOD, graphcut: bool = True):
         self.k, self.eps, self.seed = int(k), float(eps), int(seed)
         self.solver, self.method, self.graphcut = str(solver), str(method), bool(graphcut)
         # one-line errors before any work; the options' merge weights and graph cut are
         # recorded in params, so a run resumed under other defaults redoes its meshes
         self.options = SegmentOptions(eps=self.eps, solver=self.solver, method=self.method,
-                                      graphcut=graphcut_option(self.graphcut))
+                                      graphcut=graphcut_option(self.graphcut), kmeans_restarts=kmeans_restarts)
         # None: segment's own choice (2k in [16, 32], 3k with method "merge", moved off degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
         self.n_fields = int(n_fields) if n_fields is not None else None
         self.n_akvf = self.n_fields if n_fields is not None else default_n_fields(self.k, self.method) + SPARE_FIELDS
         self.remedy, self.formats = remedy, tuple(formats)
-        self.untangle_restarts, self.kmeans_restarts = int(untangle_restarts), int(kmeans_restarts)
+        self.untangle_restarts, self.kmeans_restarts = int(untangle_restarts), self.options.kmeans_restarts
         # Solve on meshes decimated to about this many faces (None: full resolution); the
         # labels are cut on the input's faces either way (torchakvf.mesh.coarse).
         self.coarse_faces = int(coarse_faces) if coarse_faces else None
