@@ -45,8 +45,8 @@ class MergeWeights:
     two over-segmentations of the same meshes (k-means with 20 and with 5 restarts), because one
     alone moves 1-RI by ~0.005: ratio 3 with these terms scored 0.1535 / 0.1552 against 0.1651 /
     0.1562 for the former default terms (ratio 2 former default: 0.173); the k-means restarts
-    are SegmentOptions.kmeans_restarts (5: 3k clusters x 5 restarts cost about what k x 20 did,
-    so the stage stays within its time budget). ``size``
+    are SegmentOptions.kmeans_restarts (5 then; 3 since 2026-12-02, engine.KMEANS_RESTARTS_BY_METHOD,
+    benchmarks/results/quality_restarts_merge.md). ``size``
     (share of the whole surface) and ``part_size`` never helped robustly; kept for ablations.
 
     v3 (benchmarks/results/quality_v3.md): with the merge method's fields at 3k (engine.
