@@ -24,13 +24,14 @@ import cProfile
 import pstats
 import time
 
-import numpy as np
 import torch
 
 from torchakvf.evaluate import psb as P
 from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch
 from torchakvf.parts import engine as new_engine
+
+from segment_compare_common import AnswerComparison, segment_answers
 
 #: functions whose process CPU time is reported per side (file suffix, function name)
 WATCHED = [("untangle.py", "orthomax_rotations"), ("untangle.py", "_orthomax"),
@@ -42,20 +43,6 @@ WATCHED = [("untangle.py", "orthomax_rotations"), ("untangle.py", "_orthomax"),
            ("~", "<built-in method torch._C._linalg.linalg_svd>"),
            ("~", "<method 'max' of 'torch._C.TensorBase' objects>"),
            ("~", "<method 'index_add_' of 'torch._C.TensorBase' objects>")]
-
-
-def run(eng, fields, ks, method, prof=None):
-    opts = eng.SegmentOptions(refine=False, method=method)
-    t0 = time.process_time()
-    if prof is not None:
-        prof.enable()
-    out = {}
-    for rnd in eng.segment_rounds(fields, [ks], opts):
-        m = rnd.meshes[0]
-        out[rnd.ks[0]] = (np.asarray(m.labels).copy(), float(m.cost))
-    if prof is not None:
-        prof.disable()
-    return out, time.process_time() - t0
 
 
 def watched_table(stats: dict) -> list[str]:
@@ -80,7 +67,7 @@ def main():
     engines = {"base": base_engine, "new": new_engine}
     secs = {"base": 0.0, "new": 0.0}
     profs = {name: cProfile.Profile(time.process_time) if a.profile else None for name in engines}
-    same = total = same_cost = 0
+    comparison = AnswerComparison()
     for j, i in enumerate(int(v) for v in a.ids.split(",")):
         e = ents[i]
         ks = sorted(set(P.human_segment_counts(e)))
@@ -88,19 +75,15 @@ def main():
         fields, _ = new_engine.solve_akvfs(mb, 36, new_engine.SegmentOptions(refine=False, method=a.method))
         res = {}
         for name in (["base", "new"] if j % 2 == 0 else ["new", "base"]):
-            res[name], s = run(engines[name], fields, ks, a.method, profs[name])
+            res[name], s = segment_answers(engines[name], fields, [ks],
+                                           engines[name].SegmentOptions(refine=False, method=a.method), profs[name])
             secs[name] += s
-        for k, (lab, cost) in res["base"].items():
-            lab2, cost2 = res["new"][k]
-            total += 1
-            same += bool(np.array_equal(lab, lab2))
-            same_cost += cost == cost2
-            if not np.array_equal(lab, lab2):
-                print(f"  mesh {i} k {k}: labels differ on {np.mean(lab != lab2):.4f} of faces", flush=True)
+        for d in comparison.add(res["base"], res["new"]):
+            print(f"  mesh {i} k {d.key[1]}: labels differ on {d.changed:.4f} of faces", flush=True)
         print(f"mesh {i} ks {ks}: base {secs['base']:.2f}s new {secs['new']:.2f}s", flush=True)
     print(f"TOTAL method {a.method}: base {secs['base']:.2f}s new {secs['new']:.2f}s "
-          f"ratio {secs['base'] / secs['new']:.3f}x; labels identical {same}/{total}, "
-          f"costs identical {same_cost}/{total}")
+          f"ratio {secs['base'] / secs['new']:.3f}x; labels identical {comparison.same_labels}/{comparison.total}, "
+          f"costs identical {comparison.same_cost}/{comparison.total}")
     if a.profile:
         for name, prof in profs.items():
             print(f"\n{name}: | function | calls | tottime s | cumtime s |")

@@ -24,7 +24,6 @@ import io
 import pstats
 import time
 
-import numpy as np
 import torch
 
 from torchakvf.evaluate import psb as P
@@ -32,25 +31,13 @@ from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch
 from torchakvf.parts import engine as new_engine
 
+from segment_compare_common import AnswerComparison, segment_answers
+
 #: Functions whose per-call cost the report lists (cumulative process CPU seconds).
 WATCH = ("segment_rounds", "_round_untangled", "spherical_kmeans", "cut_parts", "graphcut_labels", "potts_expansion", "expansion", "allowed_labels", "merge_parts",
          "region_graph", "greedy_merge", "next_merge_cost", "partition_cost", "remove_small_parts",
          "piece_neighbours", "labelled_pieces", "merged_distances", "part_generators", "barycenter_values",
          "isoline_face_labels", "vertex_distances")
-
-
-def run(eng, fields, ks, method: str, prof=None):
-    opts = eng.SegmentOptions(refine=False) if method == "merge" else eng.SegmentOptions(refine=False, method="paper")
-    t0 = time.process_time()
-    if prof is not None:
-        prof.enable()
-    out = {}
-    for rnd in eng.segment_rounds(fields, [ks], opts):
-        m = rnd.meshes[0]
-        out[rnd.ks[0]] = (np.asarray(m.labels).copy(), float(m.cost))
-    if prof is not None:
-        prof.disable()
-    return out, time.process_time() - t0
 
 
 def cumulative(prof: cProfile.Profile) -> dict:
@@ -77,7 +64,7 @@ def main():
     runs = [(side, method) for side in ("base", "new") for method in ("merge", "paper")]
     secs = {r: 0.0 for r in runs}
     profs = {r: cProfile.Profile(time.process_time) for r in runs} if a.profile else {}
-    same = {m: [0, 0, 0] for m in ("merge", "paper")}     # labels equal, costs equal, total
+    comparisons = {m: AnswerComparison() for m in ("merge", "paper")}
     for j, i in enumerate(int(v) for v in a.ids.split(",")):
         e = ents[i]
         ks = sorted(set(P.human_segment_counts(e)))
@@ -87,16 +74,12 @@ def main():
         for r in runs[j % 4:] + runs[:j % 4]:
             side, method = r
             prof = profs.get(r)
-            res[r], s = run(engines[side], fields, ks, method, prof)
+            res[r], s = segment_answers(engines[side], fields, [ks],
+                                        engines[side].SegmentOptions(refine=False, method=method), prof)
             secs[r] += s
         for method in ("merge", "paper"):
-            for k, (lab, cost) in res[("base", method)].items():
-                lab2, cost2 = res[("new", method)][k]
-                same[method][0] += bool(np.array_equal(lab, lab2))
-                same[method][1] += cost == cost2
-                same[method][2] += 1
-                if not np.array_equal(lab, lab2):
-                    print(f"  mesh {i} k {k} {method}: labels differ on {np.mean(lab != lab2):.4f} of faces", flush=True)
+            for d in comparisons[method].add(res[("base", method)], res[("new", method)]):
+                print(f"  mesh {i} k {d.key[1]} {method}: labels differ on {d.changed:.4f} of faces", flush=True)
         print(f"mesh {i} ({len(mb.meshes[0].faces)} faces) ks {ks}: "
               + " ".join(f"{s}/{m} {secs[(s, m)]:.2f}s" for s, m in runs), flush=True)
     print()
@@ -107,8 +90,9 @@ def main():
         print(f"| {side} | {mg:.2f} | {pp:.2f} | {mg / pp:.3f} |")
     for method in ("merge", "paper"):
         b, n = secs[("base", method)], secs[("new", method)]
-        lab, cost, tot = same[method]
-        print(f"{method}: base / new {b / n:.3f}x; labels identical {lab}/{tot}, costs identical {cost}/{tot}")
+        c = comparisons[method]
+        print(f"{method}: base / new {b / n:.3f}x; labels identical {c.same_labels}/{c.total}, "
+              f"costs identical {c.same_cost}/{c.total}")
     if profs:
         cum = {r: cumulative(p) for r, p in profs.items()}
         print()
