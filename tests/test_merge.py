@@ -12,6 +12,7 @@ from torchakvf import shapes
 from torchakvf.errors import ParameterError
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
+from torchakvf.parts.engine import akvf_count
 from torchakvf.parts.concavity import crease_weights, dual_edges
 from torchakvf.evaluate.k_auto import pick_k
 from torchakvf.parts.merge import (MergeWeights, RegionGraph, greedy_merge, merge_costs, merge_parts,
@@ -190,7 +191,9 @@ def failure_shapes():
     out = {}
     for s in (shapes.table(), shapes.mug()):
         m = ta.Mesh(s.vertices, s.faces, name=s.name)
-        out[s.name] = (s, ta.akvf(m, n=s.n_parts * 2 + 16, remedy="smooth"))
+        # the AKVFs segment solves for itself: the merge method's default fields of k plus spare
+        n = akvf_count([[s.n_parts]], None, "merge", MergeWeights().min_k)
+        out[s.name] = (s, ta.akvf(m, n=n, remedy="smooth"))
     return out
 
 

@@ -13,6 +13,7 @@ from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.errors import ParameterError
 from torchakvf.parts.engine import SegmentOptions, previous_centroids, segment_rounds
+from torchakvf.parts.merge import MergeWeights
 
 engine_mod = importlib.import_module("torchakvf.parts.engine")
 
@@ -110,7 +111,8 @@ def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
         return km
 
     monkeypatch.setattr(engine_mod, "spherical_kmeans", recording)
-    opts = SegmentOptions(refine=False, kmeans_seeded_restarts=3, graphcut=None)
+    # every k its own over-segmentation (min_k 1), so that every round clusters
+    opts = SegmentOptions(refine=False, kmeans_seeded_restarts=3, graphcut=None, merge=MergeWeights(min_k=1))
     first = [r.meshes[0].labels.copy() for r in segment_rounds(blob_fields, [[2, 3, 4]], opts)]
     assert [c[0] for c in calls] == [opts.kmeans_restarts, 3, 3]
     assert calls[0][1] is None and all(c[1][0] is not None for c in calls[1:])
@@ -120,6 +122,7 @@ def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
     assert all((a == b).all() for a, b in zip(first, second))
     # off: no init, kmeans_restarts every round
     calls.clear()
-    list(segment_rounds(blob_fields, [[2, 3]], SegmentOptions(refine=False, graphcut=None, kmeans_seeded_restarts=0)))
+    list(segment_rounds(blob_fields, [[2, 3]], SegmentOptions(refine=False, graphcut=None, kmeans_seeded_restarts=0,
+                                                              merge=MergeWeights(min_k=1))))
     assert [(c[0], c[1]) for c in calls] == [(SegmentOptions().kmeans_restarts, None)] * 2
     assert SegmentOptions().kmeans_seeded_restarts == engine_mod.KMEANS_SEEDED_RESTARTS == 0   # off by default

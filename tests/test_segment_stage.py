@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import torchakvf as ta
+from torchakvf.parts.merge import MergeWeights
 from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh.batch import pad_packed
@@ -90,8 +91,12 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
         return real(f, ns, **kw)
 
     monkeypatch.setattr(engine, "orthomax_rotations", spy)
-    ks = [[2, 3, 6, 7], [2, 3]]            # mesh 0: n = 16, 16, 18, 21 (3k); mesh 1 sits out rounds 3, 4
-    opts = engine.SegmentOptions(seed=0, refine=False, kmeans_restarts=4, untangle_restarts=2)
+    # every k its own field count (no floor, no rounding): mesh 0: n = 16, 16, 18, 21 (3k); mesh 1
+    # sits out rounds 3, 4
+    monkeypatch.setitem(engine.FIELDS_STEP, "merge", 1)
+    ks = [[2, 3, 6, 7], [2, 3]]
+    opts = engine.SegmentOptions(seed=0, refine=False, kmeans_restarts=4, untangle_restarts=2,
+                                 merge=MergeWeights(min_k=1))
     rounds = list(engine.segment_rounds(fields, ks, opts))
     pairs = [(b, n) for c in calls for b, n in c.items()]
     assert len(pairs) == len(set(pairs))                       # no (mesh, n) twice
@@ -99,7 +104,7 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
     assert len({id(r.untangled) for r in rounds[:2]}) == 1     # equal counts share one object
     monkeypatch.setattr(engine, "orthomax_rotations", real)
     for rnd in rounds:
-        ns = engine.field_counts(fields, rnd.ks)
+        ns = engine.field_counts(fields, rnd.ks, min_k=1)
         unt = ta.untangle(fields, n=ns, seed=0, restarts=2)
         x, mask = pad_packed(unt.features.double(), fields.batch.face_ptr)
         n_faces = (fields.batch.face_ptr[1:] - fields.batch.face_ptr[:-1]).tolist()
@@ -113,17 +118,20 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
 
 
 def test_default_field_counts_by_method(fields):
-    """The paper's N = 2k, the merge method's 3k (it clusters into about 3k), clamped to [16, 32]."""
+    """The paper's N = 2k; the merge method's 3 max(k, min_k) (it clusters into about 3k) rounded
+    up to a multiple of 8; clamped to [16, 32]."""
     assert [engine.default_n_fields(k) for k in (2, 8, 11, 20)] == [16, 16, 22, 32]
-    assert [engine.default_n_fields(k, "merge") for k in (2, 5, 6, 7, 11, 20)] == [16, 16, 18, 21, 32, 32]
+    assert [engine.default_n_fields(k, "merge", 1) for k in (2, 5, 6, 7, 9, 20)] == [16, 16, 24, 24, 32, 32]
+    assert MergeWeights().min_k == 8    # the default floor: every k <= 8 takes the 24 fields of k = 8
+    assert [engine.default_n_fields(k, "merge") for k in (2, 5, 8, 9, 20)] == [24, 24, 24, 32, 32]
     with pytest.raises(ta.errors.ParameterError, match="method"):
         engine.default_n_fields(3, "nope")
     assert engine.akvf_count([[7]], method="paper") == 16 + engine.SPARE_FIELDS
-    assert engine.akvf_count([[7]]) == 21 + engine.SPARE_FIELDS            # the default method: merge
+    assert engine.akvf_count([[7]]) == 24 + engine.SPARE_FIELDS            # the default method: merge
     lam = fields.eigenvalues.detach().cpu()
     for method in ("paper", "merge"):
         n = engine.default_n_fields(7, method)
-        want = [engine.cluster_safe_n(lam[b], n, floor=max(7, n // 2)) for b in range(2)]
+        want = [engine.cluster_safe_n(lam[b], n, floor=max(8 if method == "merge" else 7, n // 2)) for b in range(2)]
         assert engine.field_counts(fields, 7, method=method) == want
     rnd = next(engine.segment_rounds(fields, 7, engine.SegmentOptions(refine=False, kmeans_restarts=1)))
     assert [int(n) for n in rnd.untangled.n_fields] == engine.field_counts(fields, 7)

@@ -215,12 +215,16 @@ def test_segment_each_k_equals_segment_per_k():
     untangling."""
     from torchakvf.parts.engine import segment_each_k
 
+    from torchakvf.parts.engine import akvf_count
+    from torchakvf.parts.merge import MergeWeights
+
     s = shapes.three_blobs(n_around=20)
-    fields = ta.akvf(ta.Mesh(s.vertices, s.faces), n=20, remedy="smooth")
+    n = akvf_count([[4]], None, "merge", MergeWeights().min_k)   # what segment solves for itself
+    fields = ta.akvf(ta.Mesh(s.vertices, s.faces), n=n, remedy="smooth")
     fast = dict(seed=0, refine=False, kmeans_restarts=5, untangle_restarts=2)
     res = segment_each_k(fields, [[np.int64(2), 3, 4]], **fast)
     assert set(res.meshes[0]) == {2, 3, 4} and res.fields is fields
-    assert len({id(r.untangled) for r in res.rounds}) == 1       # 2k <= 16: one field count
+    assert len({id(r.untangled) for r in res.rounds}) == 1       # k <= 5: one field count
     for k in (2, 3, 4):
         alone = ta.segment(fields, k=np.int32(k), **fast)
         assert alone.untangled is not res.rounds[0].untangled

@@ -36,6 +36,7 @@ from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, as_batch
 from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, cluster_safe_n,
                             default_n_fields, segment_rounds, solve_akvfs)
+from ..parts.merge import MergeWeights
 from ..parts.results import Segmentation
 
 RULES = ("elbow", "knee", "spectrum", "merge")
@@ -45,9 +46,15 @@ DEFAULT_RULE = "merge"
 #: The "merge" rule's threshold on the cheapest merge left (units of the merge cost): chosen by
 #: 3-fold cross-validation across PSB categories (every fold chose 0.95, default merge weights).
 MERGE_TAU = 0.95
+#: The merge weights' min_k of the scan when the caller gives no ``merge``: 1, every k
+#: over-segmented on its own, as when MERGE_TAU was chosen. With the segmentation default
+#: (MergeWeights.min_k 8) the small k's of the scan are merged down from one 24-part
+#: over-segmentation and their next-merge costs read differently (a dumbbell's neck is left as
+#: a costly third part: k 3 instead of 2); that combination was not cross-validated.
+SCAN_MIN_K = 1
 DEFAULT_K_RANGE = (2, 10)
 
-__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
            "check_k_range"]
 
 
@@ -152,6 +159,8 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, seed: i
     lo, hi = check_k_range(k_range)
     if rule not in RULES:
         raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
+    if segment_kwargs.get("merge") is None:
+        segment_kwargs["merge"] = MergeWeights(min_k=SCAN_MIN_K)
     opts = SegmentOptions(seed=seed, remedy=remedy, **segment_kwargs)
     n = default_n_fields(hi) if n_fields is None else int(n_fields)
     if isinstance(meshes, AKVFResult):

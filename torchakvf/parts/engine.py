@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, fields as dataclass_fields
 import numpy as np
 import torch
 
-from ..cluster import spherical_kmeans
+from ..cluster import KMeansResult, spherical_kmeans
 from ..errors import ParameterError
 from ..fields.akvf import SOLVERS, AKVFResult, akvf, akvf_falling_back, as_batch
 from ..fields.untangle import UntangledFields, orthomax_rotations, untangled_from_rotations
@@ -105,12 +105,29 @@ KMEANS_SEEDED_RESTARTS = 0
 FIELDS_PER_PART = {"paper": 2, "merge": 3}
 
 
-def default_n_fields(k: int, method: str = "paper") -> int:
-    """Fields untangled for k parts: :data:`FIELDS_PER_PART` [method] x k, clamped to [16, 32]
-    (method "paper", the default here: the paper's N = 2k)."""
+#: Field counts by method are rounded up to a multiple of this, so that the k's of a mesh share
+#: fewer untanglings (one per distinct count). "merge": 8 (counts 16, 24, 32): see FIELDS_PER_PART.
+FIELDS_STEP = {"paper": 1, "merge": 8}
+
+
+def _min_k_of(method: str, min_k: int | None) -> int:
+    """min_k as given, or None: the default MergeWeights' for method "merge", else 1."""
+    if min_k is not None:
+        return int(min_k)
+    return int(MergeWeights().min_k) if method == "merge" else 1
+
+
+def default_n_fields(k: int, method: str = "paper", min_k: int | None = None) -> int:
+    """Fields untangled for k parts: :data:`FIELDS_PER_PART` [method] x max(k, min_k), rounded
+    up to a multiple of :data:`FIELDS_STEP` [method], clamped to [16, 32] (method "paper", the
+    default here: the paper's N = 2k). min_k: the merge method's
+    :attr:`~torchakvf.parts.merge.MergeWeights.min_k` (a k below it is over-segmented as min_k
+    is, from the same fields); None: the default MergeWeights' with method "merge", else 1."""
     if method not in FIELDS_PER_PART:
         raise ParameterError(f"method must be one of {tuple(FIELDS_PER_PART)}, got {method!r}")
-    return int(min(max(FIELDS_PER_PART[method] * k, 16), 32))
+    step = FIELDS_STEP[method]
+    n = -(-FIELDS_PER_PART[method] * max(int(k), _min_k_of(method, min_k)) // step) * step
+    return int(min(max(n, 16), 32))
 
 
 def cluster_safe_n(eigenvalues, n: int, floor: int = 1) -> int:
@@ -146,37 +163,45 @@ def per_mesh(value, nb: int, what: str) -> list[int]:
     return [int(v) for v in vals]
 
 
-def _default_or_given(ks: list[int], n_fields, nb: int, method: str) -> list[int]:
-    return [default_n_fields(kb, method) for kb in ks] if n_fields is None else per_mesh(n_fields, nb, "n_fields")
+def _default_or_given(ks: list[int], n_fields, nb: int, method: str, min_k: int) -> list[int]:
+    return ([default_n_fields(kb, method, min_k) for kb in ks] if n_fields is None
+            else per_mesh(n_fields, nb, "n_fields"))
 
 
-def field_counts(fields: AKVFResult, k, n_fields=None, method: str = DEFAULT_METHOD) -> list[int]:
+def field_counts(fields: AKVFResult, k, n_fields=None, method: str = DEFAULT_METHOD,
+                 min_k: int | None = None) -> list[int]:
     """The number of fields untangled per mesh for these k.
 
-    Default (``n_fields=None``): :func:`default_n_fields` of k and the method (the paper's 2k,
-    the merge method's 3k, clamped to [16, 32]), moved by :func:`cluster_safe_n` off a
-    degenerate cluster of the mesh's computed eigenvalues; otherwise ``n_fields`` (one int or
-    one per mesh), which must not exceed ``fields.n``.
+    Default (``n_fields=None``): :func:`default_n_fields` of k, the method and min_k (the
+    paper's 2k, the merge method's 3 max(k, min_k), clamped to [16, 32]), moved by
+    :func:`cluster_safe_n` off a degenerate cluster of the mesh's computed eigenvalues;
+    otherwise ``n_fields`` (one int or one per mesh), which must not exceed ``fields.n``.
+    min_k None: the default MergeWeights' for method "merge" (:func:`default_n_fields`).
     """
+    min_k = _min_k_of(method, min_k)
     nb = len(fields.batch)
     ks = per_mesh(k, nb, "k")
-    ns = _default_or_given(ks, n_fields, nb, method)
+    ns = _default_or_given(ks, n_fields, nb, method, min_k)
     if max(ns) > fields.n:
-        raise ParameterError(f"n_fields up to {max(ns)} asked for, but the AKVFs given have n = {fields.n}")
+        why = ("" if n_fields is not None else
+               f" (the default of k = {ks[ns.index(max(ns))]}, method {method!r}: "
+               f"{FIELDS_PER_PART[method]} x max(k, {min_k}) in [16, 32]; akvf_count gives the n to solve for)")
+        raise ParameterError(f"n_fields up to {max(ns)} asked for{why}, but the AKVFs given have n = {fields.n}: "
+                             f"solve more AKVFs or pass n_fields")
     if n_fields is None:
         lam = fields.eigenvalues.detach().cpu()
-        ns = [cluster_safe_n(lam[b], ns[b], floor=max(ks[b], ns[b] // 2)) for b in range(nb)]
+        ns = [cluster_safe_n(lam[b], ns[b], floor=max(ks[b], min_k, ns[b] // 2)) for b in range(nb)]
     return ns
 
 
-def akvf_count(ks, n_fields=None, method: str = DEFAULT_METHOD) -> int:
+def akvf_count(ks, n_fields=None, method: str = DEFAULT_METHOD, min_k: int | None = None) -> int:
     """AKVFs to solve for so that every k of ``ks`` (one list of k's per mesh) finds its fields:
-    the largest ``n_fields`` when given, else the largest default count (of the method) plus
-    :data:`SPARE_FIELDS`."""
+    the largest ``n_fields`` when given, else the largest default count (of the method and
+    min_k) plus :data:`SPARE_FIELDS`."""
     if n_fields is not None:
         ns = [n_fields] if isinstance(n_fields, (int, np.integer)) else list(n_fields)
         return max(per_mesh(ns, len(ns), "n_fields"))
-    return default_n_fields(max(max(kb) for kb in ks), method) + SPARE_FIELDS
+    return default_n_fields(max(max(kb) for kb in ks), method, min_k) + SPARE_FIELDS
 
 
 @dataclass(frozen=True)
@@ -265,10 +290,19 @@ def merging(opts: SegmentOptions) -> bool:
     return opts.method == "merge" and opts.eps == 0
 
 
+def merge_min_k(opts: SegmentOptions) -> int:
+    """The k below which k's are over-segmented alike (``opts.merge.min_k`` when parts are
+    merged, else 1: every k its own fields and clusters)."""
+    return int(opts.merge.min_k) if merging(opts) else 1
+
+
 def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
-    """Clusters k-means makes for a mesh segmented into k parts: k, or k' = ceil(ratio k) (at
-    most its faces) when the parts are merged afterwards."""
-    return oversegment_k(k, opts.merge.ratio, n_faces, opts.merge.extra_max) if merging(opts) else int(k)
+    """Clusters k-means makes for a mesh segmented into k parts: k, or k' = ceil(ratio
+    max(k, min_k)) (at most k' + extra_max, at most its faces) when the parts are merged
+    afterwards (:func:`~torchakvf.parts.merge.oversegment_k`)."""
+    if not merging(opts):
+        return int(k)
+    return oversegment_k(k, opts.merge.ratio, n_faces, opts.merge.extra_max, opts.merge.min_k)
 
 
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
@@ -421,13 +455,14 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
     assembled = {}      # tuple of per-mesh counts -> UntangledFields shared by the rounds that agree
     mesh_caches = [{} for _ in range(nb)]
     prev_labels = [None] * nb   # kmeans_seeded_restarts: each mesh's k-means labels of its last round
+    clusterings = {}    # (mesh, n, k') -> MeshClustering: k's with equal counts share one k-means
     if untangled is not None:
         assembled[tuple(int(v) for v in untangled.n_fields)] = untangled
     for r in range(max(len(kb) for kb in ks)):
         t0 = time.perf_counter()
         active = [b for b in range(nb) if r < len(ks[b])]
         round_ks = [ks[b][r] if r < len(ks[b]) else PAD_K for b in range(nb)]
-        ns = field_counts(fields, round_ks, n_fields, opts.method)
+        ns = field_counts(fields, round_ks, n_fields, opts.method, merge_min_k(opts))
         if untangled is not None:
             if untangled.source is not fields or any(int(untangled.n_fields[b]) != ns[b] for b in active):
                 raise ParameterError(f"the untangled fields given are for n = {list(untangled.n_fields)} "
@@ -447,8 +482,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
             km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_seeded_restarts, seed=opts.seed,
                                   max_iter=opts.kmeans_max_iter, init=init)
         else:
-            km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_restarts, seed=opts.seed,
-                                  max_iter=opts.kmeans_max_iter)
+            km = _round_clustering(xpad, mask, km_ks, ns, active, clusterings, opts)
         if opts.kmeans_seeded_restarts:
             for b in active:
                 prev_labels[b] = km.labels[b]
@@ -481,6 +515,56 @@ def previous_centroids(x: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor
     if len(ok) > k:
         ok = ok[torch.argsort(-norm[ok], stable=True)[:k]].sort().values
     return sums[ok] / norm[ok, None]
+
+
+@dataclass
+class MeshClustering:
+    """One mesh's k-means answer at (n fields, k' clusters): labels [N_b] of its rows, centers
+    [k', n] (unit), cost, Lloyd iterations and restart_costs [R]."""
+
+    labels: torch.Tensor
+    centers: torch.Tensor
+    cost: torch.Tensor
+    iterations: torch.Tensor
+    restart_costs: torch.Tensor
+
+
+def _round_clustering(xpad: torch.Tensor, mask: torch.Tensor, km_ks: list, ns: list, active: list,
+                      clusterings: dict, opts: SegmentOptions) -> KMeansResult:
+    """The round's k-means: each active mesh b into km_ks[b] clusters of its first ns[b]
+    features, from ``clusterings`` {(b, n, k'): MeshClustering} where a round before made it,
+    the others clustered now (together) and added to it. Meshes sitting out the round get a
+    placeholder (every row in cluster 0; they are not cut).
+
+    A mesh's clustering depends on its own rows, k' and the seed alone
+    (:func:`~torchakvf.cluster.spherical_kmeans`), so this is what clustering the whole round
+    gives; it saves the k-means of every k whose (n, k') an earlier k of the mesh had (the merge
+    method over-segments every k up to a floor alike, :func:`cluster_count`).
+    """
+    nb, n_max, d = xpad.shape
+    keys = {b: (b, ns[b], km_ks[b]) for b in active}
+    missing = [b for b in active if keys[b] not in clusterings]
+    if missing:
+        sel = torch.tensor(missing, device=xpad.device)
+        km = spherical_kmeans(xpad[sel], mask[sel], [km_ks[b] for b in missing], restarts=opts.kmeans_restarts,
+                              seed=opts.seed, max_iter=opts.kmeans_max_iter)
+        for j, b in enumerate(missing):
+            rows = int(mask[b].sum())
+            clusterings[keys[b]] = MeshClustering(
+                labels=km.labels[j, :rows], centers=km.centers[j, :km_ks[b], :ns[b]], cost=km.cost[j],
+                iterations=km.iterations[j], restart_costs=km.restart_costs[j])
+    k_max = max([km_ks[b] for b in active] + [PAD_K])
+    labels = torch.where(mask, 0, -1).to(torch.long)
+    centers = xpad.new_zeros(nb, k_max, d, dtype=torch.float64)
+    cost = xpad.new_zeros(nb, dtype=torch.float64)
+    iters = torch.zeros(nb, dtype=torch.long, device=xpad.device)
+    restart_costs = xpad.new_zeros(nb, opts.kmeans_restarts, dtype=torch.float64)
+    for b in active:
+        c = clusterings[keys[b]]
+        labels[b, :len(c.labels)] = c.labels
+        centers[b, :c.centers.shape[0], :c.centers.shape[1]] = c.centers
+        cost[b], iters[b], restart_costs[b] = c.cost, c.iterations, c.restart_costs
+    return KMeansResult(labels=labels, centers=centers, cost=cost, iterations=iters, restart_costs=restart_costs)
 
 
 def _round_untangled(fields: AKVFResult, ns: list, active: list, rotations: dict, assembled: dict,
@@ -570,7 +654,8 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
     else:
         batch = as_batch(meshes, device=device, coarse_faces=coarse_faces)
         ks = check_ks(batch, ks)
-        fields, fell_back = solve_akvfs(batch, akvf_count(ks, n_fields, opts.method) if n_akvf is None else n_akvf, opts)
+        n_akvf = akvf_count(ks, n_fields, opts.method, merge_min_k(opts)) if n_akvf is None else n_akvf
+        fields, fell_back = solve_akvfs(batch, n_akvf, opts)
     t1 = time.perf_counter()
     out = SegmentEachK(fields=fields, fell_back=fell_back, meshes=[{} for _ in range(len(fields.batch))],
                        seconds={"akvf": t1 - t0, "untangle": 0.0, "cluster": 0.0})
@@ -584,7 +669,7 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
 
 
 __all__ = ["segment_each_k", "segment_rounds", "solve_akvfs", "solve_quality", "cut_parts", "check_ks",
-           "field_counts", "akvf_count", "graphcut_option", "default_n_fields", "cluster_safe_n", "per_mesh",
+           "field_counts", "akvf_count", "graphcut_option", "merge_min_k", "cluster_count", "default_n_fields", "cluster_safe_n", "per_mesh",
            "SegmentOptions", "SegmentEachK", "KRound", "DEFAULT_REMEDY", "BOUNDARIES", "METHODS", "DEFAULT_METHOD",
            "UNTANGLE_RESTARTS", "KMEANS_RESTARTS", "KMEANS_RESTARTS_BY_METHOD", "KMEANS_SEEDED_RESTARTS", "SPARE_FIELDS",
-           "FIELDS_PER_PART", "PAD_K", "AKVF_TOL"]
+           "FIELDS_PER_PART", "FIELDS_STEP", "PAD_K", "AKVF_TOL"]

@@ -68,6 +68,10 @@ class MergeWeights:
     #: compute (565 s against 709 s; the paper mode's 472 s), which keeps the merge method within
     #: +20% of the paper mode's time: Human meshes ask for up to k = 60, i.e. 180 clusters uncapped.
     extra_max: int | None = 16
+    #: a k below this is over-segmented as this k is (k' = ceil(ratio max(k, min_k)), and its
+    #: fields are those of max(k, min_k), engine.default_n_fields), so the k's of a mesh up to
+    #: min_k share one untangling and one k-means, merged down to each k. 1: every k its own.
+    min_k: int = 8
 
     def __post_init__(self):
         for name in ("symmetry", "concavity", "size", "part_size", "convexity", "cut"):
@@ -80,11 +84,14 @@ class MergeWeights:
         if self.extra_max is not None and not (isinstance(self.extra_max, (int, np.integer))
                                                and not isinstance(self.extra_max, bool) and self.extra_max >= 0):
             raise ParameterError(f"extra_max must be None or an integer >= 0, got {self.extra_max!r}")
+        if not (isinstance(self.min_k, (int, np.integer)) and not isinstance(self.min_k, bool) and self.min_k >= 1):
+            raise ParameterError(f"min_k must be an integer >= 1, got {self.min_k!r}")
 
 
-def oversegment_k(k: int, ratio: float, n_faces: int, extra_max: int | None = None) -> int:
+def oversegment_k(k: int, ratio: float, n_faces: int, extra_max: int | None = None, min_k: int = 1) -> int:
     """k' = ceil(ratio k) parts to over-segment into, at most k + ``extra_max`` (None: no cap)
-    and at most the face count."""
+    and at most the face count; a k below ``min_k`` gets the k' of min_k."""
+    k = max(int(k), int(min_k))
     kp = max(math.ceil(ratio * k - 1e-9), k)
     if extra_max is not None:
         kp = min(kp, k + int(extra_max))

@@ -58,7 +58,8 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
         removed (merged into a neighbour for ε = 0, made connecting region for ε > 0)
     refine : also return the mesh cut along the part boundaries
     untangled : the :class:`~torchakvf.fields.UntangledFields` of these AKVFs to reuse (from
-        :func:`~torchakvf.fields.untangle` with ``n=field_counts(fields, k)``, the same seed and
+        :func:`~torchakvf.fields.untangle` with ``n=field_counts(fields, k, method=method, min_k=m)``, m the merge
+        weights' min_k with method "merge" at ε = 0, else 1, the same seed and
         restarts): several k's with the same field counts then share one untangling
     coarse_faces : solve on meshes decimated to about this many faces and report on the
         given ones (see :mod:`torchakvf.mesh.coarse`); only with Mesh inputs (a batch built with

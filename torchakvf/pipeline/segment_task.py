@@ -16,8 +16,8 @@ from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
 from .batches import require_edges
-from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, SPARE_FIELDS, UNTANGLE_RESTARTS,
-                            SegmentOptions, default_n_fields, graphcut_option, segment_each_k)
+from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, UNTANGLE_RESTARTS, SegmentOptions, akvf_count,
+                            graphcut_option, merge_min_k, segment_each_k)
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -48,7 +48,7 @@ class SegmentTask:
         # None: segment's own choice (2k in [16, 32], 3k with method "merge", moved off degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
         self.n_fields = int(n_fields) if n_fields is not None else None
-        self.n_akvf = self.n_fields if n_fields is not None else default_n_fields(self.k, self.method) + SPARE_FIELDS
+        self.n_akvf = self.n_fields if n_fields is not None else akvf_count([[self.k]], None, self.method, merge_min_k(self.options))
         self.remedy, self.formats = remedy, tuple(formats)
         self.untangle_restarts, self.kmeans_restarts = int(untangle_restarts), self.options.kmeans_restarts
         # Solve on meshes decimated to about this many faces (None: full resolution); the
