@@ -86,7 +86,7 @@ def add_eval_arguments(p) -> None:
     p.add_argument("--remedy", default=None,
                    help="mesh-quality remedy of the Killing operator (default: the package's)")
     p.add_argument("--n-fields", type=_positive_int, default=None,
-                   help="fields untangled per mesh (default 3k in [16, 32] for method merge, the paper's 2k for paper)")
+                   help="fields untangled per mesh (default for method merge 3 max(k, 8) rounded up to a multiple of 8, in [16, 32]; the paper's 2k for paper)")
     p.add_argument("--metrics", default=",".join(METRIC_GROUPS), metavar="LIST",
                    help=f"metric groups to compute (default: {','.join(METRIC_GROUPS)})")
     p.add_argument("--boundary", default=None, choices=["isoline", "faces"],

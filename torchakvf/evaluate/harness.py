@@ -133,7 +133,7 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     ids : mesh ids (list, or a string like "1,5,21-23"); combined with ``categories``
     per_category : keep only the first N meshes (by id) of each category (quick runs)
     seed, remedy, n_fields : as in :func:`torchakvf.parts.segment` (remedy default
-        :data:`torchakvf.parts.DEFAULT_REMEDY`; n_fields default 3k in [16, 32] for method "merge", 2k for "paper")
+        :data:`torchakvf.parts.DEFAULT_REMEDY`; n_fields default 3 max(k, 8) in multiples of 8, in [16, 32], for method "merge", 2k for "paper")
     batch_faces : face budget of one batch (meshes larger than it run alone; default
         :func:`~torchakvf.evaluate.plan.default_eval_batch_faces` for the device)
     k_mode : None (k from the protocol) or "auto" (:mod:`torchakvf.evaluate.k_auto`)

@@ -231,7 +231,7 @@ def _summary_md(s: EvalSummary, cats, cols, protocol, auto) -> str:
     L.append(f"- meshes: {len(s.rows)} ({n_ok} scored, {n_no} without human segmentations: no score, "
              f"{n_fail} failed)")
     L.append(f"- settings: seed {pred['seed']}, remedy {pred['remedy']}, n_fields "
-             f"{pred['n_fields'] or 'default (3k in [16, 32] for method merge, 2k for paper)'}, segment {pred['segment_kwargs']}, "
+             f"{pred['n_fields'] or 'default (3 max(k, 8) rounded up to 8s, in [16, 32], for method merge; 2k for paper)'}, segment {pred['segment_kwargs']}, "
              f"k without ground truth {pred['default_k']}, batch_faces {run['batch_faces']}, "
              f"metrics {','.join(run['metrics'])}")
     L.append(f"- wall time of this run: {s.wall_seconds:.1f} s "

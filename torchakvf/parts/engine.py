@@ -7,7 +7,8 @@ automatic-k scan, the bench) goes through here.
       segment_rounds                round r: every mesh at its r-th k  -> :class:`KRound` s
         field_counts                fields untangled per mesh for those k (each mesh untangled
                                     once per distinct count, only the meshes whose count is new)
-        spherical_kmeans            all meshes of the round at once
+        spherical_kmeans            the meshes of the round whose (fields, clusters) are new, at
+                                    once (a mesh's k's below MergeWeights.min_k share one)
         cut_parts                   ONE mesh: boundaries, clean-up, (method "merge") merging
                                     of adjacent parts, generators -> MeshSegmentation
 
@@ -106,7 +107,10 @@ FIELDS_PER_PART = {"paper": 2, "merge": 3}
 
 
 #: Field counts by method are rounded up to a multiple of this, so that the k's of a mesh share
-#: fewer untanglings (one per distinct count). "merge": 8 (counts 16, 24, 32): see FIELDS_PER_PART.
+#: fewer untanglings (one per distinct count). "merge": 8 (counts 16, 24, 32), with the floor
+#: MergeWeights.min_k = 8 (every k <= 8 untangles 24): on the 300 labelled PSB meshes 1-RI 0.1471
+#: against 0.1566 for 3k each and its own k', segment stage 0.83x; 457 untanglings against 853
+#: over the protocol k's (benchmarks/results/quality_field_counts.md).
 FIELDS_STEP = {"paper": 1, "merge": 8}
 
 

@@ -71,6 +71,9 @@ class MergeWeights:
     #: a k below this is over-segmented as this k is (k' = ceil(ratio max(k, min_k)), and its
     #: fields are those of max(k, min_k), engine.default_n_fields), so the k's of a mesh up to
     #: min_k share one untangling and one k-means, merged down to each k. 1: every k its own.
+    #: 8 (with field counts rounded up to multiples of 8, engine.FIELDS_STEP): on the 300
+    #: labelled PSB meshes 1-RI 0.1471 against 0.1566 (min_k 1, no rounding); chosen on two
+    #: cross-validation folds of three (floors 1, 4-8; benchmarks/results/quality_field_counts.md).
     min_k: int = 8
 
     def __post_init__(self):

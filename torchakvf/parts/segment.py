@@ -34,13 +34,14 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     eps : width of the connecting region in cosine-distance units (0 = plain segmentation);
         faces whose two closest parts differ by less than eps at the barycenter get label -1
     seed : seeds untangling restarts and k-means seeding (per mesh, batch-independent)
-    n_fields : fields untangled per mesh; default :func:`default_n_fields` (2k in [16, 32]; 3k
-        with method "merge"),
-        moved to the nearest count that does not split a degenerate cluster (:func:`cluster_safe_n`)
+    n_fields : fields untangled per mesh; default :func:`default_n_fields` (2k in [16, 32]; with
+        method "merge" 3 max(k, merge.min_k) rounded up to a multiple of 8, in [16, 32]), moved
+        to the nearest count that does not split a degenerate cluster (:func:`cluster_safe_n`)
     remedy : mesh-quality remedy of the Killing operator ("none" = the paper's)
     solver : the eigensolver of the AKVFs: "auto", "lanczos", "krylov" or "lobpcg"
         (:func:`torchakvf.fields.akvf.akvf`)
-    method : "merge" (default: k-means into k' = ceil(ratio k) parts, then adjacent parts merged
+    method : "merge" (default: k-means into k' = ceil(ratio max(k, merge.min_k)) parts (at most
+        max(k, min_k) + extra_max), then adjacent parts merged
         down to k by symmetry similarity and boundary concavity, :func:`~torchakvf.parts.merge.
         merge_parts`; ε = 0 only, part discovery keeps k clusters) or "paper" (k-means into k
         parts: the paper's method, the output of torchakvf 0.1)

@@ -45,7 +45,8 @@ class SegmentTask:
         # recorded in params, so a run resumed under other defaults redoes its meshes
         self.options = SegmentOptions(eps=self.eps, solver=self.solver, method=self.method,
                                       graphcut=graphcut_option(self.graphcut), kmeans_restarts=kmeans_restarts)
-        # None: segment's own choice (2k in [16, 32], 3k with method "merge", moved off degenerate eigenvalue clusters),
+        # None: segment's own choice (2k in [16, 32]; with method "merge" 3 max(k, 8) in multiples of 8; moved off
+        # degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
         self.n_fields = int(n_fields) if n_fields is not None else None
         self.n_akvf = self.n_fields if n_fields is not None else akvf_count([[self.k]], None, self.method, merge_min_k(self.options))
