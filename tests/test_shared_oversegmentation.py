@@ -94,8 +94,9 @@ def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
     calls = _count_kmeans(monkeypatch)
     ks = [[2, 3, 4], [3, 2]]
     res = E.segment_each_k(fields, ks, merge=merge, **FAST)
-    # round 0: both new; round 1: both reuse round 0's (k' 9 for k <= 3); round 2: mesh 0's k = 4 only
-    assert calls == [[9, 9], [12]]
+    # round 0: both new (one call per distinct field count); round 1: both reuse round 0's
+    # (k' 9 for k <= 3); round 2: mesh 0's k = 4 only
+    assert sorted(k for c in calls for k in c) == [9, 9, 12] and calls[-1] == [12]
     for b, m in enumerate(ms):
         one = ta.akvf(m, n=20, remedy="smooth")
         for k in ks[b]:
@@ -116,3 +117,14 @@ def test_reused_clustering_is_the_recomputed_one(blobs):
     np.testing.assert_array_equal(rounds[1].meshes[0].labels, clean.labels)
     assert rounds[1].meshes[0].cost == clean.cost
     assert torch.equal(torch.as_tensor(rounds[0].meshes[0].features), torch.as_tensor(clean.features))
+
+
+def test_segment_options_take_the_api_graphcut_values():
+    """evaluate_psb(graphcut=False) and friends pass the API's values into SegmentOptions."""
+    from torchakvf.parts.graphcut import GraphCut
+    assert E.SegmentOptions(graphcut=False).graphcut is None
+    assert E.SegmentOptions(graphcut=None).graphcut is None
+    assert E.SegmentOptions(graphcut=True).graphcut == GraphCut()
+    assert E.SegmentOptions(graphcut=GraphCut(band=3)).graphcut == GraphCut(band=3)
+    with pytest.raises(ParameterError, match="graphcut"):
+        E.SegmentOptions(graphcut="yes")

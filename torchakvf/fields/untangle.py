@@ -171,15 +171,19 @@ def untangled_from_rotations(fields: AKVFResult, rotations: list) -> UntangledFi
     phi = fields.forms[:, :n_max].to(torch.float64)
     fv = fields.face_vectors[:, :n_max].to(torch.float64)
     # One GEMM per mesh on its rows: gathering A per edge and per face ([ΣE, n, n], 150 MB for
-    # 5 meshes of 6000 edges at n = 32) cost more than the untangling of a converged mesh.
-    forms = torch.empty_like(phi)
-    face_vectors = torch.empty_like(fv)
+    # 5 meshes of 6000 edges at n = 32) cost more than the untangling of a converged mesh. Each
+    # mesh on its own n columns (the rest stay 0): the products, and so the bits, of the mesh
+    # untangled alone, whatever the batch's largest n.
+    forms = torch.zeros_like(phi)
+    face_vectors = torch.zeros_like(fv)
+    energies = torch.zeros(nb, n_max, dtype=torch.float64, device=dev)
     eptr, fptr = batch.edge_ptr.tolist(), batch.face_ptr.tolist()
-    for b in range(nb):
-        forms[eptr[b]:eptr[b + 1]] = phi[eptr[b]:eptr[b + 1]] @ a[b]
-        face_vectors[fptr[b]:fptr[b + 1]] = torch.einsum("fnc,nm->fmc", fv[fptr[b]:fptr[b + 1]], a[b])
     lam = fields.eigenvalues[:, :n_max].to(torch.float64)
-    energies = torch.einsum("bnm,bn->bm", a * a, lam)
+    for b in range(nb):
+        n, ab = ns[b], a[b, :ns[b], :ns[b]]
+        forms[eptr[b]:eptr[b + 1], :n] = phi[eptr[b]:eptr[b + 1], :n] @ ab
+        face_vectors[fptr[b]:fptr[b + 1], :n] = torch.einsum("fnc,nm->fmc", fv[fptr[b]:fptr[b + 1], :n], ab)
+        energies[b, :n] = torch.einsum("bnm,bn->bm", (ab * ab)[None], lam[b:b + 1, :n])[0]
     dt = fields.forms.dtype
     return UntangledFields(rotation=a.to(dt), forms=forms.to(dt), face_vectors=face_vectors.to(dt),
                            features=torch.linalg.norm(face_vectors, dim=-1).to(dt),

@@ -189,7 +189,8 @@ def field_counts(fields: AKVFResult, k, n_fields=None, method: str = DEFAULT_MET
     if max(ns) > fields.n:
         why = ("" if n_fields is not None else
                f" (the default of k = {ks[ns.index(max(ns))]}, method {method!r}: "
-               f"{FIELDS_PER_PART[method]} x max(k, {min_k}) in [16, 32]; akvf_count gives the n to solve for)")
+               f"{FIELDS_PER_PART[method]} x max(k, {min_k}) rounded up to a multiple of {FIELDS_STEP[method]}, "
+               f"in [16, 32]; akvf_count gives the n to solve for)")
         raise ParameterError(f"n_fields up to {max(ns)} asked for{why}, but the AKVFs given have n = {fields.n}: "
                              f"solve more AKVFs or pass n_fields")
     if n_fields is None:
@@ -246,6 +247,9 @@ class SegmentOptions:
             raise ParameterError(f"method must be one of {METHODS}, got {self.method!r}")
         if not (self.eps >= 0):
             raise ParameterError(f"eps must be >= 0, got {self.eps!r}")
+        # True / False / None as the API's graphcut= (a caller passing SegmentOptions keywords
+        # straight through, e.g. evaluate_psb(graphcut=False), gets them checked here)
+        object.__setattr__(self, "graphcut", graphcut_option(self.graphcut))
         if self.kmeans_restarts is None:
             object.__setattr__(self, "kmeans_restarts", KMEANS_RESTARTS_BY_METHOD[self.method])
         r = self.kmeans_restarts
@@ -302,8 +306,8 @@ def merge_min_k(opts: SegmentOptions) -> int:
 
 def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
     """Clusters k-means makes for a mesh segmented into k parts: k, or k' = ceil(ratio
-    max(k, min_k)) (at most k' + extra_max, at most its faces) when the parts are merged
-    afterwards (:func:`~torchakvf.parts.merge.oversegment_k`)."""
+    max(k, min_k)) (at most max(k, min_k) + extra_max, at most its faces) when the parts are
+    merged afterwards (:func:`~torchakvf.parts.merge.oversegment_k`)."""
     if not merging(opts):
         return int(k)
     return oversegment_k(k, opts.merge.ratio, n_faces, opts.merge.extra_max, opts.merge.min_k)
@@ -540,22 +544,25 @@ def _round_clustering(xpad: torch.Tensor, mask: torch.Tensor, km_ks: list, ns: l
     the others clustered now (together) and added to it. Meshes sitting out the round get a
     placeholder (every row in cluster 0; they are not cut).
 
-    A mesh's clustering depends on its own rows, k' and the seed alone
-    (:func:`~torchakvf.cluster.spherical_kmeans`), so this is what clustering the whole round
-    gives; it saves the k-means of every k whose (n, k') an earlier k of the mesh had (the merge
-    method over-segments every k up to a floor alike, :func:`cluster_count`).
+    A mesh's clustering depends on its own rows (its n columns), k' and the seed alone
+    (:func:`~torchakvf.cluster.spherical_kmeans`), so a mesh gets the bits it gets alone, in
+    any batch; this saves the k-means of every k whose (n, k') an earlier k of the mesh had (the
+    merge method over-segments every k up to a floor alike, :func:`cluster_count`).
     """
     nb, n_max, d = xpad.shape
     keys = {b: (b, ns[b], km_ks[b]) for b in active}
     missing = [b for b in active if keys[b] not in clusterings]
-    if missing:
-        sel = torch.tensor(missing, device=xpad.device)
-        km = spherical_kmeans(xpad[sel], mask[sel], [km_ks[b] for b in missing], restarts=opts.kmeans_restarts,
-                              seed=opts.seed, max_iter=opts.kmeans_max_iter)
-        for j, b in enumerate(missing):
+    for n in sorted({ns[b] for b in missing}):
+        # The meshes at n fields cluster their n columns, not the round's padded d: the
+        # products of a mesh alone (and d / n times cheaper).
+        group = [b for b in missing if ns[b] == n]
+        sel = torch.tensor(group, device=xpad.device)
+        km = spherical_kmeans(xpad[sel][:, :, :n], mask[sel], [km_ks[b] for b in group],
+                              restarts=opts.kmeans_restarts, seed=opts.seed, max_iter=opts.kmeans_max_iter)
+        for j, b in enumerate(group):
             rows = int(mask[b].sum())
             clusterings[keys[b]] = MeshClustering(
-                labels=km.labels[j, :rows], centers=km.centers[j, :km_ks[b], :ns[b]], cost=km.cost[j],
+                labels=km.labels[j, :rows], centers=km.centers[j, :km_ks[b]], cost=km.cost[j],
                 iterations=km.iterations[j], restart_costs=km.restart_costs[j])
     k_max = max([km_ks[b] for b in active] + [PAD_K])
     labels = torch.where(mask, 0, -1).to(torch.long)
