@@ -70,8 +70,7 @@ from ..operators import REMEDIES
 from ..parts.engine import DEFAULT_REMEDY, SegmentOptions
 from ..pipeline.parallel import map_batches
 from ..progress import progress as progress_bar
-from ..parts.merge import MergeWeights
-from .k_auto import DEFAULT_K_RANGE, DEFAULT_RULE, RULES, SCAN_MIN_K, check_k_range
+from .k_auto import DEFAULT_K_RANGE, DEFAULT_RULE, RULES, check_k_range, scan_merge_weights
 from .plan import (DEFAULT_K_NO_GT, PROTOCOLS, default_eval_batch_faces, find_entries, human_mode,
                    make_batches, plan_meshes, select_entries, settings_guard, solved_face_counts)
 from .predict import PredictSettings, predict_in_worker
@@ -166,9 +165,8 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
                                        k_range, k_rule, segment_kwargs)
     options.setdefault("refine", False)
     segment_kwargs.setdefault("refine", False)
-    if auto and options.get("merge") is None:
-        # the k scan's own default floor (k_auto.SCAN_MIN_K), with which its rule was chosen
-        options["merge"] = MergeWeights(min_k=SCAN_MIN_K)
+    if auto:   # the scan's own default floor (k_auto.SCAN_MIN_K), recorded in the settings
+        options["merge"] = scan_merge_weights(options.get("merge"))
     seg_options = SegmentOptions(seed=int(seed), remedy=remedy, **options)
 
     root = Path(psb_root)

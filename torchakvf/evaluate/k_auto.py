@@ -54,7 +54,12 @@ MERGE_TAU = 0.95
 SCAN_MIN_K = 1
 DEFAULT_K_RANGE = (2, 10)
 
-__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
+
+def scan_merge_weights(merge: MergeWeights | None) -> MergeWeights:
+    """The scan's merge weights: ``merge`` as given, None: the defaults at :data:`SCAN_MIN_K`."""
+    return MergeWeights(min_k=SCAN_MIN_K) if merge is None else merge
+
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "scan_merge_weights", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
            "check_k_range"]
 
 
@@ -159,8 +164,7 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, seed: i
     lo, hi = check_k_range(k_range)
     if rule not in RULES:
         raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
-    if segment_kwargs.get("merge") is None:
-        segment_kwargs["merge"] = MergeWeights(min_k=SCAN_MIN_K)
+    segment_kwargs["merge"] = scan_merge_weights(segment_kwargs.get("merge"))
     opts = SegmentOptions(seed=seed, remedy=remedy, **segment_kwargs)
     n = default_n_fields(hi) if n_fields is None else int(n_fields)
     if isinstance(meshes, AKVFResult):

@@ -652,7 +652,7 @@ def segment_each_k(meshes, ks, *, eps: float = 0.0, seed: int = 0, n_fields=None
     """
     opts = SegmentOptions(eps=eps, seed=seed, remedy=remedy, solver=solver, method=method,
                           merge=MergeWeights() if merge is None else merge,
-                          graphcut=graphcut_option(graphcut),
+                          graphcut=graphcut,
                           kmeans_restarts=kmeans_restarts, untangle_restarts=untangle_restarts,
                           boundary=boundary, min_part_fraction=min_part_fraction, refine=refine)
     if coarse_faces is not None and isinstance(meshes, (AKVFResult, MeshBatch)):

@@ -17,7 +17,7 @@ from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
 from .batches import require_edges
 from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, UNTANGLE_RESTARTS, SegmentOptions, akvf_count,
-                            graphcut_option, merge_min_k, segment_each_k)
+                            merge_min_k, segment_each_k)
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -44,7 +44,7 @@ class SegmentTask:
         # one-line errors before any work; the options' merge weights and graph cut are
         # recorded in params, so a run resumed under other defaults redoes its meshes
         self.options = SegmentOptions(eps=self.eps, solver=self.solver, method=self.method,
-                                      graphcut=graphcut_option(self.graphcut), kmeans_restarts=kmeans_restarts)
+                                      graphcut=self.graphcut, kmeans_restarts=kmeans_restarts)
         # None: segment's own choice (2k in [16, 32]; with method "merge" 3 max(k, 8) in multiples of 8; moved off
         # degenerate eigenvalue clusters),
         # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
