@@ -416,3 +416,17 @@ def test_eval_on_cuda_matches_cpu(good_psb, tmp_path, cuda):
         gpu = np.loadtxt(tmp_path / "pred" / "1" / f"1_k{k}.seg", dtype=np.int64)
         cpu = np.loadtxt(cpu_out / "pred" / "1" / f"1_k{k}.seg", dtype=np.int64)
         assert M.matched_agreement(gpu, cpu) >= 0.99, k
+
+
+def test_batches_go_to_the_workers_heaviest_first():
+    from types import SimpleNamespace as NS
+
+    from torchakvf.evaluate.plan import heaviest_first
+    p = {i: NS(mesh_id=i) for i in range(5)}
+    faces = {0: 100, 1: 5000, 2: 300, 3: 300, 4: 1000}
+    ks = {0: 1, 1: 0, 2: 9, 3: 9, 4: 2}
+    batches = [[p[0]], [p[1], p[4]], [p[2]], [p[3]]]
+    # work: 200, 5000 + 3000 = 8000, 3000, 3000 (ties keep their order)
+    order = heaviest_first(batches, faces, ks)
+    assert [[q.mesh_id for q in b] for b in order] == [[1, 4], [2], [3], [0]]
+    assert sorted(map(id, order)) == sorted(map(id, batches))       # the same batches, moved

@@ -260,3 +260,15 @@ def make_batches(plans, faces_of: dict, budget: int) -> list:
     """Consecutive plans grouped into batches of at most ``budget`` faces (``faces_of``: by
     mesh id); a mesh larger than the budget is a batch alone."""
     return cut_by_budget(plans, lambda p: faces_of[p.mesh_id], budget)
+
+
+def heaviest_first(batches: list, faces_of: dict, ks_of: dict) -> list:
+    """The batches in the order to hand them to workers: the most work first (longest
+    processing time first), ties in the given order. Work is estimated as Σ faces x (1 + k's)
+    over a batch's meshes (``faces_of``, ``ks_of``: input faces and k's still to segment, by
+    mesh id): the parts are cut on the input's faces once per k.
+
+    The batches themselves are not changed, so neither is any answer; with the heaviest last
+    (as sorted for batching), one worker finished a 41 s mesh alone at the end of the PSB run."""
+    work = [sum(faces_of[p.mesh_id] * (1 + ks_of[p.mesh_id]) for p in b) for b in batches]
+    return [batches[i] for i in sorted(range(len(batches)), key=lambda i: -work[i])]

@@ -169,8 +169,13 @@ def decimate(mesh: Mesh | CleanMesh, faces: int) -> Mesh:
 
 def _fill_holes(v: np.ndarray, f: np.ndarray, surface, max_edges: int | None):
     """Close each boundary loop (of at most ``max_edges`` edges; None: every loop) with a fan
-    around a new vertex: the loop's centroid moved onto ``surface``. Loops through a vertex
-    with several boundary edges out of it are left open."""
+    around a new vertex: the loop's centroid moved onto ``surface``.
+
+    A boundary that passes a vertex twice (two holes touching at a corner, which the collapse
+    and the removal of non-manifold faces leave) is cut there into simple loops
+    (:func:`_boundary_loops`), each closed by its own fan: left open, its boundary terms made
+    R - σS1 indefinite at every shift on 5 of the 380 PSB meshes, which were then solved at
+    full resolution (up to 20x the time)."""
     half = _half_edges(f)
     n = len(v)
     key = half[:, 0] * n + half[:, 1]
@@ -178,26 +183,8 @@ def _fill_holes(v: np.ndarray, f: np.ndarray, surface, max_edges: int | None):
     boundary = half[~twin]
     if len(boundary) == 0:
         return v, f
-    nxt: dict = {}
-    ambiguous = set()
-    for a, b in boundary.tolist():
-        if a in nxt:
-            ambiguous.add(a)
-        nxt[a] = b
-    seen, loops = set(), []
-    for start in list(nxt):
-        if start in seen:
-            continue
-        loop, x, ok = [], start, True
-        while x not in seen:
-            seen.add(x)
-            loop.append(x)
-            if x in ambiguous or x not in nxt:
-                ok = False
-                break
-            x = nxt[x]
-        if ok and x == start and len(loop) >= 3 and (max_edges is None or len(loop) <= max_edges):
-            loops.append(loop)
+    loops = [loop for loop in _boundary_loops(boundary)
+             if len(loop) >= 3 and (max_edges is None or len(loop) <= max_edges)]
     if not loops:
         return v, f
     centers = np.array([v[loop].mean(axis=0) for loop in loops])
@@ -207,6 +194,44 @@ def _fill_holes(v: np.ndarray, f: np.ndarray, surface, max_edges: int | None):
         c = n + i
         new += [(b, a, c) for a, b in zip(loop, loop[1:] + loop[:1])]   # against the boundary
     return np.concatenate([v, centers]), np.concatenate([f, np.array(new, dtype=np.int64)])
+
+
+def _boundary_loops(boundary: np.ndarray) -> list:
+    """The boundary half-edges [H, 2] (a -> b) as simple closed loops (lists of vertices, in
+    order), in a fixed order (by first half-edge).
+
+    Each walk follows the half-edges out of each vertex in their given order; when it comes
+    back to a vertex already on its path, the part of the path since that vertex is a simple
+    loop and is cut off (so a boundary through a vertex twice gives two loops). A path that
+    ends where no half-edge leaves (not a closed boundary) is dropped."""
+    out: dict = {}
+    for a, b in boundary.tolist():
+        out.setdefault(a, []).append(b)
+    for nexts in out.values():
+        nexts.reverse()                    # popped from the end: the given order
+    loops = []
+    for start in [int(a) for a in boundary[:, 0]]:
+        if not out.get(start):
+            continue
+        path, at = [start], {start: 0}
+        while path:
+            x = path[-1]
+            nexts = out.get(x)
+            if not nexts:                  # an open end: not a loop
+                break
+            y = nexts.pop()
+            if y in at:
+                cut = at[y]
+                loops.append(path[cut:])
+                for z in path[cut + 1:]:
+                    del at[z]
+                del path[cut + 1:]
+                if cut == 0 and not out.get(y):
+                    break
+            else:
+                at[y] = len(path)
+                path.append(y)
+    return loops
 
 
 def _relax_on_surface(v: np.ndarray, f: np.ndarray, surface, steps: int) -> np.ndarray:
