@@ -133,8 +133,9 @@ def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed, k):
     opts = gc.GraphCut(smoothness=2.0, band=2)
     seen = []
 
-    def record(unary, pairs, weights, cycles):
+    def record(unary, pairs, weights, cycles, allowed=None):
         seen.append((unary.copy(), pairs.copy(), weights.copy()))
+        assert allowed is not None and allowed.shape == unary.shape and (allowed.sum(axis=1) > 1).all()
         return np.argmin(unary, axis=1)                              # any labelling will do here
 
     monkeypatch.setattr(gc, "potts_expansion", record)

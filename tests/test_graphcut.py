@@ -153,3 +153,30 @@ def test_segment_graphcut_switch():
     assert graphcut_option(True) == GraphCut() and graphcut_option(False) is None
     with pytest.raises(ParameterError, match="graphcut"):
         graphcut_option("yes")
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_components_solved_alone_on_their_own_labels(seed):
+    """Two disjoint octahedra, four labels, each copy allowed two of them: solved component by
+    component (each then an exact two-label cut), the labels are the brute-force optimum of
+    each copy, and the energy that of the whole problem solved at once."""
+    v, f = _tiny()
+    pairs = dual_edges(v, f).pairs
+    both = np.concatenate([pairs, pairs + 8])
+    rng = np.random.default_rng(200 + seed)
+    unary = rng.random((16, 4))
+    w = 0.3 * rng.random(len(both))
+    allowed = np.zeros((16, 4), dtype=bool)
+    allowed[:8, [0, 2]] = True
+    allowed[8:, [1, 3]] = True
+    big = float(unary.max() + 2 * w.sum()) + 1.0
+    costly = np.where(allowed, unary, big)
+    got = potts_expansion(costly, both, w, allowed=allowed)
+    assert allowed[np.arange(16), got].all()
+    for half, labels in ((slice(0, 8), [0, 2]), (slice(8, 16), [1, 3])):
+        e_half = w[:len(pairs)] if half.start == 0 else w[len(pairs):]
+        best, arg = _brute(unary[half][:, labels], pairs, e_half)
+        assert energy(np.searchsorted(labels, got[half]), unary[half][:, labels], pairs, e_half) == \
+            pytest.approx(best, abs=1e-3)
+    whole = potts_expansion(costly, both, w)
+    assert energy(got, costly, both, w) == pytest.approx(energy(whole, costly, both, w), abs=1e-3)
