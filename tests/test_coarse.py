@@ -246,3 +246,17 @@ def test_holes_touching_at_a_corner_are_closed():
     assert batch.meshes[0].report["boundary_edges"] == 0
     fields = ta.akvf(batch, n=4)
     assert float(fields.eigenvalues[0, 0]) > -1.0 and bool(fields.converged[0])
+
+
+def test_psb_decimations_with_pinched_holes_are_closed_and_solvable(psb):
+    """PSB 284 and 17 decimated to 4000 faces: the collapse leaves holes touching at a corner.
+    Closed, the coarse mesh has no boundary and is solved decimated (before, no shift factored
+    it and the mesh fell back to full resolution: 76,476 edges for 284 instead of ~6,000)."""
+    from torchakvf.fields.akvf import akvf_falling_back
+    for mesh_id in (284, 17):
+        batch = MeshBatch.from_meshes([ta.load_mesh(psb / "meshes" / f"{mesh_id}.off.gz")], coarse_faces=4000)
+        assert batch.coarse_of(0) is not None
+        assert batch.meshes[0].report["boundary_edges"] == 0
+        fields, fell_back = akvf_falling_back(batch, n=8)
+        assert fell_back == [] and int(fields.batch.edge_ptr[-1]) < 6100
+        assert bool(fields.converged[0]) and float(fields.eigenvalues[0, 0]) > -1.0

@@ -31,9 +31,10 @@ class ShiftedFactor:
     """
 
     def __init__(self, rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor,
-                 mass: torch.Tensor, name: str = "mesh", shifts=SHIFTS):
+                 mass: torch.Tensor, name: str = "mesh", shifts=None):
         import cholespy
 
+        shifts = SHIFTS if shifts is None else tuple(shifts)
         n = len(mass)
         self.device = mass.device
         lower = rows >= cols                       # CHOLMOD reads the lower triangle only
