@@ -201,7 +201,7 @@ def _nearest(xb: torch.Tensor, cb: torch.Tensor, absent_b: torch.Tensor | None, 
 
     The similarities are laid out [b, q, k, N] (centers by rows): the max over k then reduces
     whole rows of N, which vectorizes; over the last axis of [b, N, q, k] it reduced k at a
-    time (5x the GEMM at k = 24). On CPU the lowest index attaining the max is found with
+    time (2-5x the GEMM at k = 24). On CPU the lowest index attaining the max is found with
     numpy (:func:`_first_max`); torch's comparisons into bool tensors cost 5x numpy's there.
     """
     m, n_max = xb.shape[:2]
