@@ -214,10 +214,9 @@ def _boundary_loops(boundary: np.ndarray) -> list:
         if not out.get(start):
             continue
         path, at = [start], {start: 0}
-        while path:
-            x = path[-1]
-            nexts = out.get(x)
-            if not nexts:                  # an open end: not a loop
+        while True:
+            nexts = out.get(path[-1])
+            if not nexts:                  # back at start with no edge left, or an open end
                 break
             y = nexts.pop()
             if y in at:
@@ -226,8 +225,6 @@ def _boundary_loops(boundary: np.ndarray) -> list:
                 for z in path[cut + 1:]:
                     del at[z]
                 del path[cut + 1:]
-                if cut == 0 and not out.get(y):
-                    break
             else:
                 at[y] = len(path)
                 path.append(y)
