@@ -176,11 +176,19 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     if remedy not in REMEDIES:
         raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
     batch = as_batch(meshes, device=device)
-    system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
     edges = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
     # The solver of each mesh ("auto" decides per mesh, by its size).
     solvers = [solver_for(batch.device, e) if solver == "auto" else solver for e in edges]
     names = batch.names
+    if len(batch) > 1 and batch.device.type == "cpu" and "lobpcg" not in solvers:
+        # Solvers that work one mesh at a time anyway: on CPU the whole mesh (operator,
+        # residuals, Whitney vectors) goes one at a time too. The batch's arrays are only
+        # larger, not fewer operations: on 16 PSB meshes at 4000 faces the batched stage took
+        # 1.5x the time of the same meshes one by one (fresh memory and cache misses).
+        return _one_mesh_at_a_time(batch, n, tol=tol, seed=seed, remedy=remedy,
+                                   boundary_correction=boundary_correction, max_iter=max_iter,
+                                   solver=solver)
+    system = killing_operator(batch, boundary_correction=boundary_correction, remedy=remedy)
 
     drop = remedy != "none"
     factors: dict[int, ShiftedFactor] = {}     # a re-solve with more room reuses them
@@ -264,11 +272,7 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     dev = batch.device
     eigenvalues, residuals, forms = torch.stack(lam), torch.stack(res), torch.cat(forms)
     converged = (residuals <= tol).all(dim=1)
-    if not bool(converged.all()):
-        bad = [f"{names[b]} (residual {float(residuals[b].max()):.1e})"
-               for b in torch.nonzero(~converged).reshape(-1).tolist()]
-        warnings.warn(f"AKVF eigensolve did not reach tol {tol:.0e} for {', '.join(bad)}; these "
-                      "meshes are flagged in AKVFResult.converged", ConvergenceWarning, stacklevel=2)
+    _warn_unconverged(names, residuals, converged, tol)
     fv = whitney_face_vectors(batch, system.geometry, forms)
     out_dt = batch.dtype
     return AKVFResult(eigenvalues=eigenvalues.to(out_dt), forms=forms.to(out_dt),
@@ -277,6 +281,35 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
                       shifts=torch.stack([p[4] for p in per_mesh]).to(dev), converged=converged,
                       dropped=torch.tensor(dropped, dtype=torch.long, device=dev), batch=batch, system=system,
                       solved=torch.tensor(counts, dtype=torch.long, device=dev))
+
+
+def _warn_unconverged(names: list, residuals: torch.Tensor, converged: torch.Tensor, tol: float,
+                      stacklevel: int = 3) -> None:
+    """One :class:`ConvergenceWarning` naming every mesh of the batch that did not reach
+    ``tol`` (``stacklevel``: of the caller of :func:`akvf`, counted from here)."""
+    if not bool(converged.all()):
+        bad = [f"{names[b]} (residual {float(residuals[b].max()):.1e})"
+               for b in torch.nonzero(~converged).reshape(-1).tolist()]
+        warnings.warn(f"AKVF eigensolve did not reach tol {tol:.0e} for {', '.join(bad)}; these "
+                      "meshes are flagged in AKVFResult.converged", ConvergenceWarning, stacklevel=stacklevel)
+
+
+def _one_mesh_at_a_time(batch: MeshBatch, n: int, **kwargs) -> AKVFResult:
+    """:func:`akvf` of each mesh of ``batch`` alone (:meth:`MeshBatch.mesh`), as one result on
+    ``batch``: the same bits as each mesh solved by itself, by construction."""
+    parts = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)    # one warning for the batch, below
+        for b in range(len(batch)):
+            parts.append(akvf(batch.mesh(b), n, **kwargs))
+    cat = lambda name: torch.cat([getattr(p, name) for p in parts])  # noqa: E731
+    out = AKVFResult(eigenvalues=cat("eigenvalues"), forms=cat("forms"), face_vectors=cat("face_vectors"),
+                     residuals=cat("residuals"), iterations=cat("iterations"), shifts=cat("shifts"),
+                     converged=cat("converged"), dropped=cat("dropped"), batch=batch,
+                     system=KillingSystem.concatenate([p.system for p in parts], batch.edge_ptr),
+                     solved=cat("solved"))
+    _warn_unconverged(batch.names, out.residuals, out.converged, kwargs["tol"], stacklevel=4)
+    return out
 
 
 def _group_ptr(eig, group: list[int], edges: list[int]) -> torch.Tensor:

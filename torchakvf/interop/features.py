@@ -52,7 +52,7 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
     for b in range(len(batch)):
         f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
         out.append(FaceFeatures(
-            features=_on_input_faces(batch, b, unt.features[f0:f1].detach().cpu().numpy()),
+            features=_on_input_faces(batch, b, unt.mesh_features(b).detach().cpu().numpy()),
             akvf_norms=_on_input_faces(batch, b, raw[f0:f1].detach().cpu().numpy()),
             eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
             energies=unt.energies[b].detach().cpu().numpy()))

@@ -189,6 +189,18 @@ class MeshBatch:
         c = self.coarse_of(b)
         return self.meshes[b] if c is None else c.fine
 
+    def mesh(self, b: int) -> "MeshBatch":
+        """Mesh b as a batch of its own (slices of this batch's tensors, local indices): the
+        batch :meth:`from_meshes` makes of that mesh alone."""
+        v0, v1 = int(self.vert_ptr[b]), int(self.vert_ptr[b + 1])
+        f0, f1 = int(self.face_ptr[b]), int(self.face_ptr[b + 1])
+        e0, e1 = int(self.edge_ptr[b]), int(self.edge_ptr[b + 1])
+        ptr = lambda n: torch.tensor([0, n], device=self.device)  # noqa: E731
+        return MeshBatch(verts=self.verts[v0:v1], faces=self.faces[f0:f1] - v0, edges=self.edges[e0:e1] - v0,
+                         face_edges=self.face_edges[f0:f1] - e0, face_edge_sign=self.face_edge_sign[f0:f1],
+                         vert_ptr=ptr(v1 - v0), face_ptr=ptr(f1 - f0), edge_ptr=ptr(e1 - e0),
+                         meshes=[self.meshes[b]], coarse=[self.coarse[b]] if self.coarse else [])
+
     def split(self, packed: torch.Tensor, ptr: torch.Tensor) -> list[torch.Tensor]:
         """Split a packed tensor into per-mesh pieces along dim 0 using offsets ``ptr``."""
         sizes = (ptr[1:] - ptr[:-1]).tolist()

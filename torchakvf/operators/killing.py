@@ -74,6 +74,22 @@ class KillingSystem:
         return KillingSystem(stiffness=stiff, mass=torch.cat(mass), star1_raw=torch.cat(raw),
                              edge_ptr=torch.tensor(ptr, dtype=torch.long, device=dev), geometry=None)
 
+    @classmethod
+    def concatenate(cls, systems: list, edge_ptr: torch.Tensor) -> "KillingSystem":
+        """One batch's system from the systems of its meshes solved one at a time (in batch
+        order; ``edge_ptr`` [B+1] the batch's): R block-diagonal, the rest stacked."""
+        offsets = edge_ptr[:-1].tolist()
+        idx = torch.cat([s.stiffness.indices() + off for s, off in zip(systems, offsets)], dim=1)
+        n = int(edge_ptr[-1])
+        # each block coalesced and the blocks in row order: the whole is coalesced too
+        stiff = torch.sparse_coo_tensor(idx, torch.cat([s.stiffness.values() for s in systems]), (n, n),
+                                        is_coalesced=True, check_invariants=False)
+        geos = [s.geometry for s in systems]
+        geometry = None if any(g is None for g in geos) else BatchGeometry(
+            **{name: torch.cat([getattr(g, name) for g in geos]) for name in BatchGeometry.__dataclass_fields__})
+        return cls(stiffness=stiff, mass=torch.cat([s.mass for s in systems]), edge_ptr=edge_ptr,
+                   star1_raw=torch.cat([s.star1_raw for s in systems]), geometry=geometry)
+
     def block(self, b: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
         """COO entries (rows, cols, vals) of mesh b's block with local indices, and its size."""
         idx, vals = self.stiffness.indices(), self.stiffness.values()

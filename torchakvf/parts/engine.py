@@ -479,10 +479,10 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         else:
             unt = _round_untangled(fields, ns, active, rotations, assembled, opts)
         t1 = time.perf_counter()
-        xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
         n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
         km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
         if opts.kmeans_seeded_restarts and r > 0:
+            xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
             # Warm start: each active mesh's last restart begins at the centroids, in this
             # round's features, of its previous round's clusters (the extra clusters k-means++).
             init = [previous_centroids(xpad[b], mask[b], prev_labels[b], km_ks[b]) if b in active else None
@@ -490,7 +490,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
             km = spherical_kmeans(xpad, mask, km_ks, restarts=opts.kmeans_seeded_restarts, seed=opts.seed,
                                   max_iter=opts.kmeans_max_iter, init=init)
         else:
-            km = _round_clustering(xpad, mask, km_ks, ns, active, clusterings, opts)
+            km = _round_clustering(unt, km_ks, ns, active, clusterings, opts)
         if opts.kmeans_seeded_restarts:
             for b in active:
                 prev_labels[b] = km.labels[b]
@@ -537,39 +537,48 @@ class MeshClustering:
     restart_costs: torch.Tensor
 
 
-def _round_clustering(xpad: torch.Tensor, mask: torch.Tensor, km_ks: list, ns: list, active: list,
+def _round_clustering(unt: UntangledFields, km_ks: list, ns: list, active: list,
                       clusterings: dict, opts: SegmentOptions) -> KMeansResult:
-    """The round's k-means: each active mesh b into km_ks[b] clusters of its first ns[b]
-    features, from ``clusterings`` {(b, n, k'): MeshClustering} where a round before made it,
+    """The round's k-means: each active mesh b into km_ks[b] clusters of its ns[b] features
+    (``unt``), from ``clusterings`` {(b, n, k'): MeshClustering} where a round before made it,
     the others clustered now (together) and added to it. Meshes sitting out the round get a
-    placeholder (every row in cluster 0; they are not cut).
+    placeholder (every row in cluster 0; they are not cut). Returns labels [B, F_max] and
+    centers [B, k_max, unt.n] over the whole batch.
 
     A mesh's clustering depends on its own rows (its n columns), k' and the seed alone
     (:func:`~torchakvf.cluster.spherical_kmeans`), so a mesh gets the bits it gets alone, in
     any batch; this saves the k-means of every k whose (n, k') an earlier k of the mesh had (the
     merge method over-segments every k up to a floor alike, :func:`cluster_count`).
     """
-    nb, n_max, d = xpad.shape
+    batch = unt.batch
+    nb, d = len(batch), unt.n
+    dev = unt.source.forms.device
+    n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
     keys = {b: (b, ns[b], km_ks[b]) for b in active}
     missing = [b for b in active if keys[b] not in clusterings]
     for n in sorted({ns[b] for b in missing}):
-        # The meshes at n fields cluster their n columns, not the round's padded d: the
-        # products of a mesh alone (and d / n times cheaper).
+        # The meshes at n fields cluster their n columns, padded to their own largest face
+        # count (a mesh alone: no padding), not the whole batch's.
         group = [b for b in missing if ns[b] == n]
-        sel = torch.tensor(group, device=xpad.device)
-        km = spherical_kmeans(xpad[sel][:, :, :n], mask[sel], [km_ks[b] for b in group],
+        rows = max(n_faces[b] for b in group)
+        x = torch.zeros(len(group), rows, n, dtype=torch.float64, device=dev)
+        mask = torch.zeros(len(group), rows, dtype=torch.bool, device=dev)
+        for j, b in enumerate(group):
+            x[j, :n_faces[b]] = unt.mesh_features(b).double()
+            mask[j, :n_faces[b]] = True
+        km = spherical_kmeans(x, mask, [km_ks[b] for b in group],
                               restarts=opts.kmeans_restarts, seed=opts.seed, max_iter=opts.kmeans_max_iter)
         for j, b in enumerate(group):
-            rows = int(mask[b].sum())
             clusterings[keys[b]] = MeshClustering(
-                labels=km.labels[j, :rows], centers=km.centers[j, :km_ks[b]], cost=km.cost[j],
+                labels=km.labels[j, :n_faces[b]], centers=km.centers[j, :km_ks[b]], cost=km.cost[j],
                 iterations=km.iterations[j], restart_costs=km.restart_costs[j])
     k_max = max([km_ks[b] for b in active] + [PAD_K])
-    labels = torch.where(mask, 0, -1).to(torch.long)
-    centers = xpad.new_zeros(nb, k_max, d, dtype=torch.float64)
-    cost = xpad.new_zeros(nb, dtype=torch.float64)
-    iters = torch.zeros(nb, dtype=torch.long, device=xpad.device)
-    restart_costs = xpad.new_zeros(nb, opts.kmeans_restarts, dtype=torch.float64)
+    f_max = max(n_faces)
+    labels = torch.where(torch.arange(f_max, device=dev)[None, :] < torch.tensor(n_faces, device=dev)[:, None], 0, -1)
+    centers = torch.zeros(nb, k_max, d, dtype=torch.float64, device=dev)
+    cost = torch.zeros(nb, dtype=torch.float64, device=dev)
+    iters = torch.zeros(nb, dtype=torch.long, device=dev)
+    restart_costs = torch.zeros(nb, opts.kmeans_restarts, dtype=torch.float64, device=dev)
     for b in active:
         c = clusterings[keys[b]]
         labels[b, :len(c.labels)] = c.labels

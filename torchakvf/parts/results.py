@@ -56,8 +56,7 @@ class Segmentation:
         dropped faces; on a decimated mesh, those of the coarse face under each input face);
         ``generators[p][i].field`` indexes the second axis."""
         unt = self.untangled
-        ptr = unt.batch.face_ptr
-        fv = unt.face_vectors[int(ptr[b]):int(ptr[b + 1]), :unt.n_fields[b]].detach().cpu().numpy()
+        fv = unt.mesh_face_vectors(b).detach().cpu().numpy()
         coarse = unt.batch.coarse_of(b)
         if coarse is not None:  # the coarse face under each fine barycenter
             fv = coarse.face_values(fv)

@@ -146,20 +146,20 @@ class FeaturesTask:
             coarse = batch.coarse_of(b)
 
             def on_input(values, clean=it.clean, coarse=coarse):
-                """[solved faces, ...] -> [input faces, ...] (zeros on dropped faces)."""
-                values = values[f0:f1].cpu().numpy().astype(np.float32)
+                """[the mesh's solved faces, ...] -> [input faces, ...] (zeros on dropped faces)."""
+                values = values.cpu().numpy().astype(np.float32)
                 return clean.to_input_faces(values if coarse is None else coarse.face_values(values))
 
             residuals = fields.residuals[b].cpu().numpy().astype(np.float64)
             out = {
-                "akvf_norms": on_input(raw_norms),
-                "features": on_input(unt.features),
+                "akvf_norms": on_input(raw_norms[f0:f1]),
+                "features": on_input(unt.mesh_features(b)),
                 "eigenvalues": fields.eigenvalues[b].cpu().numpy().astype(np.float64),
                 "residuals": residuals,
                 "converged": np.bool_(bool(np.all(residuals <= self.tol))),
             }
             if self.face_vectors:
-                out["face_vectors"] = on_input(unt.face_vectors)
+                out["face_vectors"] = on_input(unt.mesh_face_vectors(b))
             outs.append(out)
         t2 = time.perf_counter()
         return outs, {"akvf": t1 - t0, "untangle": t2 - t1}
