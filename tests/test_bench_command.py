@@ -110,7 +110,8 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
         assert run["ru_maxrss_mib"] > 0
         if run["kind"] == "torchakvf":   # CPU time of this process and of its finished workers
             assert run["cpu_seconds"] > 0.1 * run["stage_seconds"]["akvf"], (name, run["cpu_seconds"])
-    assert r["runs"]["batched"]["batches"] == 1            # 564 faces: one batch at the default budget
+    # 564 faces fit one batch at the default budget, but several workers get a batch each
+    assert r["runs"]["batched"]["batches"] == min(2, r["runs"]["batched"]["workers"])
     assert r["runs"]["one_at_a_time"]["batches"] == 2 and r["runs"]["one_at_a_time"]["batch_faces"] == 1
     c = r["comparison"]
     assert c["mesh_ids"] == [1, 21] and not c["excluded"]

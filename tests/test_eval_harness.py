@@ -430,3 +430,28 @@ def test_batches_go_to_the_workers_heaviest_first():
     order = heaviest_first(batches, faces, ks)
     assert [[q.mesh_id for q in b] for b in order] == [[1, 4], [2], [3], [0]]
     assert sorted(map(id, order)) == sorted(map(id, batches))       # the same batches, moved
+
+
+def test_batches_of_several_workers_balance_the_work_under_the_budget():
+    from types import SimpleNamespace as NS
+
+    from torchakvf.evaluate.plan import balanced_batches, make_batches, mesh_work
+    p = [NS(mesh_id=i) for i in range(6)]
+    faces = {i: 100 for i in range(6)}
+    ks = {0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 5: 9}
+    work = mesh_work(faces, ks)
+    assert work == {0: 100, 1: 200, 2: 300, 3: 400, 4: 500, 5: 1000}
+    ids = lambda bs: [[q.mesh_id for q in b] for b in bs]             # noqa: E731
+    # one worker: consecutive plans, 300 faces per batch (work 600 and 1900)
+    assert ids(make_batches(p, faces, 300)) == [[0, 1, 2], [3, 4, 5]]
+    assert ids(make_batches(p, faces, 300, workers=1, work_of=work)) == [[0, 1, 2], [3, 4, 5]]
+    # two workers, two batches: heaviest first into the lightest batch with room (ties: the
+    # first): 5 -> A 1000, 4 -> B 500, 3 -> B 900, 2 -> B 1200 (full), 1 -> A 1200, 0 -> A 1300
+    assert ids(make_batches(p, faces, 300, workers=2, work_of=work)) == [[0, 1, 5], [2, 3, 4]]
+    # no budget to speak of: still one batch per worker, not one batch
+    assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work)) == [[0, 1, 5], [2, 3, 4]]
+    # a mesh that fits in no batch opens one: 2 batches of <= 200 faces cannot hold 6 meshes
+    # (5 -> A, 4 -> B, 3 -> B full, 2 -> A full, 1 -> C, 0 -> C)
+    assert ids(balanced_batches(p, faces, 200, work, 2)) == [[2, 5], [3, 4], [0, 1]]
+    # more workers than meshes: one mesh per batch
+    assert sorted(ids(make_batches(p, faces, 10 ** 6, workers=8, work_of=work))) == [[i] for i in range(6)]

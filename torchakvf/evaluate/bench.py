@@ -13,8 +13,9 @@ faces = the face count of the input file; memory in MiB = 2**20 bytes):
   distinct segment counts of its human segmentations; a mesh without ground truth gets the
   harness's :data:`~torchakvf.evaluate.harness.DEFAULT_K_NO_GT`. Reading those counts from the
   ground truth is timed apart ("plan") and is no part of any run.
-* **Runs.** (a) ``batched``: the evaluation's own path (:func:`~torchakvf.evaluate.plan.make_batches`
-  + :func:`~torchakvf.evaluate.predict.predict_batch`: one AKVF solve per batch shared by every k,
+* **Runs.** (a) ``batched``: the evaluation's own path (:func:`~torchakvf.evaluate.plan.make_batches`:
+  with several workers, batches of equal estimated work under the budget, at least one per
+  worker; + :func:`~torchakvf.evaluate.predict.predict_batch`: one AKVF solve per batch shared by every k,
   segmentation in rounds, one ``.seg`` per (mesh, k)) with the ``--batch-faces`` budget (default: the harness's,
   that of ``torchakvf eval``). On every ``--baseline-every``-th mesh of the selection (the 1st,
   the (M+1)-th, ...): (b) ``one_at_a_time``: the same path with a face budget of 1, so each mesh
