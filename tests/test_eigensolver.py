@@ -258,8 +258,17 @@ def test_face_vectors_match_scipy_whitney(ref_case):
 # batching, reproducibility, precision
 # ---------------------------------------------------------------------------------------------
 
+@pytest.fixture(params=["one mesh at a time", "batched"])
+def batch_path(request, monkeypatch):
+    """akvf's two ways through a batch on CPU: one mesh at a time (the CPU's) and as one batch
+    (the GPU's, run here on CPU)."""
+    if request.param == "batched":
+        monkeypatch.setattr(importlib.import_module("torchakvf.fields.akvf"), "ONE_MESH_AT_A_TIME_ON", ())
+    return request.param
+
+
 @pytest.mark.parametrize("method", METHODS)
-def test_batch_of_different_sizes_equals_each_alone(method):
+def test_batch_of_different_sizes_equals_each_alone(method, batch_path):
     meshes = [mesh_of(shapes.icosphere(3)), mesh_of(shapes.flat_disk()), mesh_of(shapes.open_tube(n_around=36)),
               mesh_of(shapes.dumbbell(n_around=36))]
     n = 10
@@ -456,7 +465,7 @@ def test_psb_smooth_remedy_matches_eigsh(psb, mesh_id):
 # A mesh's result does not depend on its batch mates (issue 11)
 # ---------------------------------------------------------------------------------------------
 
-def test_spurious_mode_resolve_is_per_mesh(monkeypatch):
+def test_spurious_mode_resolve_is_per_mesh(monkeypatch, batch_path):
     """A mesh needing room for more spurious modes is solved again alone: its mates keep the
     eigenpairs they get alone. Spurious modes are simulated by calling every eigenvalue below
     1 spurious, which makes the sphere's three rotations (λ ≈ 0.12) spurious, and one mode
@@ -636,3 +645,33 @@ def test_krylov_on_a_mesh_smaller_than_its_basis():
     lam_ref = np.sort(spla.eigsh(R, k=30, M=sp.diags(S1).tocsc(), sigma=-1.0, which="LM",
                                  v0=np.random.default_rng(0).standard_normal(R.shape[0]))[0])
     np.testing.assert_allclose(res.eigenvalues[0].numpy(), lam_ref, rtol=1e-8, atol=1e-9)
+
+
+def test_lobpcg_locking_each_mesh_stops_on_its_own():
+    """Segmented LOBPCG on a batch whose meshes converge after different numbers of iterations:
+    a converged mesh leaves the iteration (the live meshes' R is rebuilt), and every mesh ends
+    with the iterations and eigenpairs it gets alone. Alone and batched differ only in the
+    round-off of the padded products: eigenvalues to 1e-9 relative (their residuals are below
+    1e-8, squared over gaps of order 1), the same invariant subspaces."""
+    from torchakvf.operators import killing_operator
+    from torchakvf.solvers.lobpcg import segmented_lobpcg
+    meshes = [mesh_of(shapes.icosphere(2)), mesh_of(shapes.dumbbell(n_around=24)),
+              mesh_of(shapes.open_tube(n_around=24)), mesh_of(shapes.ellipsoid(level=3))]
+    batch = ta.MeshBatch.from_meshes(meshes)
+    system = killing_operator(batch, remedy=PAPER)
+    both = segmented_lobpcg(system, 8, tol=1e-8)
+    assert bool(both.converged.all())
+    assert len(set(both.iterations.tolist())) > 1           # they did stop at different times
+    for b in range(len(meshes)):
+        one = killing_operator(batch.mesh(b), remedy=PAPER)
+        alone = segmented_lobpcg(one, 8, tol=1e-8)
+        assert int(both.iterations[b]) == int(alone.iterations[0])
+        torch.testing.assert_close(both.eigenvalues[b], alone.eigenvalues[0], rtol=1e-9, atol=1e-9)
+        e0, e1 = int(batch.edge_ptr[b]), int(batch.edge_ptr[b + 1])
+        lam = alone.eigenvalues[0].numpy()
+        for start, stop in clusters(lam):
+            if stop == 8:
+                continue
+            cos = s1_principal_cosines(both.vectors[e0:e1, start:stop].numpy(),
+                                       alone.vectors[:, start:stop].numpy(), one.mass.numpy())
+            assert np.all(cos > 1 - 1e-6), (b, start, stop, cos)

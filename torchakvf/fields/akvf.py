@@ -82,6 +82,11 @@ def as_batch(meshes, device=None, coarse_faces: int | None = None) -> MeshBatch:
 
 SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
 
+#: Device types on which :func:`akvf` solves a batch one mesh at a time (each mesh as a batch
+#: of its own, results concatenated: the bits of each mesh alone); see the comment in akvf.
+#: On the others the batch is solved as one (LOBPCG on the packed batch, with locking).
+ONE_MESH_AT_A_TIME_ON = ("cpu",)
+
 #: Under a mesh-quality remedy, eigenpairs below this (λ·area) are spurious: a Killing energy is
 #: >= 0, and good meshes give at worst small negatives (-0.06 on a hemisphere, akvf-math.md);
 #: badly shaped vertices give modes localized on a few edges far below zero.
@@ -153,7 +158,8 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         any remedy but "none" also skips spurious eigenpairs below :data:`SPURIOUS_BELOW` (the
         n returned are the n smallest of the rest; ``dropped`` counts the skipped ones)
     boundary_correction : use the open-mesh boundary terms (akvf-math.md)
-    solver : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
+    solver : "lobpcg" (segmented block solver over the batch, any device; a mesh that has
+        converged leaves its iteration), "lanczos" (ARPACK
         shift-invert on the same factor, CPU, one mesh at a time), "krylov" (block shift-invert
         Krylov on the same factor, one mesh at a time) or "auto" (:func:`solver_for`, decided
         per mesh: on CPU Krylov for meshes from :data:`KRYLOV_MIN_EDGES` edges, Lanczos below)
@@ -165,7 +171,9 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     coordinates' dtype, and results are returned in the batch's dtype.
 
     Each mesh's result depends on that mesh alone: the number of eigenpairs solved (n plus
-    room for spurious modes) is decided per mesh, never by its batch mates.
+    room for spurious modes) is decided per mesh, never by its batch mates. On CPU
+    (:data:`ONE_MESH_AT_A_TIME_ON`) a batch is solved one mesh at a time, with every solver:
+    each mesh gets the bits it gets alone, and the batch is no slower than its meshes one by one.
     """
     if method is not None:
         warnings.warn("akvf(method=...) is deprecated; use solver=...", DeprecationWarning, stacklevel=2)
@@ -180,11 +188,14 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     # The solver of each mesh ("auto" decides per mesh, by its size).
     solvers = [solver_for(batch.device, e) if solver == "auto" else solver for e in edges]
     names = batch.names
-    if len(batch) > 1 and batch.device.type == "cpu" and "lobpcg" not in solvers:
-        # Solvers that work one mesh at a time anyway: on CPU the whole mesh (operator,
-        # residuals, Whitney vectors) goes one at a time too. The batch's arrays are only
-        # larger, not fewer operations: on 16 PSB meshes at 4000 faces the batched stage took
-        # 1.5x the time of the same meshes one by one (fresh memory and cache misses).
+    if len(batch) > 1 and batch.device.type in ONE_MESH_AT_A_TIME_ON:
+        # On CPU a batch is solved one mesh at a time (operator, factor, eigensolve, residuals,
+        # Whitney vectors). The batch's arrays are only larger, not fewer operations, and fresh
+        # memory is what they cost: on 16 PSB meshes at 4000 faces the batched stage took 1.35x
+        # the time of the same meshes one by one (Lanczos/Krylov, which solve mesh by mesh
+        # anyway), and the batched LOBPCG (with locking) 1.34x on 8 of them (15.2 against
+        # 11.3 s CPU; its [B, E, 3m] bases and their concatenations are fresh arrays every
+        # iteration). The batched paths are the GPU's, whose caching allocator reuses memory.
         return _one_mesh_at_a_time(batch, n, tol=tol, seed=seed, remedy=remedy,
                                    boundary_correction=boundary_correction, max_iter=max_iter,
                                    solver=solver)

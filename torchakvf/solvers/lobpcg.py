@@ -2,8 +2,9 @@
 
 One sparse multiply serves the whole batch; the Gram matrices and the small Rayleigh-Ritz
 problems are per mesh (padded, batched dense ``eigh``); each mesh converges, and stops, on its
-own. The preconditioner is the exact shift-invert ``(R_b - σ_b S1_b)^{-1}`` (one sparse Cholesky
-factor per mesh, see :mod:`.factor`), and the block carries ``guard`` extra vectors beyond the
+own: a converged mesh leaves the iteration (locking: the live meshes' arrays shrink). The
+preconditioner is the exact shift-invert ``(R_b - σ_b S1_b)^{-1}`` (one sparse Cholesky factor
+per mesh, see :mod:`.factor`), and the block carries ``guard`` extra vectors beyond the
 ``n`` wanted: convergence then goes like (λ_n - σ)/(λ_{n+guard+1} - σ) instead of depending on
 the tiny gap after λ_n, and block methods keep every copy of a repeated eigenvalue (Lanczos with
 a loose tolerance was seen to drop some).
@@ -97,18 +98,26 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     s = system.mass.new_zeros(nb, e_max, dtype=dt)
     s[mask] = system.mass.to(dt)
     inv_sqrt_s = torch.where(mask, s.clamp(min=1e-300).rsqrt(), torch.zeros_like(s))
+    # Locking: a mesh whose n pairs have converged leaves the iteration. The working arrays hold
+    # the live meshes only (``live``: their indices in the batch), and R is the live meshes'
+    # block-diagonal part, rebuilt when one leaves (at most B times): the finished ones cost
+    # nothing more (measured on 8 PSB meshes at 4000 faces, converging in 10-17 iterations:
+    # without locking the batch took 1.53x the CPU time of the meshes solved one by one).
+    live = list(range(nb))
     stiff = system.stiffness.to(dt)
+    mask_l, s_l, inv_l = mask, s, inv_sqrt_s
 
-    def r_mul(x: torch.Tensor) -> torch.Tensor:          # [B, Emax, k] -> [B, Emax, k]
+    def r_mul(x: torch.Tensor) -> torch.Tensor:          # [L, Emax, k] -> [L, Emax, k]
         out = torch.zeros_like(x)
-        out[mask] = torch.sparse.mm(stiff, x[mask])
+        out[mask_l] = torch.sparse.mm(stiff, x[mask_l])
         return out
 
     def precondition(res: torch.Tensor, todo: torch.Tensor) -> torch.Tensor:
         out = torch.zeros_like(res)
-        for b in torch.nonzero(todo.any(dim=1)).reshape(-1).tolist():
-            cols = torch.nonzero(todo[b]).reshape(-1)
-            out[b, :sizes[b], cols] = factors[b].solve(res[b, :sizes[b]][:, cols]).to(dt)
+        for j in torch.nonzero(todo.any(dim=1)).reshape(-1).tolist():
+            b = live[j]
+            cols = torch.nonzero(todo[j]).reshape(-1)
+            out[j, :sizes[b], cols] = factors[b].solve(res[j, :sizes[b]][:, cols]).to(dt)
         return out
 
     # Start: the same seeded random block per mesh, pushed once through the shift-invert.
@@ -118,39 +127,48 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
         x0 = torch.randn(e, m, generator=gen, dtype=dt).to(dev)
         x[b, :e] = factors[b].solve(s[b, :e, None] * x0).to(dt)
     x, rx, lam, _ = _rayleigh_ritz(x, r_mul(x), s, m)
+    final_x = torch.zeros(nb, e_max, n, dtype=dt, device=dev)
+    final_lam = torch.zeros(nb, n, dtype=dt, device=dev)
     p = None
-    active = torch.ones(nb, dtype=torch.bool, device=dev)
     iters = torch.zeros(nb, dtype=torch.long, device=dev)
-    rel = None
     for _ in range(max_iter):
-        res = rx - s[..., None] * x * lam[:, None, :]
-        rel = torch.linalg.norm(res * inv_sqrt_s[..., None], dim=1) / lam.abs().clamp(min=1.0)
+        res = rx - s_l[..., None] * x * lam[:, None, :]
+        rel = torch.linalg.norm(res * inv_l[..., None], dim=1) / lam.abs().clamp(min=1.0)
         done = (rel[:, :n] <= tol).all(dim=1)
-        active = active & ~done
-        if not active.any():
-            break
-        iters += active.long()
-        w = precondition(res, (rel > tol) & active[:, None])
+        if bool(done.any()):
+            gone = torch.nonzero(done).reshape(-1)
+            at = torch.tensor([live[j] for j in gone.tolist()], device=dev)
+            final_x[at], final_lam[at] = x[gone, :, :n], lam[gone, :n]
+            stay = torch.nonzero(~done).reshape(-1)
+            if len(stay) == 0:
+                live = []
+                break
+            live = [live[j] for j in stay.tolist()]
+            x, rx, lam, res, rel = x[stay], rx[stay], lam[stay], res[stay], rel[stay]
+            p = None if p is None else p[stay]
+            mask_l, s_l, inv_l = mask[live], s[live], inv_sqrt_s[live]
+            stiff = system.select(live).stiffness.to(dt)
+        iters[torch.tensor(live, device=dev)] += 1
+        w = precondition(res, rel > tol)
         # Orthogonalize the new directions against X (S-inner product) for a well-conditioned basis.
-        w = _orthogonalize(w, x, s)
+        w = _orthogonalize(w, x, s_l)
         rw = r_mul(w)
         if p is None:
             z, rz = torch.cat([x, w], 2), torch.cat([rx, rw], 2)
         else:
             # R P is recomputed, not updated by recurrence: the recurrence drifts from R·P and
             # the drift shows up as spurious Ritz values far below the spectrum.
-            p = _orthogonalize(p, x, s)
+            p = _orthogonalize(p, x, s_l)
             rp = r_mul(p)
             z, rz = torch.cat([x, w, p], 2), torch.cat([rx, rw, rp], 2)
-        xn, rxn, lamn, c = _rayleigh_ritz(z, rz, s, m)
-        pn = z[:, :, m:] @ c[:, m:, :]
-        keep = ~active[:, None, None]
-        x, rx = torch.where(keep, x, xn), torch.where(keep, rx, rxn)
-        lam = torch.where(keep[:, :, 0], lam, lamn)
-        p = pn if p is None else torch.where(keep, p, pn)
+        x, rx, lam, c = _rayleigh_ritz(z, rz, s_l, m)
+        p = z[:, :, m:] @ c[:, m:, :]
+    if live:    # out of iterations: the meshes still live keep where they got
+        at = torch.tensor(live, device=dev)
+        final_x[at], final_lam[at] = x[:, :, :n], lam[:, :n]
 
-    vectors = x[..., :n][mask]
-    values = lam[:, :n].contiguous()
+    vectors = final_x[mask]
+    values = final_lam
     residuals = relative_residuals(system, vectors, values)
     converged = (residuals <= tol).all(dim=1)
     for b in torch.nonzero(~converged).reshape(-1).tolist():
