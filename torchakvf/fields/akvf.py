@@ -173,7 +173,8 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     Each mesh's result depends on that mesh alone: the number of eigenpairs solved (n plus
     room for spurious modes) is decided per mesh, never by its batch mates. On CPU
     (:data:`ONE_MESH_AT_A_TIME_ON`) a batch is solved one mesh at a time, with every solver:
-    each mesh gets the bits it gets alone, and the batch is no slower than its meshes one by one.
+    each mesh gets the bits it gets alone (benchmarks/results/batched_vs_alone_cpu.md for the
+    speed of either way).
     """
     if method is not None:
         warnings.warn("akvf(method=...) is deprecated; use solver=...", DeprecationWarning, stacklevel=2)
