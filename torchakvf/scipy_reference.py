@@ -45,6 +45,7 @@ __all__ = [
     "untangle_numpy",
     "spherical_kmeans_numpy",
     "segment_scipy",
+    "features_scipy",
 ]
 
 
@@ -448,6 +449,22 @@ def spherical_kmeans_numpy(X, k: int, restarts: int = 20, iters: int = 100, seed
 # ----------------------------------------------------------------------------------------------------------------
 # Whole pipeline
 # ----------------------------------------------------------------------------------------------------------------
+
+def features_scipy(V, F, n: int = 32, seed: int = 0, sigma: float = -1.0, remedy: str = "smooth",
+                   restarts: int = 8, tol: float = 1e-6, boundary_correction: bool = True):
+    """Per-face AKVF descriptors, plain pipeline: AKVFs (eigsh, SuperLU) -> Algorithm 1 (numpy)
+    -> norms of the untangled fields' Whitney vectors at the barycenters.
+
+    Returns ``(features [F, n], eigenvalues [n])``: the baseline of ``torchakvf``'s ``features``
+    (:func:`torchakvf.interop.face_features`) with the same remedy, field count and restarts.
+    """
+    R, S1, edges, meta = killing_operator_scipy(V, F, boundary_correction=boundary_correction, remedy=remedy)
+    S1 = _clamp_mass(S1)
+    lam, forms = _solve_akvf(R, S1, n, sigma)
+    U, _ = untangle_numpy(forms, S1, tol=tol, restarts=restarts, seed=seed)
+    X = whitney_face_vectors_scipy(meta["V"], F, edges, U)
+    return np.linalg.norm(X, axis=2), lam
+
 
 def segment_scipy(V, F, k: int, n: int | None = None, seed: int = 0, sigma: float = -1.0,
                   boundary_correction: bool = True, return_info: bool = False):
