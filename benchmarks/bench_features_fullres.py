@@ -26,7 +26,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import os
 import platform
 import sys
 import time
@@ -41,15 +40,11 @@ sys.path.insert(0, str(REPO))
 
 import torchakvf as ta  # noqa: E402
 from torchakvf import scipy_reference as ref  # noqa: E402
+from torchakvf.evaluate.psb import default_psb_root  # noqa: E402
 from torchakvf.interop import face_features  # noqa: E402
 from torchakvf.mesh.clean import clean_mesh  # noqa: E402
 
 IDS = [1, 21, 121, 181, 301]
-
-
-def default_psb() -> Path:
-    env = os.environ.get("TORCHAKVF_PSB")
-    return Path(env) if env else REPO.parent / "shared" / "psb"
 
 
 def cpu_timed(fn, *a, **k):
@@ -64,15 +59,16 @@ def ta_side(mesh, n):
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--psb", type=Path, default=default_psb())
+    p.add_argument("--psb", type=Path, default=default_psb_root())
     p.add_argument("--ids", type=int, nargs="+", default=IDS)
     p.add_argument("--n", type=int, default=32)
     p.add_argument("--repeat", type=int, default=2, help="rounds, best kept (default 2)")
     p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "features_fullres.md")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
-    if not args.psb.is_dir():
-        print(f"bench_features_fullres: PSB folder {args.psb} not found (set TORCHAKVF_PSB)", file=sys.stderr)
+    if args.psb is None or not args.psb.is_dir():
+        print(f"bench_features_fullres: PSB folder {args.psb} not found (set TORCHAKVF_PSB or pass --psb)",
+              file=sys.stderr)
         return 2
     meshes = {i: ta.load_mesh(args.psb / "meshes" / f"{i}.off.gz") for i in args.ids}
     cleaned = {i: clean_mesh(m) for i, m in meshes.items()}

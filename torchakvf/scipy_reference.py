@@ -450,6 +450,20 @@ def spherical_kmeans_numpy(X, k: int, restarts: int = 20, iters: int = 100, seed
 # Whole pipeline
 # ----------------------------------------------------------------------------------------------------------------
 
+def _features_info(V, F, n: int, seed: int, sigma: float, remedy: str, boundary_correction: bool,
+                   **untangle_kwargs) -> dict:
+    """The plain pipeline up to the face features: operator, eigsh, Algorithm 1, Whitney norms
+    (``untangle_kwargs``: :func:`untangle_numpy`'s). Returns a dict of eigenvalues, forms,
+    untangled forms, rotation, features [F, n], edges and S1."""
+    R, S1, edges, meta = killing_operator_scipy(V, F, boundary_correction=boundary_correction, remedy=remedy)
+    S1 = _clamp_mass(S1)
+    lam, forms = _solve_akvf(R, S1, n, sigma)
+    U, A = untangle_numpy(forms, S1, seed=seed, **untangle_kwargs)
+    X = whitney_face_vectors_scipy(meta["V"], F, edges, U)
+    return dict(eigenvalues=lam, forms=forms, untangled=U, rotation=A,
+                features=np.linalg.norm(X, axis=2), edges=edges, S1=S1)
+
+
 def features_scipy(V, F, n: int = 32, seed: int = 0, sigma: float = -1.0, remedy: str = "smooth",
                    restarts: int = 8, tol: float = 1e-6, boundary_correction: bool = True):
     """Per-face AKVF descriptors, plain pipeline: AKVFs (eigsh, SuperLU) -> Algorithm 1 (numpy)
@@ -458,12 +472,8 @@ def features_scipy(V, F, n: int = 32, seed: int = 0, sigma: float = -1.0, remedy
     Returns ``(features [F, n], eigenvalues [n])``: the baseline of ``torchakvf``'s ``features``
     (:func:`torchakvf.interop.face_features`) with the same remedy, field count and restarts.
     """
-    R, S1, edges, meta = killing_operator_scipy(V, F, boundary_correction=boundary_correction, remedy=remedy)
-    S1 = _clamp_mass(S1)
-    lam, forms = _solve_akvf(R, S1, n, sigma)
-    U, _ = untangle_numpy(forms, S1, tol=tol, restarts=restarts, seed=seed)
-    X = whitney_face_vectors_scipy(meta["V"], F, edges, U)
-    return np.linalg.norm(X, axis=2), lam
+    info = _features_info(V, F, n, seed, sigma, remedy, boundary_correction, tol=tol, restarts=restarts)
+    return info["features"], info["eigenvalues"]
 
 
 def segment_scipy(V, F, k: int, n: int | None = None, seed: int = 0, sigma: float = -1.0,
@@ -476,14 +486,9 @@ def segment_scipy(V, F, k: int, n: int | None = None, seed: int = 0, sigma: floa
     """
     if n is None:
         n = int(np.clip(2 * k, 16, 32))
-    R, S1, edges, meta = killing_operator_scipy(V, F, boundary_correction=boundary_correction)
-    S1 = _clamp_mass(S1)
-    lam, forms = _solve_akvf(R, S1, n, sigma)
-    U, A = untangle_numpy(forms, S1, seed=seed)
-    X = whitney_face_vectors_scipy(meta["V"], F, edges, U)
-    feats = np.linalg.norm(X, axis=2)
+    info = _features_info(V, F, n, seed, sigma, "none", boundary_correction)
+    feats = info["features"]
     labels, cost = spherical_kmeans_numpy(feats, k, seed=seed)
     if return_info:
-        return labels, dict(eigenvalues=lam, forms=forms, untangled=U, rotation=A, features=feats,
-                            kmeans_cost=cost, edges=edges, S1=S1)
+        return labels, dict(info, kmeans_cost=cost)
     return labels
