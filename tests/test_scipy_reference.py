@@ -258,11 +258,29 @@ def test_torch_untangle_matches_numpy_oracle(blob_fields):
     s_raw = np.sum((H * phi) ** 4)
     assert abs(s_torch / s_np - 1) < UNTANGLE_SCORE_RTOL, (s_torch, s_np)
     assert s_raw < s_np * (1 - 10 * UNTANGLE_SCORE_RTOL)      # the check can fail
-    # The same fields up to order and sign: S1-cosines of matched columns near 1 (0.977 measured
-    # where two fields on one blob are nearly tied: the objective hardly separates their mixes;
-    # a field on the wrong blob would have cosine ~0).
-    cos = np.abs(U.T @ (mass[:, None] * u.forms.double().numpy()))
-    assert cos.max(axis=1).min() > 0.95, cos.max(axis=1)
+    # The same fields up to order, signs and rotations inside a near-degenerate set: the
+    # blobs' fields come in near-tied pairs and triples, whose mixes the objective hardly
+    # separates (matched cosines from 0.69 to 1 seen between equal-objective optima, by the
+    # path of the iteration). So the S1-cosines between the two bases (an orthogonal matrix)
+    # must split into small groups, each spanning the same fields on both sides.
+    cos = U.T @ (mass[:, None] * u.forms.double().numpy())           # [n numpy, n torch]
+    linked = np.abs(cos) > 0.1
+    group = list(range(n))                                            # union-find over numpy fields
+    def root(i):
+        while group[i] != i:
+            i = group[i]
+        return i
+    for j in range(n):                                                # a torch field links its numpy fields
+        rows = np.flatnonzero(linked[:, j])
+        for i in rows[1:]:
+            group[root(i)] = root(rows[0])
+    roots = np.array([root(i) for i in range(n)])
+    for g in np.unique(roots):
+        mine = np.flatnonzero(roots == g)
+        theirs = np.flatnonzero(linked[mine].any(axis=0))
+        assert len(mine) == len(theirs) <= 3, (mine, theirs)
+        # principal angles between the two sets: all cosines 1 (the same span)
+        assert np.linalg.svd(cos[np.ix_(mine, theirs)], compute_uv=False).min() > 1 - 1e-4
     np.testing.assert_allclose(u.rotation[0].double().numpy().T @ u.rotation[0].double().numpy(),
                                np.eye(n), atol=1e-12)
 
