@@ -129,10 +129,15 @@ def main(argv=None) -> int:
                    help="also time coarse_mesh(cleaned mesh, faces) alone (0: skip; default 4000)")
     p.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
                    help="process CPU time (default; robust to other jobs' load) or wall time")
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch threads (default 1, with OMP_NUM_THREADS=1 for numpy's BLAS); 0: "
+                        "torch's default, as a plain Python session has (set no OMP_NUM_THREADS "
+                        "then, so that numpy's BLAS keeps its default too)")
     p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "eigensolver_fullres.md")
     args = p.parse_args(argv)
     CLOCK["name"] = args.clock
-    torch.set_num_threads(1)
+    if args.threads:
+        torch.set_num_threads(args.threads)
     n = args.n
     meshes = {i: load_mesh(args.psb / "meshes" / f"{i}.off.gz") for i in args.ids}
     clean = {i: clean_mesh(m) for i, m in meshes.items()}

@@ -312,7 +312,16 @@ def test_torch_kmeans_matches_numpy_oracle(blob_fields, k):
     np.add.at(table, (lab, lab_np), 1)
     rows, cols = linear_sum_assignment(-table)
     agree = table[rows, cols].sum() / len(lab)
-    assert agree >= (1.0 if k == 3 else 0.99), agree
+    assert agree >= (1.0 if k == 3 else 0.98), agree
+    # Where they differ, the face lies on a border: about as near to the other side's cluster
+    # (matched) as to its own (k = 6 splits each blob in two along a flat stretch of the features;
+    # measured: 44 of 4332 faces, cosine gaps up to 0.0045; a wrong cluster would be far off).
+    centers = km.centers[0, :k].double().numpy()
+    match = dict(zip(cols, rows))
+    other = np.array([match[v] for v in lab_np])
+    off = np.flatnonzero(lab != other)
+    sim = xn[off] @ centers.T
+    assert np.all(sim[np.arange(len(off)), lab[off]] - sim[np.arange(len(off)), other[off]] < 0.02)
     assert torch.all(km.labels[0][~mask[0]] == -1)
 
 

@@ -96,12 +96,13 @@ SPURIOUS_MARGIN = 8
 
 
 #: On CPU, "auto" solves meshes with at least this many edges with the block Krylov solver and
-#: smaller ones with ARPACK Lanczos (same factor). Measured crossover, ta.akvf n = 32, CPU time,
-#: Lanczos / Krylov (block 4, numpy products): 0.69-1.25 at ~6,000 edges (PSB 1, 121, 181, 301
-#: decimated to 4,000 faces), 0.93-1.24 at 9,750 (the same and PSB 21 at 6,500 faces), 1.44-1.51
-#: on PSB 1, 121 and 21 at full resolution (14,112-45,594 edges);
-#: benchmarks/results/eigensolver_fullres.md.
-KRYLOV_MIN_EDGES = 10000
+#: smaller ones with ARPACK Lanczos (same factor). Measured (wall time, n = 36, best of 2-3
+#: interleaved rounds, PSB meshes decimated as eval does; benchmarks/results/eigensolver_threads.md),
+#: Lanczos / Krylov: 0.91 at ~1,500 edges (8 meshes at 1000 faces), 1.06 at ~3,000 (2000 faces),
+#: 1.46 at ~6,000 (19 meshes at 4000 faces, one thread; 1.36 on two), 1.3-1.4 at full
+#: resolution (14,112-45,594 edges). It was 10000, measured when the Krylov products went
+#: through numpy's BLAS.
+KRYLOV_MIN_EDGES = 4000
 
 
 def solver_for(device: torch.device, edges: int | None = None) -> str:

@@ -355,11 +355,13 @@ def _spmm(stiff, rows: torch.Tensor) -> torch.Tensor:
 
 
 def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """a @ b; on CPU through numpy's BLAS, measured 1.5-3x faster than torch's for the
-    Gram-Schmidt shapes ([p, E] @ [E, m] and [p, m] @ [m, E], E ~ 10⁴-10⁵, one thread):
-    they are memory-bound, and these are what the Krylov loop spends its dense time on."""
-    if a.device.type == "cpu":
-        return torch.from_numpy(a.numpy() @ b.numpy())
+    """a @ b, through torch's BLAS, whose threads follow ``torch.set_num_threads``.
+
+    Not numpy's: the Gram-Schmidt shapes ([p, E] @ [E, m] and [p, m] @ [m, E], E ~ 10⁴-10⁵) are
+    memory-bound, and numpy's OpenBLAS runs them on every core by default, which on a 2-core
+    machine made the whole full-resolution solve 1.8x slower than on one thread (PSB 21: 2.35 s
+    against 1.32 s; benchmarks/results/eigensolver_threads.md). One thread each, torch's and
+    numpy's products take about the same time here."""
     return a @ b
 
 
