@@ -342,6 +342,47 @@ def _extrapolated(a0: torch.Tensor, a1: torch.Tensor, a2: torch.Tensor) -> torch
     return u @ vh
 
 
+def _squarem_state(a: torch.Tensor) -> dict:
+    """The accelerated iteration's state for rotations a [b, R, n, n]: per restart the answer so
+    far ("a"), the cycle's base point and its two Horst steps, trace(D) of the last plain step
+    before the cycle, of the cycle's first and second steps, and the objective at step 1."""
+    zeros = lambda: torch.zeros(a.shape[:2], dtype=torch.float64, device=a.device)   # noqa: E731
+    return {"a": a.clone(), "base": a.clone(), "a1": torch.empty_like(a), "a2": torch.empty_like(a),
+            "d_last": torch.full(a.shape[:2], -1.0, dtype=torch.float64, device=a.device),
+            "d1": zeros(), "d2": zeros(), "obj1": zeros()}
+
+
+def _squarem_step(phase: int, state: dict, pick, put, y: torch.Tensor, yt: torch.Tensor,
+                  out: torch.Tensor, tol: float, iteration_dtype: torch.dtype) -> torch.Tensor:
+    """Step ``phase`` (0, 1, 2) of a SQUAREM cycle (:func:`_horst_batched`) for the restarts
+    ``pick`` gathers from the state's [b, R, ...] arrays ([m, q, ...]; ``put`` scatters [m, q, ...]
+    values back): 0 and 1 are plain Horst steps, 2 the step from the extrapolated point, kept
+    where the objective there is no lower than at step 1. Returns done [m, q]: the plain step
+    changed trace(D) by less than tol (relative; never after step 2)."""
+    if phase == 0:
+        rot, d, _ = _horst_step(y, yt, pick(state["base"]), out, iteration_dtype)
+        done = (d - pick(state["d_last"])).abs() < tol * d.abs()
+        put(state["a1"], rot)
+        put(state["d1"], d)
+    elif phase == 1:
+        src = pick(state["a1"])
+        rot, d, g = _horst_step(y, yt, src, out, iteration_dtype)
+        done = (d - pick(state["d1"])).abs() < tol * d.abs()
+        put(state["a2"], rot)
+        put(state["d2"], d)
+        put(state["obj1"], (src * g).sum(dim=(-2, -1)))
+    else:
+        x = _extrapolated(pick(state["base"]), pick(state["a1"]), pick(state["a2"]))
+        rot, d, g = _horst_step(y, yt, x, out, iteration_dtype)
+        ok = (x * g).sum(dim=(-2, -1)) >= pick(state["obj1"])
+        rot = torch.where(ok[..., None, None], rot, pick(state["a2"]))
+        put(state["base"], rot)
+        put(state["d_last"], torch.where(ok, d, pick(state["d2"])))
+        done = torch.zeros(d.shape, dtype=torch.bool, device=d.device)
+    put(state["a"], rot)
+    return done
+
+
 def _horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
                     iteration_dtype: torch.dtype):
     """:func:`_horst_batched` for one mesh (ypad [1, E, n], a [1, R, n, n]) on CPU, bitwise.
@@ -358,13 +399,7 @@ def _horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: i
     yit = ypad.to(iteration_dtype)
     yt = yit.transpose(1, 2)
     buf = yit.new_empty(e_max * r * n)
-    # Per restart: the answer so far, the cycle's base point and its two Horst steps, trace(D)
-    # of the last plain step, of the cycle's first and second steps, the objective at step 1.
-    a = a.clone()
-    base, a1, a2 = a.clone(), torch.empty_like(a), torch.empty_like(a)
-    d_last = torch.full((1, r), -1.0, dtype=torch.float64)
-    d1, d2, obj1 = torch.zeros(1, r, dtype=torch.float64), torch.zeros(1, r, dtype=torch.float64), \
-        torch.zeros(1, r, dtype=torch.float64)
+    state = _squarem_state(a)
     iters = [0] * r
     act = list(range(r))                                              # active restarts, in order
     for step in range(max_iter):
@@ -381,32 +416,11 @@ def _horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: i
                 t[:, act] = v
 
         out = buf[:e_max * q * n].view(1, e_max, q * n)
-        phase = step % 3
-        if phase == 0:                 # plain step from the base point
-            rot, d, _ = _horst_step(yit, yt, pick(base), out, iteration_dtype)
-            done = ((d - pick(d_last)).abs() < tol * d.abs())[0].tolist()
-            put(a1, rot)
-            put(d1, d)
-        elif phase == 1:               # plain step from there
-            src = pick(a1)
-            rot, d, g = _horst_step(yit, yt, src, out, iteration_dtype)
-            done = ((d - pick(d1)).abs() < tol * d.abs())[0].tolist()
-            put(a2, rot)
-            put(d2, d)
-            put(obj1, (src * g).sum(dim=(-2, -1)))
-        else:                          # the extrapolated point, kept where it is no worse
-            x = _extrapolated(pick(base), pick(a1), pick(a2))
-            rot, d, g = _horst_step(yit, yt, x, out, iteration_dtype)
-            ok = (x * g).sum(dim=(-2, -1)) >= pick(obj1)
-            rot = torch.where(ok[..., None, None], rot, pick(a2))
-            put(base, rot)
-            put(d_last, torch.where(ok, d, pick(d2)))
-            done = [False] * q
-        put(a, rot)
+        done = _squarem_step(step % 3, state, pick, put, yit, yt, out, tol, iteration_dtype)[0].tolist()
         for j in act:
             iters[j] += 1
         act = [j for j, stop in zip(act, done) if not stop]
-    return a, torch.tensor([iters], dtype=torch.long)
+    return state["a"], torch.tensor([iters], dtype=torch.long)
 
 
 def _horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
@@ -426,11 +440,7 @@ def _horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: in
     nb, e_max, n = ypad.shape
     dev = ypad.device
     r = a.shape[1]
-    a = a.clone()
-    base, a1, a2 = a.clone(), torch.empty_like(a), torch.empty_like(a)
-    zeros = lambda: torch.zeros(nb, r, dtype=torch.float64, device=dev)   # noqa: E731
-    d_last = torch.full((nb, r), -1.0, dtype=torch.float64, device=dev)
-    d1, d2, obj1 = zeros(), zeros(), zeros()
+    state = _squarem_state(a)
     active = torch.ones(nb, r, dtype=torch.bool, device=dev)
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
 
@@ -465,29 +475,9 @@ def _horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: in
             t[live] = tl
 
         out = buf[:m * e_max * q * n].view(m, e_max, q * n)
-        phase = step % 3
-        if phase == 0:
-            rot, d, _ = _horst_step(y_live, y_live.transpose(1, 2), pick(base), out, iteration_dtype)
-            done = (d - pick(d_last)).abs() < tol * d.abs()
-            put(a1, rot)
-            put(d1, d)
-        elif phase == 1:
-            src = pick(a1)
-            rot, d, g = _horst_step(y_live, y_live.transpose(1, 2), src, out, iteration_dtype)
-            done = (d - pick(d1)).abs() < tol * d.abs()
-            put(a2, rot)
-            put(d2, d)
-            put(obj1, (src * g).sum(dim=(-2, -1)))
-        else:
-            x = _extrapolated(pick(base), pick(a1), pick(a2))
-            rot, d, g = _horst_step(y_live, y_live.transpose(1, 2), x, out, iteration_dtype)
-            ok = (x * g).sum(dim=(-2, -1)) >= pick(obj1)
-            rot = torch.where(ok[..., None, None], rot, pick(a2))
-            put(base, rot)
-            put(d_last, torch.where(ok, d, pick(d2)))
-            done = torch.zeros_like(valid)
-        put(a, rot)
+        done = _squarem_step(step % 3, state, pick, put, y_live, y_live.transpose(1, 2), out, tol,
+                             iteration_dtype)
         iters[live] += act.long()
         active[live] = act.scatter(1, slot, valid & ~done)
     del buf, yit
-    return a, iters
+    return state["a"], iters
