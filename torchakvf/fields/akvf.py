@@ -160,7 +160,8 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         n returned are the n smallest of the rest; ``dropped`` counts the skipped ones)
     boundary_correction : use the open-mesh boundary terms (akvf-math.md)
     solver : "lobpcg" (segmented block solver over the batch, any device; a mesh that has
-        converged leaves its iteration), "lanczos" (ARPACK
+        converged leaves its iteration; on CUDA one block-diagonal factor of the batch serves
+        every mesh's solves), "lanczos" (ARPACK
         shift-invert on the same factor, CPU, one mesh at a time), "krylov" (block shift-invert
         Krylov on the same factor, one mesh at a time) or "auto" (:func:`solver_for`, decided
         per mesh: on CPU Krylov for meshes from :data:`KRYLOV_MIN_EDGES` edges, Lanczos below)

@@ -32,46 +32,116 @@ class ShiftedFactor:
 
     def __init__(self, rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor,
                  mass: torch.Tensor, name: str = "mesh", shifts=None):
-        import cholespy
-
         shifts = SHIFTS if shifts is None else tuple(shifts)
-        n = len(mass)
         self.device = mass.device
-        lower = rows >= cols                       # CHOLMOD reads the lower triangle only
-        diag = torch.arange(n, device=mass.device)
-        r = torch.cat([rows[lower], diag]).to(torch.int32)
-        c = torch.cat([cols[lower], diag]).to(torch.int32)
-        base = vals[lower].to(torch.float64)
+        pattern = _lower_pattern(rows, cols, vals, len(mass))
         last = None
         for sigma in shifts:
-            x = torch.cat([base, -sigma * mass.to(torch.float64)])
-            try:
-                with _quiet_stderr():
-                    self._solver = cholespy.CholeskySolverD(n, r.contiguous(), c.contiguous(),
-                                                            x.contiguous(), cholespy.MatrixType.COO)
-            except ValueError as exc:               # "Matrix is not positive definite!"
-                last = exc
-                continue
-            self.sigma = sigma
-            return
+            self._solver, last = _cholesky(pattern, -sigma * mass.to(torch.float64))
+            if self._solver is not None:
+                self.sigma = sigma
+                return
         # No advice here: what to try next depends on what was tried (the caller adds it).
         raise SolverError(f"{name}: the Killing operator has eigenvalues below {shifts[-1]} "
                           f"(λ·area); no shift made R - σS1 positive definite ({last}); the mesh "
                           "is likely badly shaped")
 
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
-        rhs = rhs.to(torch.float64).contiguous()
-        out = torch.empty_like(rhs)
-        if self.device.type == "cuda" and rhs.ndim == 2 and rhs.shape[1] > 128:
-            # cholespy's CUDA solve takes at most 128 right-hand sides at a time.
-            for s in range(0, rhs.shape[1], 128):
-                chunk = rhs[:, s:s + 128].contiguous()
-                res = torch.empty_like(chunk)
-                self._solver.solve(chunk, res)
-                out[:, s:s + 128] = res
-            return out
-        self._solver.solve(rhs, out)
+        """(R - σS1)^{-1} rhs for rhs [E, k] (float64, on the factor's device)."""
+        return _solve(self._solver, self.device, rhs)
+
+
+class BlockDiagonalFactor:
+    """One Cholesky factor of a whole batch's block-diagonal ``R - diag(σ_b S1_b)``, each mesh b
+    at its own shift σ_b, so that one solve call serves every mesh of the batch.
+
+    Why (the batched LOBPCG's preconditioner on CUDA): with one factor per mesh, every
+    iteration makes one solve call per live mesh, each a pair of level-scheduled triangular
+    sweeps whose levels run one after another. In a block-diagonal factor the meshes' rows are
+    independent, so one level holds the rows of every mesh at that depth: a call costs about the
+    levels of the deepest mesh, not the sum over the batch. The factor is computed by CHOLMOD
+    on the CPU either way (cholespy uploads it to the GPU), at about the sum of the meshes' own
+    costs.
+
+    system : a :class:`~torchakvf.operators.killing.KillingSystem`; names : one per mesh
+    shifts : [B] the σ_b to use; default: SHIFTS[0] for every mesh in one trial factor, and
+        where that fails (some mesh needs a lower shift) each mesh's own ladder
+        (:class:`ShiftedFactor`, which names a mesh that no shift makes definite), then the
+        block factor at the shifts found.
+
+    ``sigma`` is [B] float64 on the system's device; ``solve(rhs)`` solves the block-diagonal
+    system for packed rhs [ΣE, k] (a mesh's rows of the solution depend on its rows of rhs only).
+    """
+
+    def __init__(self, system, names: list[str] | None = None, shifts=None):
+        nb = system.n_meshes
+        names = names or [f"mesh {b}" for b in range(nb)]
+        self.device = system.mass.device
+        idx, vals = system.stiffness.indices(), system.stiffness.values()
+        pattern = _lower_pattern(idx[0], idx[1], vals, len(system.mass))
+        sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).to(self.device)
+        mass = system.mass.to(torch.float64)
+
+        def factor_at(sig: list[float]):
+            self.sigma = torch.tensor(sig, dtype=torch.float64, device=self.device)
+            return _cholesky(pattern, -torch.repeat_interleave(self.sigma, sizes) * mass)
+
+        if shifts is None:
+            self._solver, last = factor_at([SHIFTS[0]] * nb)
+            if self._solver is not None:
+                return
+            # Some mesh needs a lower shift: each mesh's own ladder says which, and how low.
+            shifts = [mesh_factor(system, b, names[b]).sigma for b in range(nb)]
+        shifts = [float(x) for x in shifts]
+        if len(shifts) != nb:
+            raise ValueError(f"BlockDiagonalFactor: {len(shifts)} shifts for {nb} meshes")
+        self._solver, last = factor_at(shifts)
+        if self._solver is None:
+            raise SolverError(f"{', '.join(names)}: R - σS1 is not positive definite at the "
+                              f"shifts {shifts} ({last})")
+
+    def solve(self, rhs: torch.Tensor) -> torch.Tensor:
+        """The block-diagonal system's solution for packed rhs [ΣE, k] (float64)."""
+        return _solve(self._solver, self.device, rhs)
+
+
+def _lower_pattern(rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor, n: int):
+    """(n, rows, cols, values) of the lower triangle of R (CHOLMOD reads only that one) with
+    the n diagonal entries appended (for the shift), as cholespy takes them."""
+    lower = rows >= cols
+    diag = torch.arange(n, device=rows.device)
+    r = torch.cat([rows[lower], diag]).to(torch.int32).contiguous()
+    c = torch.cat([cols[lower], diag]).to(torch.int32).contiguous()
+    return n, r, c, vals[lower].to(torch.float64)
+
+
+def _cholesky(pattern, diagonal: torch.Tensor):
+    """(cholespy solver of R + diag(diagonal), None) or (None, the error) where it is not
+    positive definite."""
+    import cholespy
+
+    n, r, c, base = pattern
+    x = torch.cat([base, diagonal.to(base.device)]).contiguous()
+    try:
+        with _quiet_stderr():
+            return cholespy.CholeskySolverD(n, r, c, x, cholespy.MatrixType.COO), None
+    except ValueError as exc:               # "Matrix is not positive definite!"
+        return None, exc
+
+
+def _solve(solver, device: torch.device, rhs: torch.Tensor) -> torch.Tensor:
+    rhs = rhs.to(torch.float64).contiguous()
+    out = torch.empty_like(rhs)
+    if device.type == "cuda" and rhs.ndim == 2 and rhs.shape[1] > 128:
+        # cholespy's CUDA solve takes at most 128 right-hand sides at a time.
+        for s in range(0, rhs.shape[1], 128):
+            chunk = rhs[:, s:s + 128].contiguous()
+            res = torch.empty_like(chunk)
+            solver.solve(chunk, res)
+            out[:, s:s + 128] = res
         return out
+    solver.solve(rhs, out)
+    return out
 
 
 def mesh_factor(system, b: int, name: str, device=None) -> ShiftedFactor:

@@ -4,7 +4,8 @@ One sparse multiply serves the whole batch; the Gram matrices and the small Rayl
 problems are per mesh (padded, batched dense ``eigh``); each mesh converges, and stops, on its
 own: a converged mesh leaves the iteration (locking: the live meshes' arrays shrink). The
 preconditioner is the exact shift-invert ``(R_b - σ_b S1_b)^{-1}`` (one sparse Cholesky factor
-per mesh, see :mod:`.factor`), and the block carries ``guard`` extra vectors beyond the
+per mesh, see :mod:`.factor`; on CUDA one block-diagonal factor of the whole batch, so that an
+iteration makes one solve call, not one per mesh), and the block carries ``guard`` extra vectors beyond the
 ``n`` wanted: convergence then goes like (λ_n - σ)/(λ_{n+guard+1} - σ) instead of depending on
 the tiny gap after λ_n, and block methods keep every copy of a repeated eigenvalue (Lanczos with
 a loose tolerance was seen to drop some).
@@ -22,7 +23,7 @@ from .._threads import single_threaded
 from ..errors import SolverError
 from ..mesh.batch import owner_index
 from ..operators.killing import KillingSystem
-from .factor import mesh_factor
+from .factor import BlockDiagonalFactor, mesh_factor
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +68,7 @@ def relative_residuals(system: KillingSystem, vectors: torch.Tensor, values: tor
 
 def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter: int = 60,
                      guard: int | None = None, seed: int = 0, names: list[str] | None = None,
-                     factors: list | None = None) -> EigenResult:
+                     factors: list | None = None, block_factor: bool | None = None) -> EigenResult:
     """The ``n`` smallest eigenpairs of every mesh of ``system`` (see module docstring).
 
     tol : residual (as in :class:`EigenResult`) at which a mesh's first n pairs count as converged
@@ -75,6 +76,11 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     seed : the random start of each mesh is drawn from ``torch.Generator().manual_seed(seed)``
         alone, so a mesh gets the same start (and result) in any batch
     factors : optional precomputed :class:`ShiftedFactor` per mesh
+    block_factor : precondition with one :class:`BlockDiagonalFactor` of the whole batch (one
+        solve call per iteration for every live mesh, the converged meshes' rows solved too)
+        instead of one factor per mesh (one call per live mesh, on its unconverged columns);
+        default: on CUDA, where a call's cost is its levels, not its rows (ignored when
+        ``factors`` are given). The two give the same eigenpairs up to round-off.
     """
     nb = system.n_meshes
     names = names or [f"mesh {b}" for b in range(nb)]
@@ -89,8 +95,17 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     e_max = max(sizes)
     dt = torch.float64
 
-    if factors is None:
+    if block_factor is None:
+        block_factor = dev.type == "cuda"
+    block = None
+    if factors is None and block_factor:
+        block = BlockDiagonalFactor(system, names)
+    elif factors is None:
         factors = [mesh_factor(system, b, names[b]) for b in range(nb)]
+    ptr = system.edge_ptr.tolist()
+
+    def packed_rows(meshes: list[int]) -> torch.Tensor:   # rows of ``meshes`` in the packing
+        return torch.cat([torch.arange(ptr[b], ptr[b + 1], device=dev) for b in meshes])
 
     mask = torch.zeros(nb, e_max, dtype=torch.bool, device=dev)
     for b, e in enumerate(sizes):
@@ -106,6 +121,7 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     live = list(range(nb))
     stiff = system.stiffness.to(dt)
     mask_l, s_l, inv_l = mask, s, inv_sqrt_s
+    rows_l = packed_rows(live) if block is not None else None
 
     def r_mul(x: torch.Tensor) -> torch.Tensor:          # [L, Emax, k] -> [L, Emax, k]
         out = torch.zeros_like(x)
@@ -114,6 +130,11 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
 
     def precondition(res: torch.Tensor, todo: torch.Tensor) -> torch.Tensor:
         out = torch.zeros_like(res)
+        if block is not None:
+            rhs = res.new_zeros(len(system.mass), res.shape[2])
+            rhs[rows_l] = res[mask_l]
+            out[mask_l] = block.solve(rhs)[rows_l].to(dt)
+            return out * todo[:, None, :]
         for j in torch.nonzero(todo.any(dim=1)).reshape(-1).tolist():
             b = live[j]
             cols = torch.nonzero(todo[j]).reshape(-1)
@@ -122,10 +143,13 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
 
     # Start: the same seeded random block per mesh, pushed once through the shift-invert.
     x = torch.zeros(nb, e_max, m, dtype=dt, device=dev)
-    for b, e in enumerate(sizes):
-        gen = torch.Generator().manual_seed(seed)
-        x0 = torch.randn(e, m, generator=gen, dtype=dt).to(dev)
-        x[b, :e] = factors[b].solve(s[b, :e, None] * x0).to(dt)
+    starts = [torch.randn(e, m, generator=torch.Generator().manual_seed(seed), dtype=dt).to(dev)
+              for e in sizes]
+    if block is not None:
+        x[mask] = block.solve(system.mass.to(dt)[:, None] * torch.cat(starts)).to(dt)
+    else:
+        for b, e in enumerate(sizes):
+            x[b, :e] = factors[b].solve(s[b, :e, None] * starts[b]).to(dt)
     x, rx, lam, _ = _rayleigh_ritz(x, r_mul(x), s, m)
     final_x = torch.zeros(nb, e_max, n, dtype=dt, device=dev)
     final_lam = torch.zeros(nb, n, dtype=dt, device=dev)
@@ -148,6 +172,7 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
             p = None if p is None else p[stay]
             mask_l, s_l, inv_l = mask[live], s[live], inv_sqrt_s[live]
             stiff = system.select(live).stiffness.to(dt)
+            rows_l = packed_rows(live) if block is not None else None
         iters[torch.tensor(live, device=dev)] += 1
         w = precondition(res, rel > tol)
         # Orthogonalize the new directions against X (S-inner product) for a well-conditioned basis.
@@ -174,7 +199,7 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     for b in torch.nonzero(~converged).reshape(-1).tolist():
         log.warning("%s: eigensolver stopped after %d iterations with residual %.2e > tol %.1e",
                     names[b], int(iters[b]), float(residuals[b].max()), tol)
-    shifts = torch.tensor([f.sigma for f in factors], dtype=dt, device=dev)
+    shifts = block.sigma if block is not None else torch.tensor([f.sigma for f in factors], dtype=dt, device=dev)
     return EigenResult(eigenvalues=values, vectors=vectors, residuals=residuals, iterations=iters,
                        shifts=shifts, converged=converged)
 
