@@ -51,17 +51,13 @@ import torchakvf as ta
 from torchakvf import scipy_reference as ref
 from torchakvf import shapes
 from torchakvf.fields.akvf import KRYLOV_MIN_EDGES, solver_for
+from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
 from torchakvf.mesh.coarse import coarse_mesh
 
 REPO = Path(__file__).resolve().parents[1]
 IDS = [1, 21, 121, 181, 301]
-
-
-def default_psb() -> Path:
-    env = os.environ.get("TORCHAKVF_PSB")
-    return Path(env) if env else REPO.parent / "shared" / "psb"
 
 
 def residuals_np(r, s1, lam, w):
@@ -121,7 +117,7 @@ def gap_bound(lam_ref: np.ndarray, res: np.ndarray, n: int) -> float:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--psb", type=Path, default=default_psb())
+    p.add_argument("--psb", type=Path, default=default_psb_root())
     p.add_argument("--ids", type=int, nargs="+", default=IDS)
     p.add_argument("--n", type=int, default=32)
     p.add_argument("--repeat", type=int, default=2, help="rounds, best kept (default 2)")
@@ -135,6 +131,8 @@ def main(argv=None) -> int:
                         "then, so that numpy's BLAS keeps its default too)")
     p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "eigensolver_fullres.md")
     args = p.parse_args(argv)
+    if args.psb is None or not (args.psb / "meshes").is_dir():
+        p.error(f"no PSB meshes at {args.psb}: pass --psb or set TORCHAKVF_PSB")
     CLOCK["name"] = args.clock
     if args.threads:
         torch.set_num_threads(args.threads)

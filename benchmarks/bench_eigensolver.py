@@ -57,6 +57,7 @@ import torch
 
 import torchakvf
 from torchakvf.errors import SolverError
+from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch, clean_mesh
 from torchakvf.operators.killing import REMEDIES, killing_operator
@@ -83,11 +84,6 @@ THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VEC
 
 def category_of(mesh_id: int) -> str:
     return CATEGORIES[(mesh_id - 1) // 20]
-
-
-def default_psb() -> Path:
-    env = os.environ.get("TORCHAKVF_PSB")
-    return Path(env) if env else REPO.parent / "shared" / "psb"
 
 
 # --------------------------------------------------------------------------------------------
@@ -436,7 +432,7 @@ def warm_up(n: int):
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--psb", type=Path, default=default_psb(),
+    p.add_argument("--psb", type=Path, default=default_psb_root(),
                    help="PSB folder with meshes/N.off.gz (default: $TORCHAKVF_PSB or <repo>/../shared/psb)")
     p.add_argument("--n", type=int, default=32, help="eigenpairs per mesh (default 32)")
     p.add_argument("--tol", type=float, default=1e-6, help="residual tolerance (default 1e-6)")
@@ -467,7 +463,7 @@ def main(argv=None) -> int:
         import bench_akvf_fullres
         return bench_akvf_fullres.main([a for a in argv if a != "--fullres"])
     args = parse_args(argv)
-    if not (args.psb / "meshes").is_dir():
+    if args.psb is None or not (args.psb / "meshes").is_dir():
         print(f"PSB not found at {args.psb} (expected {args.psb}/meshes/N.off.gz); set --psb or "
               "TORCHAKVF_PSB", file=sys.stderr)
         return 2
