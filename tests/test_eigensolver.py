@@ -699,6 +699,8 @@ def test_block_diagonal_factor_shifts_given_and_unsolvable():
     with pytest.raises(ta.SolverError) as exc:
         BlockDiagonalFactor(system, names=["a", "b", "c"], shifts=[-1.0, -1.0, -1.0])
     assert "a, b, c" in str(exc.value)
+    with pytest.raises(ta.ParameterError):
+        BlockDiagonalFactor(system, shifts=[-1.0])
 
 
 def test_lobpcg_block_factor_equals_per_mesh_factors():

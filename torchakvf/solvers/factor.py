@@ -15,7 +15,7 @@ import sys
 
 import torch
 
-from ..errors import SolverError
+from ..errors import ParameterError, SolverError
 
 #: Shifts tried in turn (λ·area units): R is only approximately PSD, so the shift must lie
 #: below its smallest eigenvalue for R - σ S1 to be positive definite. -1 suffices on good
@@ -90,11 +90,12 @@ class BlockDiagonalFactor:
             self._solver, last = factor_at([SHIFTS[0]] * nb)
             if self._solver is not None:
                 return
-            # Some mesh needs a lower shift: each mesh's own ladder says which, and how low.
-            shifts = [mesh_factor(system, b, names[b]).sigma for b in range(nb)]
+            # Some mesh needs a lower shift: each mesh's own ladder says which, and how low
+            # (on the CPU: these factors are only asked for their shift).
+            shifts = [mesh_factor(system, b, names[b], device="cpu").sigma for b in range(nb)]
         shifts = [float(x) for x in shifts]
         if len(shifts) != nb:
-            raise ValueError(f"BlockDiagonalFactor: {len(shifts)} shifts for {nb} meshes")
+            raise ParameterError(f"BlockDiagonalFactor: {len(shifts)} shifts for {nb} meshes")
         self._solver, last = factor_at(shifts)
         if self._solver is None:
             raise SolverError(f"{', '.join(names)}: R - σS1 is not positive definite at the "
