@@ -258,12 +258,15 @@ def test_face_vectors_match_scipy_whitney(ref_case):
 # batching, reproducibility, precision
 # ---------------------------------------------------------------------------------------------
 
-@pytest.fixture(params=["one mesh at a time", "batched"])
+@pytest.fixture(params=["one mesh at a time", "batched", "batched, block factor"])
 def batch_path(request, monkeypatch):
-    """akvf's two ways through a batch on CPU: one mesh at a time (the CPU's) and as one batch
-    (the GPU's, run here on CPU)."""
-    if request.param == "batched":
+    """akvf's ways through a batch on CPU: one mesh at a time (the CPU's), as one batch (the
+    GPU's, run here on CPU), and as one batch whose LOBPCG is preconditioned by one
+    block-diagonal factor (the GPU's default, run here on CPU)."""
+    if request.param.startswith("batched"):
         monkeypatch.setattr(importlib.import_module("torchakvf.fields.akvf"), "ONE_MESH_AT_A_TIME_ON", ())
+    if request.param.endswith("block factor"):
+        monkeypatch.setattr(importlib.import_module("torchakvf.solvers.lobpcg"), "BLOCK_FACTOR_ON", ("cpu",))
     return request.param
 
 
