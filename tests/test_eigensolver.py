@@ -728,7 +728,8 @@ def test_lobpcg_block_factor_equals_per_mesh_factors():
             if stop == 8:
                 continue
             cos = s1_principal_cosines(block.vectors[e0:e1, start:stop].numpy(),
-                                       per_mesh.vectors[e0:e1, start:stop].numpy(), system.mass[e0:e1].numpy())
+                                       per_mesh.vectors[e0:e1, start:stop].numpy(),
+                                       system.mass[e0:e1].numpy())
             assert np.all(cos > 1 - 1e-6), (b, start, stop, cos)
 
 

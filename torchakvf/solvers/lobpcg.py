@@ -4,10 +4,10 @@ One sparse multiply serves the whole batch; the Gram matrices and the small Rayl
 problems are per mesh (padded, batched dense ``eigh``); each mesh converges, and stops, on its
 own: a converged mesh leaves the iteration (locking: the live meshes' arrays shrink). The
 preconditioner is the exact shift-invert ``(R_b - σ_b S1_b)^{-1}`` (one sparse Cholesky factor
-per mesh, see :mod:`.factor`; on CUDA one block-diagonal factor of the whole batch, so that an
-iteration makes one solve call, not one per mesh), and the block carries ``guard`` extra vectors beyond the
-``n`` wanted: convergence then goes like (λ_n - σ)/(λ_{n+guard+1} - σ) instead of depending on
-the tiny gap after λ_n, and block methods keep every copy of a repeated eigenvalue (Lanczos with
+per mesh, see :mod:`.factor`; on CUDA one block-diagonal factor of the whole batch, so that
+an iteration makes one solve call, not one per mesh), and the block carries ``guard`` extra
+vectors beyond the ``n`` wanted: convergence then goes like (λ_n - σ)/(λ_{n+guard+1} - σ)
+instead of depending on the tiny gap after λ_n, and block methods keep every copy of a repeated eigenvalue (Lanczos with
 a loose tolerance was seen to drop some).
 
 Residuals are recomputed at the end from R and S1, not taken from the iteration.
@@ -84,7 +84,8 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
         solve call per iteration for every live mesh, the converged meshes' rows solved too)
         instead of one factor per mesh (one call per live mesh, on its unconverged columns);
         default: on the device types of :data:`BLOCK_FACTOR_ON` (CUDA), where a call's cost is
-        its levels, not its rows (ignored when ``factors`` are given). The two give the same eigenpairs up to round-off.
+        its levels, not its rows (ignored when ``factors`` are given). The two give the same
+        eigenpairs up to round-off.
     """
     nb = system.n_meshes
     names = names or [f"mesh {b}" for b in range(nb)]
@@ -203,7 +204,8 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     for b in torch.nonzero(~converged).reshape(-1).tolist():
         log.warning("%s: eigensolver stopped after %d iterations with residual %.2e > tol %.1e",
                     names[b], int(iters[b]), float(residuals[b].max()), tol)
-    shifts = block.sigma if block is not None else torch.tensor([f.sigma for f in factors], dtype=dt, device=dev)
+    shifts = (block.sigma if block is not None
+              else torch.tensor([f.sigma for f in factors], dtype=dt, device=dev))
     return EigenResult(eigenvalues=values, vectors=vectors, residuals=residuals, iterations=iters,
                        shifts=shifts, converged=converged)
 
