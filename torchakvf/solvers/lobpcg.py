@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 
 from .._threads import single_threaded
-from ..errors import SolverError
+from ..errors import ParameterError, SolverError
 from ..mesh.batch import owner_index
 from ..operators.killing import KillingSystem
 from .factor import BlockDiagonalFactor, mesh_factor
@@ -72,7 +72,8 @@ def relative_residuals(system: KillingSystem, vectors: torch.Tensor, values: tor
 
 def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter: int = 60,
                      guard: int | None = None, seed: int = 0, names: list[str] | None = None,
-                     factors: list | None = None, block_factor: bool | None = None) -> EigenResult:
+                     factors: list | None = None, block_factor: bool | None = None,
+                     start: list | None = None) -> EigenResult:
     """The ``n`` smallest eigenpairs of every mesh of ``system`` (see module docstring).
 
     tol : residual (as in :class:`EigenResult`) at which a mesh's first n pairs count as converged
@@ -86,6 +87,12 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
         default: on the device types of :data:`BLOCK_FACTOR_ON` (CUDA), where a call's cost is
         its levels, not its rows (ignored when ``factors`` are given). The two give the same
         eigenpairs up to round-off.
+    start : optional warm start, one [E_b, m_b] block per mesh (e.g. a coarse mesh's fields
+        prolonged to this one's edges, S1-orthonormality not needed): it replaces the first m_b
+        columns of that mesh's random start block (m_b <= n + guard; the rest stay random);
+        like the random block it is pushed once through the preconditioner before the first
+        Rayleigh-Ritz. ``factors`` may be any preconditioners with ``solve(rhs [E, k])`` and a
+        ``sigma`` attribute.
     """
     nb = system.n_meshes
     names = names or [f"mesh {b}" for b in range(nb)]
@@ -150,6 +157,16 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     x = torch.zeros(nb, e_max, m, dtype=dt, device=dev)
     starts = [torch.randn(e, m, generator=torch.Generator().manual_seed(seed), dtype=dt).to(dev)
               for e in sizes]
+    if start is not None:
+        if len(start) != nb:
+            raise ParameterError(f"segmented_lobpcg: {len(start)} start blocks for {nb} meshes")
+        for b, block0 in enumerate(start):
+            if block0 is None:
+                continue
+            if block0.ndim != 2 or block0.shape[0] != sizes[b] or block0.shape[1] > m:
+                raise ParameterError(f"{names[b]}: start block of shape {tuple(block0.shape)}; "
+                                     f"expected [{sizes[b]}, at most {m}]")
+            starts[b][:, :block0.shape[1]] = block0.to(dev, dt)
     if block is not None:
         x[mask] = block.solve(system.mass.to(dt)[:, None] * torch.cat(starts)).to(dt)
     else:
