@@ -30,6 +30,12 @@ Usage::
 
     OMP_NUM_THREADS=1 python benchmarks/bench_akvf_fullres.py            # PSB 1 21 121 181 301
     python benchmarks/bench_akvf_fullres.py --ids 1 21 --repeat 1 --out /tmp/x.md
+    python benchmarks/bench_akvf_fullres.py --device cuda --clock wall --ids 21 301   # a GPU machine
+
+With ``--device cuda`` the ta side runs ``ta.akvf(mesh, n, device="cuda")`` (its defaults
+there: the batched LOBPCG with CHOLMOD's factor solved on the GPU), timed on the wall clock
+with the device synchronized; the scipy sides stay on the CPU and "ta lanczos" (ARPACK, CPU
+only) is not run.
 """
 from __future__ import annotations
 
@@ -74,10 +80,10 @@ def scipy_ref(v, f, n):
 
 
 def eigsh_only(system, n, sigma):
-    st = system.stiffness
+    st = system.stiffness.cpu()
     idx = st.indices().numpy()
     r = sp.csc_matrix((st.values().numpy(), (idx[0], idx[1])), shape=tuple(st.shape))
-    s1 = system.mass.numpy()
+    s1 = system.mass.cpu().numpy()
     v0 = np.random.default_rng(0).standard_normal(r.shape[0])
     lam, w = spla.eigsh(r, k=n, M=sp.diags(s1).tocsc(), sigma=sigma, which="LM", v0=v0)
     order = np.argsort(lam)
@@ -129,8 +135,23 @@ def main(argv=None) -> int:
                    help="torch threads (default 1, with OMP_NUM_THREADS=1 for numpy's BLAS); 0: "
                         "torch's default, as a plain Python session has (set no OMP_NUM_THREADS "
                         "then, so that numpy's BLAS keeps its default too)")
+    p.add_argument("--device", default="cpu",
+                   help="device of the ta side (default cpu; cuda needs --clock wall)")
     p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "eigensolver_fullres.md")
     args = p.parse_args(argv)
+    dev = torch.device(args.device)
+    if dev.type == "cuda" and args.clock != "wall":
+        p.error("--device cuda needs --clock wall (process CPU time does not see the GPU's work)")
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        p.error("--device cuda: torch.cuda.is_available() is False on this machine")
+
+    def ta_akvf(mesh, **kw):
+        out = ta.akvf(mesh, device=dev, **kw)
+        if dev.type == "cuda":
+            torch.cuda.synchronize()
+        return out
+    ta_akvf.__name__ = "akvf"
+    on_cpu = dev.type == "cpu"
     if args.psb is None or not (args.psb / "meshes").is_dir():
         p.error(f"no PSB meshes at {args.psb}: pass --psb or set TORCHAKVF_PSB")
     CLOCK["name"] = args.clock
@@ -141,7 +162,9 @@ def main(argv=None) -> int:
     clean = {i: clean_mesh(m) for i, m in meshes.items()}
     # Warm-up (first-call costs of torch kernels, cholespy, ARPACK, SuperLU), untimed.
     warm = ta.Mesh(shapes.icosphere(2).vertices, shapes.icosphere(2).faces, "warm")
-    ta.akvf(warm, n=8), ta.akvf(warm, n=8, solver="lanczos")
+    ta_akvf(warm, n=8)
+    if on_cpu:
+        ta.akvf(warm, n=8, solver="lanczos")
     cm = clean_mesh(warm)
     scipy_ref(cm.vertices, cm.faces, 8)
 
@@ -150,10 +173,10 @@ def main(argv=None) -> int:
     for rnd in range(args.repeat):
         for i in args.ids:
             m, c = meshes[i], clean[i]
-            res, t = timed(ta.akvf, m, n=n)
+            res, t = timed(ta_akvf, m, n=n)
             best[i]["ta"] = min(best[i].get("ta", math.inf), t)
-            res_l, t = timed(ta.akvf, m, n=n, solver="lanczos")
-            best[i]["lanczos"] = min(best[i].get("lanczos", math.inf), t)
+            res_l, t = timed(ta.akvf, m, n=n, solver="lanczos") if on_cpu else (res, math.nan)
+            best[i]["lanczos"] = min(best[i].get("lanczos", math.inf), t) if on_cpu else math.nan
             (r, s1, lam_ref, w_ref), t = timed(scipy_ref, c.vertices, c.faces, n)
             best[i]["ref"] = min(best[i].get("ref", math.inf), t)
             if args.decimate:
@@ -163,7 +186,7 @@ def main(argv=None) -> int:
             (r2, s2, lam_e, w_e), t = timed(eigsh_only, res.system, n, sigma)
             best[i]["eigsh"] = min(best[i].get("eigsh", math.inf), t)
             if rnd == 0:
-                lam_ta = res.eigenvalues[0].double().numpy()
+                lam_ta = res.eigenvalues[0].double().cpu().numpy()
                 res_e = residuals_np(r2, s2, lam_e, w_e)
                 info[i] = dict(
                     faces=len(res.batch.faces), edges=len(res.batch.edges), sigma=sigma,
@@ -173,7 +196,7 @@ def main(argv=None) -> int:
                     res_e=float(res_e.max()),
                     d_eigsh=float(np.max(np.abs(lam_ta - lam_e) / np.maximum(np.abs(lam_e), 1))),
                     d_ref=float(np.max(np.abs(lam_ta - lam_ref) / np.maximum(np.abs(lam_ref), 1))),
-                    bound=gap_bound(lam_e, np.maximum(res.residuals[0].numpy(), res_e), n),
+                    bound=gap_bound(lam_e, np.maximum(res.residuals[0].cpu().numpy(), res_e), n),
                     dropped=int(res.dropped[0]), converged=bool(res.converged.all()))
             print(f"round {rnd} mesh {i}: " + ", ".join(f"{k} {v:.2f}" for k, v in best[i].items()),
                   flush=True)
@@ -183,13 +206,13 @@ def main(argv=None) -> int:
     for rnd in range(args.repeat):
         for side in ((0, 1) if rnd % 2 == 0 else (1, 0)):      # alternate which goes first
             if side == 0:
-                rb, t = timed(ta.akvf, all_m, n=n)
+                rb, t = timed(ta_akvf, all_m, n=n)
                 t_batch = min(t_batch, t)
             else:
-                alone, t = timed(lambda: [ta.akvf(m, n=n) for m in all_m])
+                alone, t = timed(lambda: [ta_akvf(m, n=n) for m in all_m])
                 t_alone = min(t_alone, t)
-    same = max(float(np.max(np.abs(rb.eigenvalues[b].numpy() - a.eigenvalues[0].numpy())
-                            / np.maximum(np.abs(a.eigenvalues[0].numpy()), 1)))
+    same = max(float(np.max(np.abs(rb.eigenvalues[b].cpu().numpy() - a.eigenvalues[0].cpu().numpy())
+                            / np.maximum(np.abs(a.eigenvalues[0].cpu().numpy()), 1)))
                for b, a in enumerate(alone))
 
     tot = {k: sum(best[i][k] for i in args.ids) for k in ("ta", "lanczos", "ref", "eigsh")}
@@ -203,6 +226,8 @@ def main(argv=None) -> int:
         f"- torch {torch.__version__}, scipy {scipy.__version__}, numpy {np.__version__}, "
         f"python {platform.python_version()}, {os.cpu_count()} CPUs (shared with other jobs: "
         "absolute seconds are noisy, ratios within a round are what counts)",
+        f"- device of the ta side: {dev}" + ("" if on_cpu else f" ({torch.cuda.get_device_name(dev)}; "
+                                               "ta lanczos not run: ARPACK is CPU only)"),
         f"- ta = `ta.akvf(mesh, n={n})` defaults (solver auto: on CPU krylov for meshes from "
         f"{KRYLOV_MIN_EDGES} edges, lanczos below; column 'auto'; cleaning + operator + factor + "
         "solve + Whitney); ta lanczos = same with solver='lanczos' (the previous CPU default)",
@@ -220,7 +245,7 @@ def main(argv=None) -> int:
     for i in args.ids:
         b, f = best[i], info[i]
         lines.append(
-            f"| {i} | {f['faces']} | {f['edges']} | {solver_for('cpu', f['edges'])} | {f['sigma']:g} | {b['ta']:.2f} | "
+            f"| {i} | {f['faces']} | {f['edges']} | {solver_for(dev, f['edges'])} | {f['sigma']:g} | {b['ta']:.2f} | "
             f"{b['lanczos']:.2f} | {b['ref']:.2f} | {b['eigsh']:.2f} | {b['ref'] / b['ta']:.2f} | "
             f"{b['eigsh'] / b['ta']:.2f} | {b['lanczos'] / b['ta']:.2f} | {f['solves']} / "
             f"{f['solves_l']} | {f['res_ta']:.1e} | {f['res_ref']:.1e} | {f['res_e']:.1e} | "

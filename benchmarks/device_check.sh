@@ -11,8 +11,11 @@
 #      batched at the device's default budget, and "batched vs one at a time" at the face
 #      budgets BENCH_BUDGETS (8000, 24000: 2 and all 6 meshes a batch; torchakvf bench --budgets),
 #      same meshes, same run;
+#   2b. full-resolution ta.akvf on CUDA (PSB 21 and 301) against scipy eigsh on the CPU, wall
+#      clock (benchmarks/bench_akvf_fullres.py --device cuda), at most 75 s;
 # and writes the figures under $OUT (what comes back; default benchmarks/results/device):
-# device_check.md (everything), pytest_cuda.log, bench_{cuda,cpu}.json and .log.
+# device_check.md (everything), pytest_cuda.log, bench_{cuda,cpu}.json and .log,
+# akvf_fullres_cuda.md and .log.
 #
 # Before: bash benchmarks/device_prepare.sh here (wheels + PSB subset, git-ignored), then call the
 # device tool with carry [".whl", ".psb_subset"], timeout_s 540 and the command
@@ -113,6 +116,22 @@ for dev in cuda cpu; do
       grep -E "bench|error" "$OUT/bench_$dev.log" | tail -n 20; echo '```'; echo; } >> "$md"
   fi
 done
+
+# ---- 2b. full-resolution ta.akvf on CUDA against scipy eigsh on the CPU (issue 13's headline) ---
+if [ "$has_cuda" = 1 ] && [ "$(left)" -gt 40 ]; then
+  t=$(cap 75)
+  echo "== full-resolution ta.akvf on cuda, PSB 21 and 301 (at most $t s)"
+  timeout "$t" python3 benchmarks/bench_akvf_fullres.py --psb "$psb" --device cuda --clock wall \
+      --threads 0 --ids 21 301 --repeat 2 --decimate 0 --out "$OUT/akvf_fullres_cuda.md" \
+      > "$OUT/akvf_fullres_cuda.log" 2>&1
+  rc=$?
+  if [ -f "$OUT/akvf_fullres_cuda.md" ]; then
+    { echo "## full-resolution ta.akvf on cuda (exit $rc)"; echo; sed -e 's/^# /### /' "$OUT/akvf_fullres_cuda.md"; echo; } >> "$md"
+  else
+    { echo "## full-resolution ta.akvf on cuda: no report (exit $rc; 124 = timed out)"; echo; echo '```'
+      tail -n 15 "$OUT/akvf_fullres_cuda.log"; echo '```'; echo; } >> "$md"
+  fi
+fi
 
 # ---- 3. CUDA against CPU ----------------------------------------------------------------------
 python3 - "$OUT" <<'PY' >> "$md"
