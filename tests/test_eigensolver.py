@@ -786,7 +786,9 @@ def test_lobpcg_warm_start():
     part = segmented_lobpcg(system, n, tol=1e-8, guard=guard, start=[full[0][:, :4], None])
     assert bool(part.converged.all())
     torch.testing.assert_close(part.eigenvalues, ref.eigenvalues, rtol=1e-9, atol=1e-9)
-    assert int(part.iterations[1]) == int(ref.iterations[1])     # mesh 1 kept its random start
+    # Mesh 1 kept its random start: its iterations are ref's (within one: when mesh 0 leaves
+    # the iteration earlier, mesh 1's products run in a batch of one, other round-off).
+    assert abs(int(part.iterations[1]) - int(ref.iterations[1])) <= 1
     with pytest.raises(ta.ParameterError, match="ell"):
         segmented_lobpcg(system, n, guard=guard, start=[None, full[1][:-1]], names=["ico", "ell"])
     with pytest.raises(ta.ParameterError):
