@@ -767,15 +767,15 @@ def test_lobpcg_warm_start():
     """``segmented_lobpcg(start=...)``: a mesh started from its own converged eigenvectors (the
     n wanted and the guard ones) is done in at most one iteration with the same eigenvalues
     (to 1e-9 relative: both sides' residuals are below 1e-8, squared over gaps of order 1);
-    a partial start (fewer columns, the rest random) gives the same eigenpairs too; a mesh
-    given None keeps its random start and its batch-mate result; a start of the wrong shape
-    is a ParameterError naming the mesh."""
+    a partial start (fewer columns, the rest random) gives the same eigenpairs too, and a mesh
+    given None keeps its random start; a start of the wrong shape (or count) is a
+    ParameterError naming the mesh."""
     from torchakvf.operators import killing_operator
     from torchakvf.solvers.lobpcg import segmented_lobpcg
     meshes = [mesh_of(shapes.icosphere(2), "ico"), mesh_of(shapes.ellipsoid(level=3), "ell")]
     system = killing_operator(ta.MeshBatch.from_meshes(meshes), remedy=PAPER)
     n, guard = 8, 8
-    cold = segmented_lobpcg(system, n + guard, tol=1e-8, guard=8)
+    cold = segmented_lobpcg(system, n + guard, tol=1e-8, guard=guard)
     assert bool(cold.converged.all())
     e = system.edge_ptr.tolist()
     full = [cold.vectors[e[b]:e[b + 1]] for b in range(2)]
@@ -791,5 +791,7 @@ def test_lobpcg_warm_start():
     assert abs(int(part.iterations[1]) - int(ref.iterations[1])) <= 1
     with pytest.raises(ta.ParameterError, match="ell"):
         segmented_lobpcg(system, n, guard=guard, start=[None, full[1][:-1]], names=["ico", "ell"])
+    with pytest.raises(ta.ParameterError, match="at most 16"):
+        segmented_lobpcg(system, n, guard=guard, start=[torch.cat([full[0], full[0][:, :1]], 1), None])
     with pytest.raises(ta.ParameterError):
         segmented_lobpcg(system, n, guard=guard, start=[None])

@@ -104,6 +104,7 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
                               "ask for fewer fields")
     guard = max(8, n // 2) if guard is None else guard
     m = n + guard
+    start = _start_blocks(start, sizes, m, names)
     e_max = max(sizes)
     dt = torch.float64
 
@@ -157,15 +158,8 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     x = torch.zeros(nb, e_max, m, dtype=dt, device=dev)
     starts = [torch.randn(e, m, generator=torch.Generator().manual_seed(seed), dtype=dt).to(dev)
               for e in sizes]
-    if start is not None:
-        if len(start) != nb:
-            raise ParameterError(f"segmented_lobpcg: {len(start)} start blocks for {nb} meshes")
-        for b, block0 in enumerate(start):
-            if block0 is None:
-                continue
-            if block0.ndim != 2 or block0.shape[0] != sizes[b] or block0.shape[1] > m:
-                raise ParameterError(f"{names[b]}: start block of shape {tuple(block0.shape)}; "
-                                     f"expected [{sizes[b]}, at most {m}]")
+    for b, block0 in enumerate(start):
+        if block0 is not None:
             starts[b][:, :block0.shape[1]] = block0.to(dev, dt)
     if block is not None:
         x[mask] = block.solve(system.mass.to(dt)[:, None] * torch.cat(starts)).to(dt)
@@ -225,6 +219,24 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
               else torch.tensor([f.sigma for f in factors], dtype=dt, device=dev))
     return EigenResult(eigenvalues=values, vectors=vectors, residuals=residuals, iterations=iters,
                        shifts=shifts, converged=converged)
+
+
+def _start_blocks(start, sizes: list[int], m: int, names: list[str]) -> list:
+    """The warm start blocks as tensors ([E_b, <= m] or None per mesh), checked before any
+    factorization: a wrong count or shape is a ParameterError naming the mesh."""
+    if start is None:
+        return [None] * len(sizes)
+    if len(start) != len(sizes):
+        raise ParameterError(f"segmented_lobpcg: {len(start)} start blocks for {len(sizes)} meshes")
+    out = []
+    for b, block0 in enumerate(start):
+        if block0 is not None:
+            block0 = torch.as_tensor(block0)
+            if block0.ndim != 2 or block0.shape[0] != sizes[b] or block0.shape[1] > m:
+                raise ParameterError(f"{names[b]}: start block of shape {tuple(block0.shape)}; "
+                                     f"expected [{sizes[b]}, at most {m}] (edges, n + guard)")
+        out.append(block0)
+    return out
 
 
 def _orthogonalize(v: torch.Tensor, x: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
