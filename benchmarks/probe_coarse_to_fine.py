@@ -217,7 +217,6 @@ def probe_mesh(path: Path, n: int, coarse_faces: int, sweeps: list[int], max_ite
         two = TwoLevel(a, p, sigma, nu)
         setup = cpu() - t
         row["pcg"][nu] = pcg_rate(a, two) + (setup, two.coarse_size)
-        two.sigma = sigma
         refine(f"two-level V({nu},{nu}), prolonged start", two, start[:, :m])
     row["runs"] = runs
     return row
