@@ -227,7 +227,8 @@ def main(argv=None) -> int:
         f"python {platform.python_version()}, {os.cpu_count()} CPUs (shared with other jobs: "
         "absolute seconds are noisy, ratios within a round are what counts)",
         f"- device of the ta side: {dev}" + ("" if on_cpu else f" ({torch.cuda.get_device_name(dev)}; "
-                                               "ta lanczos not run: ARPACK is CPU only)"),
+                                               "ta lanczos not run: ARPACK is CPU only; "
+                                               "the solves column counts LOBPCG iterations there)"),
         f"- ta = `ta.akvf(mesh, n={n})` defaults (solver auto: on CPU krylov for meshes from "
         f"{KRYLOV_MIN_EDGES} edges, lanczos below; column 'auto'; cleaning + operator + factor + "
         "solve + Whitney); ta lanczos = same with solver='lanczos' (the previous CPU default)",
