@@ -42,9 +42,8 @@ import torch
 import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
-from torchakvf.mesh import MeshBatch, clean_mesh
+from torchakvf.mesh import clean_mesh
 from torchakvf.mesh.coarse import SurfaceIndex, coarse_mesh
-from torchakvf.operators.killing import killing_operator
 from torchakvf.solvers.factor import mesh_factor
 from torchakvf.solvers.lobpcg import segmented_lobpcg
 
@@ -55,18 +54,19 @@ def cpu() -> float:
     return time.process_time()
 
 
-def prolongation(fine_v, fine_edges, coarse_v, coarse_f, coarse_fe, coarse_fs) -> sp.csr_matrix:
-    """P [E_fine, E_coarse]: fine edge i->j gets X(m)·(p_j - p_i), X the coarse Whitney field
-    at the edge's midpoint m located on the coarse surface (closest point)."""
+def prolongation(fine, coarse) -> sp.csr_matrix:
+    """P [E_fine, E_coarse] from two one-mesh AKVF results: fine edge i->j gets X(m)·(p_j - p_i),
+    X the coarse Whitney field at the edge's midpoint m located on the coarse surface (closest
+    point), both meshes in their unit-area frames (the coarse geometry's ``grad_bary``; the
+    frames differ by a constant factor, and only the span of P's columns is used)."""
+    fine_v = fine.system.geometry.points.numpy()
+    fine_edges = fine.batch.edges.numpy()
+    coarse_v = coarse.system.geometry.points.numpy()
+    coarse_f, coarse_fe = coarse.batch.faces.numpy(), coarse.batch.face_edges.numpy()
+    coarse_fs = coarse.batch.face_edge_sign.numpy()
     mids = 0.5 * (fine_v[fine_edges[:, 0]] + fine_v[fine_edges[:, 1]])
     loc = SurfaceIndex(coarse_v, coarse_f).locate(mids)
-    tri = coarse_v[coarse_f[loc.face]]                                    # [P, 3, 3]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    twice_area = np.linalg.norm(normal, axis=1)
-    normal /= twice_area[:, None]
-    # ∇l_k = N × (p_{k+2} - p_{k+1}) / (2A)
-    grad = np.stack([np.cross(normal, tri[:, (k + 2) % 3] - tri[:, (k + 1) % 3]) for k in range(3)], 1)
-    grad /= twice_area[:, None, None]
+    grad = coarse.system.geometry.grad_bary.numpy()[loc.face]             # [P, 3 (l_k), 3]
     d = fine_v[fine_edges[:, 1]] - fine_v[fine_edges[:, 0]]
     gd = np.einsum("pkc,pc->pk", grad, d)
     lam = loc.bary
@@ -77,7 +77,7 @@ def prolongation(fine_v, fine_edges, coarse_v, coarse_f, coarse_fe, coarse_fs) -
         vals.append(coarse_fs[loc.face, k] * (lam[:, k] * gd[:, k1] - lam[:, k1] * gd[:, k]))
         rows.append(np.arange(len(d)))
         cols.append(coarse_fe[loc.face, k])
-    shape = (len(d), int(coarse_fe.max()) + 1)
+    shape = (len(d), len(coarse.batch.edges))
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
 
 
@@ -169,15 +169,12 @@ def probe_mesh(path: Path, n: int, coarse_faces: int, sweeps: list[int], max_ite
     t = cpu()
     coarse = ta.akvf(cm.coarse, n=n + 16)
     row["coarse_akvf_s"] = cpu() - t
-    cb = coarse.batch
     t = cpu()
-    fine_batch = ref.batch
-    p = prolongation(fine_batch.verts.numpy(), fine_batch.edges.numpy(), cb.verts.numpy(),
-                     cb.faces.numpy(), cb.face_edges.numpy(), cb.face_edge_sign.numpy())
+    p = prolongation(ref, coarse)
     start = p @ coarse.forms.numpy()
     row["prolong_s"] = cpu() - t
 
-    system = killing_operator(MeshBatch.from_meshes([mesh]))
+    system = ref.system
     idx = system.stiffness.indices().numpy()
     r = sp.csr_matrix((system.stiffness.values().numpy(), (idx[0], idx[1])), shape=tuple(system.stiffness.shape))
     s = system.mass.numpy().astype(np.float64)
@@ -190,7 +187,9 @@ def probe_mesh(path: Path, n: int, coarse_faces: int, sweeps: list[int], max_ite
     row["rr"] = np.linalg.eigvalsh(0.5 * (h + h.T))[[0, n - 1]].tolist()
     row["lam"] = ref.eigenvalues[0, [0, n - 1]].tolist()
 
+    t = cpu()
     exact = mesh_factor(system, 0, row["id"])
+    row["factor_s"] = cpu() - t
     sigma = exact.sigma
     a = (r - sigma * sp.diags(s)).tocsr()
     runs = {}
@@ -205,9 +204,6 @@ def probe_mesh(path: Path, n: int, coarse_faces: int, sweeps: list[int], max_ite
                        "dlam": float(np.abs(eig.eigenvalues[0].numpy() - lam_ref).max()
                                      / max(1.0, np.abs(lam_ref).max()))}
 
-    t = cpu()
-    mesh_factor(system, 0, row["id"])
-    row["factor_s"] = cpu() - t
     refine("exact, random start", exact, None)
     m = n + max(8, n // 2)
     refine("exact, prolonged start", exact, start[:, :m])
