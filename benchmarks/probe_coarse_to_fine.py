@@ -147,10 +147,14 @@ def pcg_rate(a: sp.csr_matrix, prec: TwoLevel, seed: int = 0, rtol: float = 1e-8
     return it, rel ** (1.0 / it)
 
 
-def subspace_cosines(x: np.ndarray, w: np.ndarray, s: np.ndarray, counts) -> list[float]:
-    """Smallest cosine of the S-principal angles between span(w[:, :c]) and span(x), per c."""
-    g = x.T @ (s[:, None] * x)
-    q = np.linalg.solve(np.linalg.cholesky(g), x.T).T
+def s_orthonormal(x: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """An S-orthonormal basis [E, k] of span(x) (Cholesky of the S-Gram matrix)."""
+    return np.linalg.solve(np.linalg.cholesky(x.T @ (s[:, None] * x)), x.T).T
+
+
+def subspace_cosines(q: np.ndarray, w: np.ndarray, s: np.ndarray, counts) -> list[float]:
+    """Smallest cosine of the S-principal angles between span(w[:, :c]) and span(q) (q
+    S-orthonormal), per c."""
     wn = w / np.sqrt(np.einsum("en,e,en->n", w, s, w))
     return [float(np.linalg.svd(wn[:, :c].T @ (s[:, None] * q), compute_uv=False).min()) for c in counts]
 
@@ -179,10 +183,9 @@ def probe_mesh(path: Path, n: int, coarse_faces: int, sweeps: list[int], max_ite
     r = sp.csr_matrix((system.stiffness.values().numpy(), (idx[0], idx[1])), shape=tuple(system.stiffness.shape))
     s = system.mass.numpy().astype(np.float64)
     w = ref.forms.numpy().astype(np.float64)
-    row["cos"] = subspace_cosines(start, w, s, [8, 16, 24, n])
+    q = s_orthonormal(start, s)
+    row["cos"] = subspace_cosines(q, w, s, [8, 16, 24, n])
     # Rayleigh-Ritz of the prolonged span on the fine pencil.
-    g = start.T @ (s[:, None] * start)
-    q = np.linalg.solve(np.linalg.cholesky(g), start.T).T
     h = q.T @ (r @ q)
     row["rr"] = np.linalg.eigvalsh(0.5 * (h + h.T))[[0, n - 1]].tolist()
     row["lam"] = ref.eigenvalues[0, [0, n - 1]].tolist()
@@ -198,7 +201,7 @@ def probe_mesh(path: Path, n: int, coarse_faces: int, sweeps: list[int], max_ite
     def refine(label, factor, warm):
         t0 = cpu()
         eig = segmented_lobpcg(system, n, tol=1e-6, factors=[factor], max_iter=max_iter,
-                               start=[torch.from_numpy(warm)] if warm is not None else None)
+                               start=None if warm is None else [warm])
         runs[label] = {"iters": int(eig.iterations[0]), "s": cpu() - t0,
                        "res": float(eig.residuals.max()), "conv": bool(eig.converged.all()),
                        "dlam": float(np.abs(eig.eigenvalues[0].numpy() - lam_ref).max()
