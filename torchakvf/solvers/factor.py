@@ -3,8 +3,11 @@ preconditioner of the eigensolver.
 
 Why a factorization: slivers put R's largest eigenvalue near 1e7 against ~1 for the smallest,
 and no product-only preconditioner (Jacobi, ILU, AMG, Chebyshev) brought LOBPCG under thousands
-of iterations; (R - σ S1)^{-1} brings it to a handful. CHOLMOD (through ``cholespy``, the sparse
-Cholesky that works on torch tensors on CPU and CUDA) factors it.
+of iterations; (R - σ S1)^{-1} brings it to a handful. CHOLMOD factors it: on the CPU called
+directly (:mod:`.cholmod`: AMD ordering, one symbolic analysis for every trial shift), on CUDA
+through ``cholespy`` (the sparse Cholesky that works on torch tensors on CPU and CUDA, whose
+triangular solves run on the GPU); cholespy on the CPU too where :func:`.cholmod.library`
+finds no usable CHOLMOD.
 """
 from __future__ import annotations
 
@@ -13,9 +16,11 @@ import ctypes
 import os
 import sys
 
+import numpy as np
 import torch
 
 from ..errors import ParameterError, SolverError
+from . import cholmod
 
 #: Shifts tried in turn (λ·area units): R is only approximately PSD, so the shift must lie
 #: below its smallest eigenvalue for R - σ S1 to be positive definite. -1 suffices on good
@@ -35,9 +40,10 @@ class ShiftedFactor:
         shifts = SHIFTS if shifts is None else tuple(shifts)
         self.device = mass.device
         pattern = _lower_pattern(rows, cols, vals, len(mass))
+        engine = _engine(pattern, self.device)
         last = None
         for sigma in shifts:
-            self._solver, last = _cholesky(pattern, -sigma * mass.to(torch.float64))
+            self._solver, last = _cholesky(pattern, -sigma * mass.to(torch.float64), engine)
             if self._solver is not None:
                 self.sigma = sigma
                 return
@@ -49,6 +55,11 @@ class ShiftedFactor:
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
         """(R - σS1)^{-1} rhs for rhs [E, k] (float64, on the factor's device)."""
         return _solve(self._solver, self.device, rhs)
+
+    def solve_rows(self, rows: torch.Tensor) -> torch.Tensor:
+        """(R - σS1)^{-1} applied to each row of rows [k, E]: returns [k, E] (float64).
+        On the CPU with CHOLMOD called directly this is its native layout (no transposes)."""
+        return _solve_rows(self._solver, self.device, rows)
 
 
 class BlockDiagonalFactor:
@@ -82,9 +93,11 @@ class BlockDiagonalFactor:
         sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).to(self.device)
         mass = system.mass.to(torch.float64)
 
+        engine = _engine(pattern, self.device)
+
         def factor_at(sig: list[float]):
             self.sigma = torch.tensor(sig, dtype=torch.float64, device=self.device)
-            return _cholesky(pattern, -torch.repeat_interleave(self.sigma, sizes) * mass)
+            return _cholesky(pattern, -torch.repeat_interleave(self.sigma, sizes) * mass, engine)
 
         if shifts is None:
             self._solver, last = factor_at([SHIFTS[0]] * nb)
@@ -116,9 +129,47 @@ def _lower_pattern(rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor, n
     return n, r, c, vals[lower].to(torch.float64)
 
 
-def _cholesky(pattern, diagonal: torch.Tensor):
-    """(cholespy solver of R + diag(diagonal), None) or (None, the error) where it is not
-    positive definite."""
+class _CpuFactor:
+    """R + diag(d) for changing d, factored by CHOLMOD directly: the lower CSC pattern and the
+    symbolic analysis are built once, each :meth:`factorize` only refills the diagonal."""
+
+    def __init__(self, pattern):
+        import scipy.sparse as sp
+
+        n, r, c, base = pattern
+        slots = torch.cat([base.cpu(), base.new_zeros(n).cpu()])     # the diagonal slots: 0 here
+        lower = sp.csc_matrix((slots.numpy(), (r.cpu().numpy(), c.cpu().numpy())), shape=(n, n))
+        lower.sum_duplicates()          # R's own diagonal and the appended slots merge
+        lower.sort_indices()
+        self._base = lower.data.copy()
+        # In a sorted lower-triangular column the diagonal comes first (always stored: the
+        # pattern appends every diagonal slot, kept even where R's entry is 0).
+        self._diag = lower.indptr[:-1].copy()
+        if not np.array_equal(lower.indices[self._diag], np.arange(n)):
+            raise SolverError("internal: a diagonal slot is missing from R's lower pattern")
+        self.factor = cholmod.CholmodFactor(n, lower.indptr, lower.indices, self._base)
+
+    def factorize(self, diagonal: torch.Tensor):
+        values = self._base.copy()
+        values[self._diag] += diagonal.detach().cpu().numpy()
+        return self.factor.factorize(values)
+
+
+def _engine(pattern, device: torch.device):
+    """A :class:`_CpuFactor` on the CPU where CHOLMOD can be called directly, else None
+    (cholespy then factors each trial shift from scratch)."""
+    if device.type != "cpu" or cholmod.library() is None:
+        return None
+    return _CpuFactor(pattern)
+
+
+def _cholesky(pattern, diagonal: torch.Tensor, engine=None):
+    """(solver of R + diag(diagonal), None) or (None, the error) where it is not positive
+    definite. The solver is ``engine``'s CHOLMOD factor if given, else a cholespy solver."""
+    if engine is not None:
+        if engine.factorize(diagonal):
+            return engine.factor, None
+        return None, "CHOLMOD: not positive definite"
     import cholespy
 
     n, r, c, base = pattern
@@ -131,6 +182,10 @@ def _cholesky(pattern, diagonal: torch.Tensor):
 
 
 def _solve(solver, device: torch.device, rhs: torch.Tensor) -> torch.Tensor:
+    if isinstance(solver, cholmod.CholmodFactor):
+        if rhs.ndim == 1:
+            return solver.solve_rows(rhs.to(torch.float64)[None])[0]
+        return contiguous_transpose(solver.solve_rows(contiguous_transpose(rhs.to(torch.float64))))
     rhs = rhs.to(torch.float64).contiguous()
     out = torch.empty_like(rhs)
     if device.type == "cuda" and rhs.ndim == 2 and rhs.shape[1] > 128:
@@ -143,6 +198,20 @@ def _solve(solver, device: torch.device, rhs: torch.Tensor) -> torch.Tensor:
         return out
     solver.solve(rhs, out)
     return out
+
+
+def _solve_rows(solver, device: torch.device, rows: torch.Tensor) -> torch.Tensor:
+    if isinstance(solver, cholmod.CholmodFactor):
+        return solver.solve_rows(rows.to(torch.float64))
+    return contiguous_transpose(_solve(solver, device, contiguous_transpose(rows)))
+
+
+def contiguous_transpose(x: torch.Tensor) -> torch.Tensor:
+    """x.T as a contiguous array (on the CPU numpy's transposing copy: 5x torch's for
+    [6, 45594])."""
+    if x.device.type == "cpu":
+        return torch.from_numpy(np.ascontiguousarray(x.numpy().T))
+    return x.T.contiguous()
 
 
 def mesh_factor(system, b: int, name: str, device=None) -> ShiftedFactor:

@@ -35,7 +35,7 @@ import torch
 from .._threads import single_threaded
 from ..errors import ParameterError, SolverError
 from ..operators.killing import KillingSystem
-from .factor import mesh_factor
+from .factor import contiguous_transpose, mesh_factor
 from .lobpcg import EigenResult
 
 log = logging.getLogger(__name__)
@@ -170,7 +170,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
     k = count
 
     def apply_t(rows: torch.Tensor) -> torch.Tensor:             # T = (R - σS)^{-1} S on rows
-        return _transpose(factor.solve(_transpose(rows * mass)))
+        return factor.solve_rows(rows * mass)
 
     start = torch.randn(e, p, generator=gen, dtype=dt).to(dev)
     blk, _ = _orthonormal(apply_t(start.T), q[:0], mass)
@@ -326,7 +326,7 @@ def _final(stiff, mass, basis, y):
         lam, xr, rx, xm, norm = lam[order], xr[order], rx[order], xm[order], norm[order]
     res = rx - xm * lam[:, None]                           # residual of the unnormalized x
     rel = (_rowdot(res / mass, res) / norm).sqrt() / lam.abs().clamp(min=1.0)
-    return lam, _transpose(xr * norm.rsqrt()[:, None]), rel
+    return lam, contiguous_transpose(xr * norm.rsqrt()[:, None]), rel
 
 
 def _rowdot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -363,10 +363,3 @@ def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     against 1.32 s; benchmarks/results/eigensolver_threads.md). One thread each, torch's and
     numpy's products take about the same time here."""
     return a @ b
-
-
-def _transpose(x: torch.Tensor) -> torch.Tensor:
-    """x.T as a contiguous array (numpy's transposing copy: 5x torch's for [6, 45594])."""
-    if x.device.type == "cpu":
-        return torch.from_numpy(np.ascontiguousarray(x.numpy().T))
-    return x.T.contiguous()

@@ -1,0 +1,137 @@
+"""CHOLMOD called directly (torchakvf.solvers.cholmod) against scipy and against cholespy's own
+constructor, the path it replaces on the CPU."""
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+import torch
+
+import torchakvf as ta
+from torchakvf import shapes
+from torchakvf.solvers import cholmod
+from torchakvf.solvers.factor import ShiftedFactor
+
+from threads import one_torch_thread  # noqa: F401 - autouse fixture
+
+needs_cholmod = pytest.mark.skipif(cholmod.library() is None,
+                                   reason="cholespy's library has no CHOLMOD 3.0 layout here; "
+                                          "the CPU factors then use cholespy's constructor")
+
+
+def grid_laplacian(m: int, shift: float) -> sp.csc_matrix:
+    """The 5-point Laplacian of an m x m grid plus shift·I (eigenvalues in (shift, shift + 8))."""
+    one = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(m, m))
+    eye = sp.identity(m)
+    return (sp.kron(one, eye) + sp.kron(eye, one) + shift * sp.identity(m * m)).tocsc()
+
+
+def lower_csc(a: sp.csc_matrix):
+    low = sp.tril(a).tocsc()
+    low.sort_indices()
+    return low.indptr, low.indices, low.data
+
+
+@needs_cholmod
+def test_solve_matches_scipy():
+    # A definite grid Laplacian (condition number ~ 8 / 0.5 = 16): the solves agree with
+    # SuperLU's to a few units of round-off times the condition number.
+    a = grid_laplacian(30, 0.5)
+    f = cholmod.CholmodFactor(a.shape[0], *lower_csc(a))
+    assert f.factorize(lower_csc(a)[2])
+    rhs = np.random.default_rng(0).standard_normal((5, a.shape[0]))
+    got = f.solve_rows(torch.from_numpy(rhs)).numpy()
+    want = spla.splu(a).solve(rhs.T).T
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+    # One right-hand side, then a different count: the reused workspaces are resized.
+    np.testing.assert_allclose(f.solve_rows(torch.from_numpy(rhs[:1])).numpy(), want[:1],
+                               rtol=0, atol=1e-12 * np.abs(want).max())
+
+
+@needs_cholmod
+def test_definiteness_is_detected_and_the_analysis_reused():
+    a = grid_laplacian(12, 0.0)                       # smallest eigenvalue 2(1 - cos(pi/13))·2 ~ 0.115
+    indptr, indices, values = lower_csc(a)
+    diag = indptr[:-1]                                 # sorted lower columns start at the diagonal
+    f = cholmod.CholmodFactor(a.shape[0], indptr, indices, values)
+    for shift, definite in ((-0.2, False), (-0.05, True), (-3.0, False), (1.0, True)):
+        v = values.copy()
+        v[diag] += shift
+        assert f.factorize(v) is definite, shift
+        if definite:
+            x = f.solve_rows(torch.ones(1, a.shape[0], dtype=torch.float64)).numpy()[0]
+            np.testing.assert_allclose((a + shift * sp.identity(a.shape[0])) @ x, 1.0, atol=1e-10)
+        else:
+            with pytest.raises(ta.SolverError, match="not positive definite"):
+                f.solve_rows(torch.ones(1, a.shape[0], dtype=torch.float64))
+
+
+@needs_cholmod
+def test_solve_rows_checks_its_shape():
+    a = grid_laplacian(5, 1.0)
+    f = cholmod.CholmodFactor(a.shape[0], *lower_csc(a))
+    f.factorize(lower_csc(a)[2])
+    with pytest.raises(ta.SolverError, match=r"\[k, 25\]"):
+        f.solve_rows(torch.ones(25, dtype=torch.float64))
+    with pytest.raises(ta.SolverError, match=r"\[k, 25\]"):
+        f.solve_rows(torch.ones(2, 24, dtype=torch.float64))
+
+
+def test_layout_check_rejects_what_is_not_cholmod_defaults():
+    # A zeroed struct is what a shifted layout would read back: it must be refused.
+    assert not cholmod._defaults_ok(cholmod._Common())
+
+
+@needs_cholmod
+def test_layout_check_accepts_cholmod_start():
+    lib = cholmod.library()
+    common = cholmod._Common()
+    lib.cholmod_start(ctypes.byref(common))
+    try:
+        assert cholmod._defaults_ok(common)
+    finally:
+        lib.cholmod_finish(ctypes.byref(common))
+
+
+@needs_cholmod
+def test_shifted_factor_same_shift_and_solution_on_both_paths():
+    # A block whose smallest eigenvalue is -5 (λ·area): shift -1 fails and -8 works; both paths
+    # must agree on the shift and the solution.
+    n = 40
+    rng = np.random.default_rng(1)
+    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    lam = np.linspace(-5.0, 50.0, n)
+    dense = (q * lam) @ q.T
+    rows, cols = np.nonzero(np.ones((n, n)))
+    vals = torch.from_numpy(dense[rows, cols])
+    mass = torch.ones(n, dtype=torch.float64)
+    direct = ShiftedFactor(torch.from_numpy(rows), torch.from_numpy(cols), vals, mass)
+    with cholmod.disabled():
+        assert cholmod.library() is None
+        before = ShiftedFactor(torch.from_numpy(rows), torch.from_numpy(cols), vals, mass)
+    assert cholmod.library() is not None
+    assert direct.sigma == before.sigma == -8.0
+    assert isinstance(direct._solver, cholmod.CholmodFactor)
+    assert not isinstance(before._solver, cholmod.CholmodFactor)
+    rhs = torch.from_numpy(rng.standard_normal((n, 3)))
+    want = np.linalg.solve(dense + 8.0 * np.eye(n), rhs.numpy())     # condition (58 / 3) ~ 20
+    for f in (direct, before):
+        np.testing.assert_allclose(f.solve(rhs).numpy(), want, atol=1e-11)
+        np.testing.assert_allclose(f.solve_rows(rhs.T.contiguous()).numpy(), want.T, atol=1e-11)
+        np.testing.assert_allclose(f.solve(rhs[:, 0]).numpy(), want[:, 0], atol=1e-11)
+
+
+@needs_cholmod
+def test_akvf_same_eigenpairs_on_both_factor_paths():
+    # Different orderings (AMD against NESDIS) give different round-off only: the eigenvalues
+    # agree to the solver's own accuracy (residual 1e-6 bounds them by r² / gap ≪ 1e-8 here),
+    # and the spans of the fields match.
+    mesh = ta.Mesh(shapes.icosphere(3).vertices, shapes.icosphere(3).faces, "ico3")
+    a = ta.akvf(mesh, n=12, solver="krylov")
+    with cholmod.disabled():
+        b = ta.akvf(mesh, n=12, solver="krylov")
+    np.testing.assert_allclose(a.eigenvalues.numpy(), b.eigenvalues.numpy(), rtol=1e-8, atol=1e-8)
+    assert bool(a.converged.all()) and bool(b.converged.all())
