@@ -45,6 +45,8 @@ _GIVEN, _AMD, _METIS, _NESDIS = 1, 2, 3, 4
 _INT, _REAL, _DOUBLE, _PATTERN = 0, 1, 0, 0
 _SYS_A = 0
 _MAXMETHODS = 9
+#: Fill-reducing orderings a :class:`CholmodFactor` can be asked for by name.
+ORDERINGS = {"amd": _AMD, "metis": _METIS, "nesdis": _NESDIS}
 
 
 class _Method(C.Structure):
@@ -180,12 +182,14 @@ class CholmodFactor:
 
     n : order; indptr [n+1], indices [nnz] (int32, sorted within columns), values [nnz]
     float64: the *lower* triangle in CSC form, diagonal included. The symbolic analysis
-    (AMD ordering, elimination tree) is computed here once; :meth:`factorize` computes the
+    (ordering, elimination tree) is computed here once; :meth:`factorize` computes the
     numeric factor for new values and says whether the matrix is positive definite.
+    ordering : None (CHOLMOD's default choice: AMD, with METIS also tried where AMD fills
+    badly) or one of :data:`ORDERINGS` ("nesdis" is what cholespy's constructor uses).
     """
 
     def __init__(self, n: int, indptr: np.ndarray, indices: np.ndarray, values: np.ndarray,
-                 lib=None):
+                 lib=None, ordering: str | None = None):
         self._lib = lib if lib is not None else library()
         if self._lib is None:
             raise SolverError("CHOLMOD (through cholespy's library) is not usable here")
@@ -204,7 +208,13 @@ class CholmodFactor:
         c.supernodal = _SIMPLICIAL
         # LDLᵀ (final_ll stays 0): 6-10% faster than LLᵀ on PSB meshes; definiteness is then
         # checked on D in factorize().
-        # nmethods stays 0: CHOLMOD's own choice, AMD (and METIS only where AMD's fill is poor).
+        # By default nmethods stays 0: CHOLMOD's own choice, AMD (and METIS as well where
+        # AMD's fill is poor, keeping the better). A named ordering is for comparisons.
+        if ordering is not None:
+            if ordering not in ORDERINGS:
+                raise SolverError(f"ordering must be one of {sorted(ORDERINGS)} or None, got {ordering!r}")
+            c.nmethods = 1
+            c.method[0].ordering = ORDERINGS[ordering]
         self._x = C.POINTER(_Dense)()      # solve2's workspaces, reused across solves
         self._y = C.POINTER(_Dense)()
         self._e = C.POINTER(_Dense)()
@@ -216,7 +226,10 @@ class CholmodFactor:
         f = self._factor.contents
         if not (f.n == self.n and f.is_super == 0 and f.itype == _INT and f.xtype == _PATTERN):
             raise SolverError("CHOLMOD's factor header does not read as expected")
-        self.ordering = f.ordering
+        self.ordering = {v: k for k, v in ORDERINGS.items()}.get(f.ordering, str(f.ordering))
+        chosen = c.method[c.selected]
+        #: nonzeros of L and flops of the numeric factor, as CHOLMOD's analysis predicts them
+        self.factor_nonzeros, self.factor_flops = float(chosen.lnz), float(chosen.fl)
         self.positive_definite = False
 
     def factorize(self, values: np.ndarray) -> bool:

@@ -133,7 +133,7 @@ class _CpuFactor:
     """R + diag(d) for changing d, factored by CHOLMOD directly: the lower CSC pattern and the
     symbolic analysis are built once, each :meth:`factorize` only refills the diagonal."""
 
-    def __init__(self, pattern):
+    def __init__(self, pattern, ordering: str | None = None):
         import scipy.sparse as sp
 
         n, r, c, base = pattern
@@ -147,7 +147,8 @@ class _CpuFactor:
         self._diag = lower.indptr[:-1].copy()
         if not np.array_equal(lower.indices[self._diag], np.arange(n)):
             raise SolverError("internal: a diagonal slot is missing from R's lower pattern")
-        self.factor = cholmod.CholmodFactor(n, lower.indptr, lower.indices, self._base)
+        self.factor = cholmod.CholmodFactor(n, lower.indptr, lower.indices, self._base,
+                                             ordering=ordering)
 
     def factorize(self, diagonal: torch.Tensor):
         values = self._base.copy()
