@@ -10,8 +10,9 @@ order plus the numeric factor still cost 0.6-0.7x NESDIS's. This module also:
 
 * computes the symbolic analysis once per mesh: a failed shift (R - σS1 not definite) costs a
   numeric refactorization only;
-* releases the GIL while CHOLMOD works (ctypes does, cholespy does not), so two factors can
-  run on two threads;
+* releases the GIL while CHOLMOD works (ctypes does, cholespy does not): two factors of PSB 21
+  on two threads took 0.72 s wall against 0.43 s for one (the pattern set-up holds the GIL, and
+  the factor is memory-bound);
 * solves on row-stacked right-hand sides ``[k, E]`` without transposing: that is the
   column-major layout CHOLMOD reads.
 
