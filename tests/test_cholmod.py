@@ -135,3 +135,20 @@ def test_akvf_same_eigenpairs_on_both_factor_paths():
         b = ta.akvf(mesh, n=12, solver="krylov")
     np.testing.assert_allclose(a.eigenvalues.numpy(), b.eigenvalues.numpy(), rtol=1e-8, atol=1e-8)
     assert bool(a.converged.all()) and bool(b.converged.all())
+
+
+@needs_cholmod
+def test_named_orderings_solve_alike():
+    a = grid_laplacian(20, 0.5)
+    rhs = torch.from_numpy(np.random.default_rng(2).standard_normal((3, a.shape[0])))
+    want = spla.splu(a).solve(rhs.numpy().T).T
+    for ordering in (None, "amd", "metis", "nesdis"):
+        f = cholmod.CholmodFactor(a.shape[0], *lower_csc(a), ordering=ordering)
+        assert f.factorize(lower_csc(a)[2])
+        assert f.ordering in cholmod.ORDERINGS and f.factor_nonzeros >= a.shape[0]
+        if ordering is not None:
+            assert f.ordering == ordering
+        np.testing.assert_allclose(f.solve_rows(rhs).numpy(), want, rtol=0,
+                                   atol=1e-12 * np.abs(want).max())
+    with pytest.raises(ta.SolverError, match="ordering must be one of"):
+        cholmod.CholmodFactor(a.shape[0], *lower_csc(a), ordering="colamd")

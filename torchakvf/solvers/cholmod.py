@@ -4,9 +4,10 @@
 Why not cholespy's own constructor on the CPU (benchmarks/results/cholmod_ordering.md): it
 fixes CHOLMOD's ordering to NESDIS (METIS nested dissection with constrained minimum degree).
 On the Killing operator's edge graph (about 11 entries per row) that ordering takes most of
-the factor's time: 290 of 450 ms on PSB 21 (45,594 edges), 65 of 82 ms on PSB 1. AMD orders
-it in 20 ms (resp. 5 ms); its factor has about 1.2x the nonzeros and 1.8x the flops, and the
-order plus the numeric factor still cost 0.6-0.7x NESDIS's. This module also:
+the factor's time: 283 of 443 ms on PSB 21 (45,594 edges), 72 of 92 ms on PSB 1. AMD orders
+them in 33 and 9 ms; its factor has up to 1.2x the nonzeros and 1.8x the flops, and still the
+order plus the numeric factor cost 0.3-0.7x cholespy's constructor on PSB 1, 21, 121, 181, 301
+(its 4-column solves up to 1.3x slower). This module also:
 
 * computes the symbolic analysis once per mesh: a failed shift (R - σS1 not definite) costs a
   numeric refactorization only;
@@ -16,8 +17,8 @@ order plus the numeric factor still cost 0.6-0.7x NESDIS's. This module also:
 * solves on row-stacked right-hand sides ``[k, E]`` without transposing: that is the
   column-major layout CHOLMOD reads.
 
-Only CHOLMOD's LGPL modules (Core, Cholesky) and its AMD ordering are used: the supernodal
-module is never asked for (``supernodal = CHOLMOD_SIMPLICIAL``).
+Only CHOLMOD's LGPL modules (Core, Cholesky, Partition) are used: the supernodal module
+(GPL) is never asked for (``supernodal = CHOLMOD_SIMPLICIAL``).
 
 Safety: the structs below are CHOLMOD 3.0's (SuiteSparse 5.x, cholespy 2.x). :func:`library`
 accepts the library only if SuiteSparse's version is 5.x *and* every default that
@@ -194,6 +195,8 @@ class CholmodFactor:
         self._lib = lib if lib is not None else library()
         if self._lib is None:
             raise SolverError("CHOLMOD (through cholespy's library) is not usable here")
+        if ordering is not None and ordering not in ORDERINGS:
+            raise SolverError(f"ordering must be one of {sorted(ORDERINGS)} or None, got {ordering!r}")
         self.n = int(n)
         self._indptr = np.ascontiguousarray(indptr, dtype=np.int32)
         self._indices = np.ascontiguousarray(indices, dtype=np.int32)
@@ -212,8 +215,6 @@ class CholmodFactor:
         # By default nmethods stays 0: CHOLMOD's own choice, AMD (and METIS as well where
         # AMD's fill is poor, keeping the better). A named ordering is for comparisons.
         if ordering is not None:
-            if ordering not in ORDERINGS:
-                raise SolverError(f"ordering must be one of {sorted(ORDERINGS)} or None, got {ordering!r}")
             c.nmethods = 1
             c.method[0].ordering = ORDERINGS[ordering]
         self._x = C.POINTER(_Dense)()      # solve2's workspaces, reused across solves
