@@ -455,3 +455,18 @@ def test_batches_of_several_workers_balance_the_work_under_the_budget():
     assert ids(balanced_batches(p, faces, 200, work, 2)) == [[2, 5], [3, 4], [0, 1]]
     # more workers than meshes: one mesh per batch
     assert sorted(ids(make_batches(p, faces, 10 ** 6, workers=8, work_of=work))) == [[i] for i in range(6)]
+    # several batches per worker (the CPU's finer share): 2 workers x 2 = 4 batches, heaviest
+    # first into the lightest: 5 -> A 1000, 4 -> B 500, 3 -> C 400, 2 -> D 300, 1 -> D (300,
+    # the lightest) 500, 0 -> C (400) 500
+    assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=2)) == [[5], [4], [0, 3], [1, 2]]
+    # never more batches than meshes
+    assert sorted(ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=4))) == [[i] for i in range(6)]
+
+
+def test_cpu_batches_are_a_finer_share_than_one_per_worker():
+    import torch
+
+    from torchakvf.evaluate.plan import CPU_BATCHES_PER_WORKER, batches_per_worker
+    assert CPU_BATCHES_PER_WORKER > 1
+    assert batches_per_worker("cpu") == batches_per_worker(torch.device("cpu")) == CPU_BATCHES_PER_WORKER
+    assert batches_per_worker("cuda") == batches_per_worker("cuda:1") == 1

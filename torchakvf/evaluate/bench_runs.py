@@ -20,7 +20,7 @@ from ..mesh import Mesh, MeshBatch, clean_mesh
 from ..parts.engine import SegmentOptions, segment_each_k
 from ..pipeline.parallel import error_text, is_programming_error, map_batches
 from ..progress import progress
-from .plan import PredictionPlan, heaviest_first, make_batches, mesh_work, solved_face_counts
+from .plan import PredictionPlan, batches_per_worker, heaviest_first, make_batches, mesh_work, solved_face_counts
 from .predict import PredictSettings, predict_in_worker
 
 log = logging.getLogger("torchakvf.bench")
@@ -163,7 +163,8 @@ def run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: st
     solved = solved_face_counts(faces_of, segment_kwargs.get("coarse_faces"))
     settings = predict_settings(device, seed, remedy, n_fields, segment_kwargs)
     batches = heaviest_first(make_batches(order, solved, int(batch_faces), workers=workers,
-                                          work_of=mesh_work(faces_of, n_k)), faces_of, n_k)
+                                          work_of=mesh_work(faces_of, n_k),
+                                          per_worker=batches_per_worker(device)), faces_of, n_k)
     for res in map_batches(batches, predict_in_worker,
                            (settings,), workers=workers, fatal=(OutputSpaceError,)):
         batch = res.batch

@@ -71,8 +71,9 @@ from ..parts.engine import DEFAULT_REMEDY, SegmentOptions
 from ..pipeline.parallel import map_batches
 from ..progress import progress as progress_bar
 from .k_auto import DEFAULT_K_RANGE, DEFAULT_RULE, RULES, check_k_range, scan_merge_weights
-from .plan import (DEFAULT_K_NO_GT, PROTOCOLS, default_eval_batch_faces, find_entries, heaviest_first,
-                   human_mode, make_batches, mesh_work, plan_meshes, select_entries, settings_guard, solved_face_counts)
+from .plan import (DEFAULT_K_NO_GT, PROTOCOLS, batches_per_worker, default_eval_batch_faces, find_entries,
+                   heaviest_first, human_mode, make_batches, mesh_work, plan_meshes, select_entries,
+                   settings_guard, solved_face_counts)
 from .predict import PredictSettings, predict_in_worker
 from .report import REFERENCES, EvalSummary, write_reports
 from .score import METRIC_GROUPS, METRICS, MeshScore, parse_metrics, score_mesh, score_segmentation
@@ -241,7 +242,8 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
     n_workers = 1 if workers is None else int(workers)
     batches = heaviest_first(make_batches(sorted(todo, key=lambda p: (n_missing[p.mesh_id], faces_of[p.mesh_id],
                                                                       p.mesh_id)), solved, int(batch_faces),
-                                          workers=n_workers, work_of=mesh_work(faces_of, n_missing)),
+                                          workers=n_workers, work_of=mesh_work(faces_of, n_missing),
+                                          per_worker=batches_per_worker(device)),
                              faces_of, n_missing)
     settings = PredictSettings(auto=auto, n_fields=n_fields, k_range=k_range, k_rule=k_rule,
                                coarse_faces=segment_kwargs.get("coarse_faces"), options=seg_options,

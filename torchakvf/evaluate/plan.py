@@ -28,7 +28,7 @@ DEFAULT_K_NO_GT = 6
 
 __all__ = ["PROTOCOLS", "DEFAULT_K_NO_GT", "PredictionPlan", "select_entries", "parse_ids",
            "find_entries", "plan_meshes", "settings_guard", "make_batches", "balanced_batches", "mesh_work",
-           "solved_face_counts", "default_eval_batch_faces", "human_mode"]
+           "solved_face_counts", "default_eval_batch_faces", "human_mode", "batches_per_worker"]
 
 
 def human_mode(counts) -> int:
@@ -256,7 +256,22 @@ def solved_face_counts(faces_of: dict, coarse_faces) -> dict:
     return {i: (f if f <= DECIMATE_ABOVE * coarse_faces else int(coarse_faces)) for i, f in faces_of.items()}
 
 
-def make_batches(plans, faces_of: dict, budget: int, *, workers: int = 1, work_of: dict | None = None) -> list:
+#: Batches per worker on the CPU (at least, where there are meshes enough), for
+#: :func:`make_batches`' ``per_worker``: a CPU batch is solved one mesh at a time inside, so its
+#: size only sets how finely the work is shared, and with one batch per worker the error of the
+#: work estimate is all the imbalance (PSB 1-40 decimated at a budget of 80,000 faces, 2 workers:
+#: 0.90x one mesh per batch in wall time, 0.97x in CPU time: benchmarks/results/
+#: bench_budget_sweep_cpu_v4_base.md; with 4 per worker: bench_budget_sweep_cpu_v4.md).
+CPU_BATCHES_PER_WORKER = 4
+
+
+def batches_per_worker(device) -> int:
+    """:data:`CPU_BATCHES_PER_WORKER` on the CPU; 1 elsewhere (on a GPU batching is the gain)."""
+    return CPU_BATCHES_PER_WORKER if str(device).startswith("cpu") else 1
+
+
+def make_batches(plans, faces_of: dict, budget: int, *, workers: int = 1, work_of: dict | None = None,
+                 per_worker: int = 1) -> list:
     """Plans grouped into batches of at most ``budget`` faces (``faces_of``: by mesh id); a mesh
     larger than the budget is a batch alone.
 
@@ -265,12 +280,14 @@ def make_batches(plans, faces_of: dict, budget: int, *, workers: int = 1, work_o
     batches of equal work instead, at least one per worker, still under the budget: with as
     few batches as workers, consecutive meshes sorted by their k's gave one worker the
     meshes with the most k's (PSB 1-40 at a budget of 80,000 faces: 43.4 s against 33.1 s one
-    mesh per batch). Each mesh's answer depends on that mesh alone, so the grouping changes
-    no answer."""
+    mesh per batch). With ``per_worker``, at least that many batches per worker (where there
+    are meshes enough), for a finer share of the work (:func:`batches_per_worker`). Each mesh's
+    answer depends on that mesh alone, so the grouping changes no answer."""
     consecutive = cut_by_budget(plans, lambda p: faces_of[p.mesh_id], budget)
     if workers <= 1 or work_of is None or len(plans) <= 1:
         return consecutive
-    return balanced_batches(plans, faces_of, budget, work_of, max(len(consecutive), min(workers, len(plans))))
+    count = max(len(consecutive), min(workers * max(1, int(per_worker)), len(plans)))
+    return balanced_batches(plans, faces_of, budget, work_of, count)
 
 
 def balanced_batches(plans, faces_of: dict, budget: int, work_of: dict, count: int) -> list:
