@@ -40,10 +40,11 @@ from .lobpcg import EigenResult
 
 log = logging.getLogger(__name__)
 
-#: Right-hand sides per block solve. cholespy's CPU solve (CHOLMOD, simplicial) sweeps the
-#: factor once per 4 right-hand sides: measured on PSB 21, 4 columns cost 16.9 ms, 5-8 cost
-#: 30-37 ms, 1 costs 12 ms; so 4 per step, the fewest solves per converged pair (136 against 156
-#: at block 6 on PSB 21 and 301).
+#: Right-hand sides per block solve. CHOLMOD's simplicial solve sweeps the factor once per 4
+#: right-hand sides: measured on PSB 21 with cholespy, 4 columns cost 16.9 ms, 5-8 cost 30-37 ms,
+#: 1 costs 12 ms; with CHOLMOD called directly (:mod:`.cholmod`), 4 cost 12.8 ms, 5-8 cost
+#: 21-23 ms, 1 costs 8.1 ms. So 4 per step, the fewest solves per converged pair (136 against
+#: 156 at block 6 on PSB 21 and 301).
 BLOCK = 4
 #: A block-p Krylov space holds at most p copies of a repeated eigenvalue (in exact arithmetic;
 #: the irreducible representations of the finite symmetry groups of a surface have dimension
