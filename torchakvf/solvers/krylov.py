@@ -211,8 +211,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         wm = w * mass
         for _ in range(2):
             before = _rowdot(wm, w)
-            again = _mm(wm, basis.T)                      # [p, filled]
-            w = w - _mm(again, basis)
+            w, again = _project_out(w, wm, basis)
             coef += again
             wm = w * mass
             if bool((_rowdot(wm, w) > _REORTH * before).all()):
@@ -331,8 +330,33 @@ def _final(stiff, mass, basis, y):
 
 
 def _rowdot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """[k] row-wise dot products of [k, E] arrays, without an [k, E] temporary."""
-    return torch.einsum("ke,ke->k", a, b)
+    """[k] row-wise dot products of [k, E] arrays. (Through a [k, E] temporary: torch.einsum
+    "ke,ke->k" avoids it but measured 4.5x slower for [4, 45594], 0.22 against 0.05 ms.)"""
+    return (a * b).sum(1)
+
+
+def _project_out(w: torch.Tensor, wm: torch.Tensor, basis: torch.Tensor, chunk: int = 8):
+    """One classical Gram-Schmidt pass: ``(w - c @ basis, c)`` with ``c = wm @ basisᵀ``
+    (w, wm = w·S [p, E]; basis [m, E]; c [p, m]).
+
+    Done CHUNK rows of the basis at a time, each chunk's coefficients and update back to back
+    while its rows are in cache: the basis is then read from memory once, not twice (it is
+    memory-bound: [136, 45594] is 50 MB). Measured for p = 4, one thread: E = 45594, m = 136:
+    6.4 ms against 12.1 for the two whole-basis products (chunks of 16: 7.9, 32: 10.5);
+    E = 14112, m = 136: 1.9 against 2.8; no loss at m = 32 (1.3 against 1.5). The coefficients
+    are those of the two whole products (each a dot of wm with one row)."""
+    m = basis.shape[0]
+    if m <= chunk:
+        c = _mm(wm, basis.T)
+        return w - _mm(c, basis), c
+    out = w.clone()
+    coef = w.new_empty(w.shape[0], m)
+    for s in range(0, m, chunk):
+        rows = basis[s:s + chunk]
+        c = _mm(wm, rows.T)
+        out.addmm_(c, rows, alpha=-1.0)
+        coef[:, s:s + chunk] = c
+    return out, coef
 
 
 def _stiffness(rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor, size: int):
