@@ -301,7 +301,12 @@ def _orthonormal(w: torch.Tensor, basis: torch.Tensor, mass: torch.Tensor):
     gram2 = 0.5 * (gram2 + gram2.T)
     with single_threaded():
         chol = torch.linalg.cholesky(gram2)
-        out = torch.linalg.solve_triangular(chol, out, upper=False)
+        # L⁻¹ out as a product with the p×p inverse: gram2 is within round-off of I, so L is
+        # as well conditioned, and a [p, p] x [p, E] product costs a third of the triangular
+        # solve on [p, E] (0.1 against 0.33 ms at E = 45594).
+        inverse = torch.linalg.solve_triangular(chol, torch.eye(len(chol), dtype=chol.dtype,
+                                                                device=chol.device), upper=False)
+    out = _mm(inverse, out)
     # w = uᵀ-side: w = (√g u')ᵀ-combination of out0 = L out  =>  w ≈ (L diag(√g) uᵀ)ᵀ out.
     bmat = chol.T @ (g.sqrt()[:, None] * u.T)
     return out, bmat
@@ -324,9 +329,11 @@ def _final(stiff, mass, basis, y):
     order = torch.argsort(lam)
     if not bool((order == torch.arange(len(order), device=order.device)).all()):
         lam, xr, rx, xm, norm = lam[order], xr[order], rx[order], xm[order], norm[order]
-    res = rx - xm * lam[:, None]                           # residual of the unnormalized x
-    rel = (_rowdot(res / mass, res) / norm).sqrt() / lam.abs().clamp(min=1.0)
-    return lam, contiguous_transpose(xr * norm.rsqrt()[:, None]), rel
+    # In place from here (rx, xm and xr are this function's own [k, E] arrays): each fresh
+    # [k, E] temporary is 15 MB of new pages at k = 40, E = 45594.
+    res = rx.sub_(xm.mul_(lam[:, None]))                   # residual of the unnormalized x
+    rel = (res.mul_(res).div_(mass).sum(1) / norm).sqrt() / lam.abs().clamp(min=1.0)
+    return lam, contiguous_transpose(xr.mul_(norm.rsqrt()[:, None])), rel
 
 
 def _rowdot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
