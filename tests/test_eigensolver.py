@@ -795,3 +795,31 @@ def test_lobpcg_warm_start():
         segmented_lobpcg(system, n, guard=guard, start=[torch.cat([full[0], full[0][:, :1]], 1), None])
     with pytest.raises(ta.ParameterError):
         segmented_lobpcg(system, n, guard=guard, start=[None])
+
+
+@pytest.mark.parametrize("rows", [3, 8, 21, 64])
+def test_krylov_gram_schmidt_pass_equals_the_two_whole_products(rows):
+    """The chunked Gram-Schmidt pass (basis read once, 8 rows at a time) gives the coefficients
+    and the vector of the two whole-basis products, and leaves w S-orthogonal to the basis."""
+    from torchakvf.solvers.krylov import _orthonormal, _project_out
+
+    gen = torch.Generator().manual_seed(3)
+    e = 500
+    mass = torch.rand(e, generator=gen, dtype=torch.float64) + 0.5
+    start = torch.randn(rows, e, generator=gen, dtype=torch.float64)
+    basis, _ = _orthonormal(start, start[:0], mass)
+    assert basis.shape == (rows, e)
+    # S-orthonormal to round-off: the Gram matrix of rows orthonormalized once from random data
+    assert torch.allclose((basis * mass) @ basis.T, torch.eye(rows, dtype=torch.float64), atol=1e-13)
+    w = torch.randn(4, e, generator=gen, dtype=torch.float64)
+    wm = w * mass
+    out, coef = _project_out(w, wm, basis)
+    want_coef = wm @ basis.T
+    assert coef.shape == (4, rows)
+    # Each coefficient is one dot product of length 500 (entries ~1): round-off ~1e-14.
+    assert torch.allclose(coef, want_coef, rtol=0, atol=1e-12)
+    assert torch.allclose(out, w - want_coef @ basis, rtol=0, atol=1e-12)
+    # One classical pass against an orthonormal basis leaves only round-off inside its span.
+    assert float(((out * mass) @ basis.T).abs().max()) < 1e-12 * float(w.abs().max()) * e ** 0.5
+    # w itself is untouched (the pass works on a copy).
+    assert torch.equal(wm, w * mass)
