@@ -25,6 +25,9 @@ FLOAT32_PHASE_TOL = 10.0
 #: restart's rotation within 0.1 (feature max) of plain Horst's on 38 of 57; unbounded: 5192
 #: steps, 27 of 57 (long steps leave the plain iteration's basin more often); 2: 7312 steps.
 SQUAREM_MAX_STEP = 4.0
+#: Float64 Horst steps per restart assumed by :func:`_moments_pay` (the float64 phase after the
+#: float32 one took 20-29 per restart on PSB 1 and 21 at full resolution, n = 32).
+_POLISH_STEPS_PER_RESTART = 20
 
 
 @dataclass
@@ -311,19 +314,115 @@ def _horst(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
     return _horst_batched(ypad, a, tol, max_iter, iteration_dtype)
 
 
-def _horst_step(y: torch.Tensor, yt: torch.Tensor, al: torch.Tensor, out: torch.Tensor,
-                iteration_dtype: torch.dtype):
-    """One Horst step of rotations al [m, q, n, n] (float64) for y [m, E, n] (yt its
-    transpose, both in iteration_dtype; out an [m, E, q·n] buffer): G = Yᵀ (Y A)^3 per rotation
-    [m, q, n, n] (float64), its polar factor U Vᵀ (the step's rotation) and trace(D) = Σ σ(G)
-    [m, q]."""
-    m, _, n = y.shape
-    q = al.shape[1]
-    ya = torch.matmul(y, _side(al).to(iteration_dtype), out=out).pow_(3)
-    g = (yt @ ya).reshape(m, n, q, n).permute(0, 2, 1, 3).double()
+def _horst_step(gradient, al: torch.Tensor):
+    """One Horst step of rotations al [m, q, n, n] (float64): G = Yᵀ (Y A)^3 per rotation
+    [m, q, n, n] (float64, from ``gradient``: :class:`_Products` or :class:`_FourthMoments`),
+    its polar factor U Vᵀ (the step's rotation) and
+    trace(D) = Σ σ(G) [m, q]."""
+    g = gradient(al)
     with single_threaded():
         u, sv, vh = torch.linalg.svd(g)
     return u @ vh, sv.sum(-1), g
+
+
+class _Products:
+    """G(A) = Yᵀ (Y A)^3 by two GEMMs per mesh, for y [m, E, n] in iteration_dtype (G in
+    float64). Y A is [m, E, q·n], the largest array here: one buffer, cubed in place, because
+    fresh allocations of that size cost more than the GEMMs (measured 2.2x per step at 30k
+    edges)."""
+
+    def __init__(self, y: torch.Tensor, restarts: int, iteration_dtype: torch.dtype, buf=None):
+        self.y = y.to(iteration_dtype)
+        self.dtype = iteration_dtype
+        nb, e, n = y.shape
+        self.buf = self.y.new_empty(nb * e * restarts * n) if buf is None else buf
+
+    def select(self, meshes: torch.Tensor) -> "_Products":
+        """The same for a subset of the meshes (indices into this one's), sharing the buffer."""
+        out = object.__new__(_Products)
+        out.y, out.dtype, out.buf = self.y[meshes], self.dtype, self.buf
+        return out
+
+    def __call__(self, al: torch.Tensor) -> torch.Tensor:
+        """G [m, q, n, n] (float64) of rotations al [m, q, n, n]."""
+        m, e, n = self.y.shape
+        q = al.shape[1]
+        out = self.buf[:m * e * q * n].view(m, e, q * n)
+        ya = torch.matmul(self.y, _side(al).to(self.dtype), out=out).pow_(3)
+        return (self.y.transpose(1, 2) @ ya).reshape(m, n, q, n).permute(0, 2, 1, 3).double()
+
+
+def _gradient(ypad: torch.Tensor, restarts: int, iteration_dtype: torch.dtype):
+    """G(A) = Yᵀ (Y A)^3 for Horst's steps on ypad [m, Emax, n] with up to ``restarts``
+    rotations per mesh: float64 steps from the fourth moments where they pay
+    (:func:`_moments_pay`), else (and for float32 steps) by the products."""
+    _, e, n = ypad.shape
+    if iteration_dtype == torch.float64 and _moments_pay(e, n, restarts):
+        return _FourthMoments(ypad.to(torch.float64))
+    return _Products(ypad, restarts, iteration_dtype)
+
+
+class _FourthMoments:
+    """G(A) = Yᵀ (Y A)^3 of each mesh (y [m, E, n] float64) from Y's fourth moments, in float64.
+
+    Expanding the cube, G_ij = Σ_{k,l,m} M_iklm A_kj A_lj A_mj with M_iklm = Σ_e y_ei y_ek y_el
+    y_em, which does not depend on A: computed once (``Qᵀ Q`` for Q [E, P] the products of
+    column pairs, P = n(n+1)/2), each step then costs a product of n x C by C x q·n per mesh
+    (C = n(n+1)(n+2)/6 sorted triples k <= l <= m), whatever E is. Where E is large against n
+    (:func:`_moments_pay`) that is far cheaper than two float64 GEMMs over E per step: on PSB 21
+    (45,594 edges, n = 32) the float64 steps took 3.1 of the untangling's 4.5 s. Both ways sum
+    the same products in another order: they agree to round-off. Zero rows (padding) add nothing.
+    """
+
+    def __init__(self, y: torch.Tensor, chunk: int = 2048):
+        nb, e, n = y.shape
+        dev = y.device
+        self.n = n
+        first, second = torch.triu_indices(n, n, device=dev)              # pairs i <= j
+        pair = torch.zeros(n, n, dtype=torch.long, device=dev)
+        pair[first, second] = torch.arange(len(first), device=dev)
+        pair[second, first] = pair[first, second]
+        gram = y.new_zeros(nb, len(first), len(first))
+        for s in range(0, e, chunk):
+            rows = y[:, s:s + chunk]
+            q = rows[:, :, first] * rows[:, :, second]                      # [m, chunk, P]
+            gram.baddbmm_(q.transpose(1, 2), q)
+        k, l, m = torch.combinations(torch.arange(n, device=dev), 3, with_replacement=True).T
+        self._k, self._l, self._m = k.contiguous(), l.contiguous(), m.contiguous()
+        # A sorted triple stands for its distinct orderings: 1, 3 or 6 of the n³ terms.
+        mult = torch.where((k == l) & (l == m), 1.0,
+                           torch.where((k == l) | (l == m), 3.0, 6.0)).to(y.dtype)
+        i = torch.arange(n, device=dev)[:, None]
+        self.moments = gram[:, pair[i, k[None, :]], pair[l, m][None, :]] * mult   # [m, n, C]
+
+    def select(self, meshes: torch.Tensor) -> "_FourthMoments":
+        """The same for a subset of the meshes (indices into this one's)."""
+        out = object.__new__(_FourthMoments)
+        out.n, out._k, out._l, out._m = self.n, self._k, self._l, self._m
+        out.moments = self.moments[meshes]
+        return out
+
+    def __call__(self, al: torch.Tensor) -> torch.Tensor:
+        """G [m, q, n, n] (float64) of rotations al [m, q, n, n]."""
+        nb, q, n = al.shape[0], al.shape[1], self.n
+        a = _side(al)                                                       # [m, n, q·n]
+        cubes = a[:, self._k] * a[:, self._l]
+        cubes.mul_(a[:, self._m])                                           # [m, C, q·n]
+        return torch.bmm(self.moments, cubes).reshape(nb, n, q, n).permute(0, 2, 1, 3)
+
+
+def _moments_pay(e: int, n: int, restarts: int) -> bool:
+    """Whether :class:`_FourthMoments` is the faster way to the float64 steps of a mesh with e
+    edges (rows), n fields and ``restarts`` rotations, each assumed to take
+    :data:`_POLISH_STEPS_PER_RESTART` steps: a time model in flops weighted by the rates
+    measured here (one thread, benchmarks/results/untangle_moments.md): the moments' one-time
+    Qᵀ Q (2 P² E flops) runs at about twice the products' rate per flop, their steps (a gather
+    and an n x C by C x n product per restart) at about half; the products cost 4 E n² flops
+    per restart and step."""
+    pairs, triples = n * (n + 1) // 2, n * (n + 1) * (n + 2) // 6
+    steps = _POLISH_STEPS_PER_RESTART * restarts
+    moments = 0.5 * (2.0 * pairs * pairs * e) + 2.0 * steps * (2.0 * n * n * triples + 4.0 * n * triples)
+    return moments < steps * 4.0 * e * n * n
 
 
 def _extrapolated(a0: torch.Tensor, a1: torch.Tensor, a2: torch.Tensor) -> torch.Tensor:
@@ -352,28 +451,27 @@ def _squarem_state(a: torch.Tensor) -> dict:
             "d1": zeros(), "d2": zeros(), "obj1": zeros()}
 
 
-def _squarem_step(phase: int, state: dict, pick, put, y: torch.Tensor, yt: torch.Tensor,
-                  out: torch.Tensor, tol: float, iteration_dtype: torch.dtype) -> torch.Tensor:
+def _squarem_step(phase: int, state: dict, pick, put, gradient, tol: float) -> torch.Tensor:
     """Step ``phase`` (0, 1, 2) of a SQUAREM cycle (:func:`_horst_batched`) for the restarts
     ``pick`` gathers from the state's [b, R, ...] arrays ([m, q, ...]; ``put`` scatters [m, q, ...]
     values back): 0 and 1 are plain Horst steps, 2 the step from the extrapolated point, kept
     where the objective there is no lower than at step 1. Returns done [m, q]: the plain step
     changed trace(D) by less than tol (relative; never after step 2)."""
     if phase == 0:
-        rot, d, _ = _horst_step(y, yt, pick(state["base"]), out, iteration_dtype)
+        rot, d, _ = _horst_step(gradient, pick(state["base"]))
         done = (d - pick(state["d_last"])).abs() < tol * d.abs()
         put(state["a1"], rot)
         put(state["d1"], d)
     elif phase == 1:
         src = pick(state["a1"])
-        rot, d, g = _horst_step(y, yt, src, out, iteration_dtype)
+        rot, d, g = _horst_step(gradient, src)
         done = (d - pick(state["d1"])).abs() < tol * d.abs()
         put(state["a2"], rot)
         put(state["d2"], d)
         put(state["obj1"], (src * g).sum(dim=(-2, -1)))
     else:
         x = _extrapolated(pick(state["base"]), pick(state["a1"]), pick(state["a2"]))
-        rot, d, g = _horst_step(y, yt, x, out, iteration_dtype)
+        rot, d, g = _horst_step(gradient, x)
         ok = (x * g).sum(dim=(-2, -1)) >= pick(state["obj1"])
         rot = torch.where(ok[..., None, None], rot, pick(state["a2"]))
         put(state["base"], rot)
@@ -396,9 +494,7 @@ def _horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: i
     """
     _, e_max, n = ypad.shape
     r = a.shape[1]
-    yit = ypad.to(iteration_dtype)
-    yt = yit.transpose(1, 2)
-    buf = yit.new_empty(e_max * r * n)
+    gradient = _gradient(ypad, r, iteration_dtype)
     state = _squarem_state(a)
     iters = [0] * r
     act = list(range(r))                                              # active restarts, in order
@@ -415,8 +511,7 @@ def _horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: i
             else:
                 t[:, act] = v
 
-        out = buf[:e_max * q * n].view(1, e_max, q * n)
-        done = _squarem_step(step % 3, state, pick, put, yit, yt, out, tol, iteration_dtype)[0].tolist()
+        done = _squarem_step(step % 3, state, pick, put, gradient, tol)[0].tolist()
         for j in act:
             iters[j] += 1
         act = [j for j, stop in zip(act, done) if not stop]
@@ -444,12 +539,9 @@ def _horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: in
     active = torch.ones(nb, r, dtype=torch.bool, device=dev)
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
 
-    # Y A is [b, Emax, R·n], the largest array here: one buffer, cubed in place, because fresh
-    # allocations of that size cost more than the GEMMs (measured 2.2x per step at 30k edges).
-    yit = ypad.to(iteration_dtype)
-    buf = yit.new_empty(nb * e_max * r * n)
+    whole = _gradient(ypad, r, iteration_dtype)
     live = torch.arange(nb, device=dev)
-    y_live = yit
+    gradient = whole
     for step in range(max_iter):
         # Only restarts still moving iterate: converged ones (and meshes whose restarts have all
         # converged) drop out, so neither a slow mesh nor a slow restart makes the others pay.
@@ -459,7 +551,7 @@ def _horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: in
         if len(still) == 0:
             break
         if len(still) != len(live):
-            live, y_live = still, yit[still]
+            live, gradient = still, whole.select(still)
         m = len(live)
         act = active[live]                                            # [m, R]
         q = int(act.sum(dim=1).max())
@@ -474,10 +566,7 @@ def _horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: in
             tl[sel] = v[valid]
             t[live] = tl
 
-        out = buf[:m * e_max * q * n].view(m, e_max, q * n)
-        done = _squarem_step(step % 3, state, pick, put, y_live, y_live.transpose(1, 2), out, tol,
-                             iteration_dtype)
+        done = _squarem_step(step % 3, state, pick, put, gradient, tol)
         iters[live] += act.long()
         active[live] = act.scatter(1, slot, valid & ~done)
-    del buf, yit
     return state["a"], iters

@@ -1,0 +1,84 @@
+"""The untangling's float64 Horst steps from Y's fourth moments (issue 13): the gradient
+Yᵀ (Y A)^3 equals the two products' to round-off (padding rows and mesh subsets included), the
+iteration reaches the same rotations, and the size rule picks each way where it is faster."""
+from __future__ import annotations
+
+import importlib
+
+import pytest
+import torch
+
+import torchakvf as ta
+from torchakvf import shapes
+
+untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+
+
+def _forms(m: int, e: int, n: int, seed: int) -> torch.Tensor:
+    gen = torch.Generator().manual_seed(seed)
+    y = torch.randn(m, e, n, generator=gen, dtype=torch.float64)
+    y[:, : e // 4, : n // 2] *= 3          # some structure: heavier rows on half the fields
+    return y
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 12])
+def test_moment_gradient_equals_the_products(n):
+    y = _forms(2, 700, n, seed=n)
+    y[1, 500:] = 0                          # the second mesh padded to the first's rows
+    gen = torch.Generator().manual_seed(10 + n)
+    al = torch.stack([untangle_mod.random_rotations(3, n, gen) for _ in range(2)])   # [2, 3, n, n]
+    got = untangle_mod._FourthMoments(y)(al)
+    want = untangle_mod._Products(y, 3, torch.float64)(al)
+    assert got.shape == want.shape == (2, 3, n, n) and got.dtype == torch.float64
+    # Both sum the same 700·n³ products of four entries of y and three of A (|y| <= ~12,
+    # |A| <= 1) in another order: the error is round-off of sums of that size. A wrong
+    # multiplicity or index would be off by O(|G|).
+    scale = float(torch.einsum("bei,bej->bij", y.abs(), y.abs() ** 3).max())
+    assert float((got - want).abs().max()) <= 1e-13 * scale
+    # a subset of the meshes (the batched path's live meshes; a batched product of another
+    # batch size may round differently)
+    sub = untangle_mod._FourthMoments(y).select(torch.tensor([1]))
+    assert float((sub(al[1:]) - got[1:]).abs().max()) <= 1e-13 * scale
+
+
+def test_moment_steps_reach_the_products_rotations(monkeypatch):
+    """The whole float64 iteration (SQUAREM, restarts stopping at different steps) from the
+    moments against the products: the same step counts and rotations equal to far below the
+    stopping tolerance."""
+    y = _forms(1, 900, 6, seed=4)
+    gen = torch.Generator().manual_seed(5)
+    a = torch.cat([torch.eye(6, dtype=torch.float64)[None], untangle_mod.random_rotations(3, 6, gen)])[None]
+    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, r: True)
+    got, got_iters = untangle_mod._horst(y, a, 1e-9, 500, torch.float64)
+    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, r: False)
+    want, want_iters = untangle_mod._horst(y, a, 1e-9, 500, torch.float64)
+    assert torch.equal(got_iters, want_iters)
+    assert len(set(want_iters[0].tolist())) > 1
+    assert float((got - want).abs().max()) < 1e-8
+
+
+def test_untangle_is_the_same_with_either_gradient(monkeypatch):
+    s = shapes.three_blobs()
+    fields = ta.akvf(ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces)]), n=12)
+    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, r: True)
+    got = untangle_mod.untangle(fields, restarts=3, seed=2)
+    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, r: False)
+    want = untangle_mod.untangle(fields, restarts=3, seed=2)
+    assert torch.equal(got.iterations, want.iterations)
+    assert float((got.rotation - want.rotation).abs().max()) < 1e-8
+    assert float((got.score - want.score).abs().max()) <= 1e-10 * float(want.score.abs().max())
+
+
+@pytest.mark.parametrize("e,n,moments", [(45594, 32, True), (14112, 32, True), (6000, 32, False),
+                                         (6000, 24, True), (6000, 16, True), (500, 32, False)])
+def test_the_size_rule(e, n, moments):
+    """Where each way was measured faster (benchmarks/results/untangle_moments.md): the moments
+    for long meshes and few fields, the products for short ones with many."""
+    assert untangle_mod._moments_pay(e, n, 9) is moments
+
+
+def test_float32_steps_never_use_the_moments():
+    g = untangle_mod._gradient(_forms(1, 50000, 8, seed=1), 9, torch.float32)
+    assert isinstance(g, untangle_mod._Products)
+    g = untangle_mod._gradient(_forms(1, 50000, 8, seed=1), 9, torch.float64)
+    assert isinstance(g, untangle_mod._FourthMoments)
