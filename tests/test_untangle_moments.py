@@ -41,44 +41,53 @@ def test_moment_gradient_equals_the_products(n):
     assert float((sub(al[1:]) - got[1:]).abs().max()) <= 1e-13 * scale
 
 
-def test_moment_steps_reach_the_products_rotations(monkeypatch):
+def test_moment_steps_reach_the_products_rotations():
     """The whole float64 iteration (SQUAREM, restarts stopping at different steps) from the
     moments against the products: the same step counts and rotations equal to far below the
     stopping tolerance."""
     y = _forms(1, 900, 6, seed=4)
     gen = torch.Generator().manual_seed(5)
     a = torch.cat([torch.eye(6, dtype=torch.float64)[None], untangle_mod.random_rotations(3, 6, gen)])[None]
-    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, r: True)
-    got, got_iters = untangle_mod._horst(y, a, 1e-9, 500, torch.float64)
-    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, r: False)
-    want, want_iters = untangle_mod._horst(y, a, 1e-9, 500, torch.float64)
+    got, got_iters = untangle_mod._horst(y, a, 1e-9, 500, torch.float64, moments=True)
+    want, want_iters = untangle_mod._horst(y, a, 1e-9, 500, torch.float64, moments=False)
     assert torch.equal(got_iters, want_iters)
     assert len(set(want_iters[0].tolist())) > 1
     assert float((got - want).abs().max()) < 1e-8
+    # the general (batched) path takes the moments too, with the same bits for one mesh
+    batched, batched_iters = untangle_mod._horst_batched(y, a, 1e-9, 500, torch.float64, moments=True)
+    assert torch.equal(batched, got) and torch.equal(batched_iters, got_iters)
 
 
-def test_untangle_is_the_same_with_either_gradient(monkeypatch):
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_untangle_is_the_same_with_either_gradient(monkeypatch, dtype):
+    """The moments only replace the float64 steps' products (after the float32 phase, or all
+    of them with iteration_dtype=float64): the same iterations, rotations and objective to
+    round-off."""
     s = shapes.three_blobs()
     fields = ta.akvf(ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces)]), n=12)
-    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, r: True)
-    got = untangle_mod.untangle(fields, restarts=3, seed=2)
-    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, r: False)
-    want = untangle_mod.untangle(fields, restarts=3, seed=2)
+    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, steps: True)
+    got = untangle_mod.untangle(fields, restarts=3, seed=2, iteration_dtype=dtype)
+    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, steps: False)
+    want = untangle_mod.untangle(fields, restarts=3, seed=2, iteration_dtype=dtype)
     assert torch.equal(got.iterations, want.iterations)
     assert float((got.rotation - want.rotation).abs().max()) < 1e-8
     assert float((got.score - want.score).abs().max()) <= 1e-10 * float(want.score.abs().max())
 
 
-@pytest.mark.parametrize("e,n,moments", [(45594, 32, True), (14112, 32, True), (6000, 32, False),
-                                         (6000, 24, True), (6000, 16, True), (500, 32, False)])
-def test_the_size_rule(e, n, moments):
+@pytest.mark.parametrize("e,n,steps,moments", [(45594, 32, 237, True), (14112, 32, 191, True),
+                                               (6000, 32, 400, False), (6000, 24, 200, True),
+                                               (6000, 16, 100, True), (45594, 32, 40, False),
+                                               (500, 16, 200, False)])
+def test_the_size_rule(e, n, steps, moments):
     """Where each way was measured faster (benchmarks/results/untangle_moments.md): the moments
-    for long meshes and few fields, the products for short ones with many."""
-    assert untangle_mod._moments_pay(e, n, 9) is moments
+    for long meshes, few fields and many steps (their one-time cost must be earned back), the
+    products for short meshes with many fields."""
+    assert untangle_mod._moments_pay(e, n, steps) is moments
 
 
-def test_float32_steps_never_use_the_moments():
-    g = untangle_mod._gradient(_forms(1, 50000, 8, seed=1), 9, torch.float32)
-    assert isinstance(g, untangle_mod._Products)
-    g = untangle_mod._gradient(_forms(1, 50000, 8, seed=1), 9, torch.float64)
-    assert isinstance(g, untangle_mod._FourthMoments)
+def test_the_moments_are_float64_steps():
+    y = _forms(1, 200, 4, seed=1)
+    assert isinstance(untangle_mod._gradient(y, 9, torch.float64, True), untangle_mod._FourthMoments)
+    assert isinstance(untangle_mod._gradient(y, 9, torch.float64, False), untangle_mod._Products)
+    with pytest.raises(ta.TorchAKVFError):
+        untangle_mod._gradient(y, 9, torch.float32, True)

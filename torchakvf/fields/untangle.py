@@ -25,9 +25,10 @@ FLOAT32_PHASE_TOL = 10.0
 #: restart's rotation within 0.1 (feature max) of plain Horst's on 38 of 57; unbounded: 5192
 #: steps, 27 of 57 (long steps leave the plain iteration's basin more often); 2: 7312 steps.
 SQUAREM_MAX_STEP = 4.0
-#: Float64 Horst steps per restart assumed by :func:`_moments_pay` (the float64 phase after the
-#: float32 one took 20-29 per restart on PSB 1 and 21 at full resolution, n = 32).
-_POLISH_STEPS_PER_RESTART = 20
+#: Float64 Horst steps per restart assumed by :func:`_moments_pay` where nothing better is known
+#: (the float64 phase after the float32 one took 20-29 per restart on PSB 1 and 21 at full
+#: resolution, n = 32; after a float32 phase its own step count is the estimate).
+_STEPS_PER_RESTART = 20
 
 
 @dataclass
@@ -270,14 +271,20 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
         rots = random_rotations(restarts, n, gen)
         starts.append(torch.cat([torch.eye(n, dtype=torch.float64)[None], rots]))
     a = torch.stack(starts).to(dev)                                   # [b, R, n, n]
+    # The float64 steps come from Y's fourth moments where that is faster (:func:`_moments_pay`);
+    # the float32 ones always from the products.
     if iteration_dtype == torch.float64:
-        a, iters = _horst(ypad, a, tol, max_iter, torch.float64)
+        steps = _STEPS_PER_RESTART * a.shape[1]
+        a, iters = _horst(ypad, a, tol, max_iter, torch.float64, _moments_pay(e_max, n, steps))
     else:
         a, iters = _horst(ypad, a, tol * FLOAT32_PHASE_TOL, max_iter, iteration_dtype)
         # float64 polish from the float32 end points: the optimum each restart settles on, and
         # so the restart kept, is decided by float64 iterations (float32 round-off, which
-        # depends on the BLAS kernel, thread count and padding, only chooses the start).
-        a, polish = _horst(ypad, a, tol, max_iter, torch.float64)
+        # depends on the BLAS kernel, thread count and padding, only chooses the start). It
+        # takes about as many steps as the float32 phase did (PSB 1 and 21 at full resolution,
+        # n = 32: 0.96x and 1.08x of them, summed over the restarts).
+        steps = int(iters.sum(dim=1).max())
+        a, polish = _horst(ypad, a, tol, max_iter, torch.float64, _moments_pay(e_max, n, steps))
         iters = iters + polish
     score = _orthomax_objective(ypad, a)                              # [b, R]
     best = score.argmax(dim=1)
@@ -299,7 +306,7 @@ def _orthomax_objective(ypad: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
 
 
 def _horst(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
-           iteration_dtype: torch.dtype):
+           iteration_dtype: torch.dtype, moments: bool = False):
     """Horst's iteration, accelerated (:func:`_horst_batched`), from rotations a [b, R, n, n]
     (float64) for scaled forms [b, Emax, n]; the products Y A and Yᵀ (Y A)^3 in
     ``iteration_dtype``. Returns (rotations [b, R, n, n], iterations [b, R]: Horst steps, i.e.
@@ -310,8 +317,8 @@ def _horst(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
     :func:`_horst_one_mesh`, the same arithmetic without the batch's bookkeeping; any other
     call :func:`_horst_batched`."""
     if len(ypad) == 1 and ypad.device.type == "cpu":
-        return _horst_one_mesh(ypad, a, tol, max_iter, iteration_dtype)
-    return _horst_batched(ypad, a, tol, max_iter, iteration_dtype)
+        return _horst_one_mesh(ypad, a, tol, max_iter, iteration_dtype, moments)
+    return _horst_batched(ypad, a, tol, max_iter, iteration_dtype, moments)
 
 
 def _horst_step(gradient, al: torch.Tensor):
@@ -352,12 +359,12 @@ class _Products:
         return (self.y.transpose(1, 2) @ ya).reshape(m, n, q, n).permute(0, 2, 1, 3).double()
 
 
-def _gradient(ypad: torch.Tensor, restarts: int, iteration_dtype: torch.dtype):
+def _gradient(ypad: torch.Tensor, restarts: int, iteration_dtype: torch.dtype, moments: bool):
     """G(A) = Yᵀ (Y A)^3 for Horst's steps on ypad [m, Emax, n] with up to ``restarts``
-    rotations per mesh: float64 steps from the fourth moments where they pay
-    (:func:`_moments_pay`), else (and for float32 steps) by the products."""
-    _, e, n = ypad.shape
-    if iteration_dtype == torch.float64 and _moments_pay(e, n, restarts):
+    rotations per mesh: from the fourth moments (float64 steps only) or by the products."""
+    if moments:
+        if iteration_dtype != torch.float64:
+            raise ParameterError("the fourth-moment steps are float64 steps")
         return _FourthMoments(ypad.to(torch.float64))
     return _Products(ypad, restarts, iteration_dtype)
 
@@ -411,16 +418,16 @@ class _FourthMoments:
         return torch.bmm(self.moments, cubes).reshape(nb, n, q, n).permute(0, 2, 1, 3)
 
 
-def _moments_pay(e: int, n: int, restarts: int) -> bool:
-    """Whether :class:`_FourthMoments` is the faster way to the float64 steps of a mesh with e
-    edges (rows), n fields and ``restarts`` rotations, each assumed to take
-    :data:`_POLISH_STEPS_PER_RESTART` steps: a time model in flops weighted by the rates
-    measured here (one thread, benchmarks/results/untangle_moments.md): the moments' one-time
-    Qᵀ Q (2 P² E flops) runs at about twice the products' rate per flop, their steps (a gather
-    and an n x C by C x n product per restart) at about half; the products cost 4 E n² flops
-    per restart and step."""
+def _moments_pay(e: int, n: int, steps: int) -> bool:
+    """Whether ``steps`` float64 Horst steps of single rotations (summed over the restarts) of a
+    mesh with e edges (rows) and n fields are faster from :class:`_FourthMoments` than by the
+    products.
+
+    A time model in flops weighted by the rates measured here (one thread,
+    benchmarks/results/untangle_moments.md): the moments' one-time Qᵀ Q (2 P² E flops) runs at
+    about twice the products' rate per flop, their steps (a gather and an n x C by C x n
+    product per rotation) at about half; the products cost 4 E n² flops per rotation and step."""
     pairs, triples = n * (n + 1) // 2, n * (n + 1) * (n + 2) // 6
-    steps = _POLISH_STEPS_PER_RESTART * restarts
     moments = 0.5 * (2.0 * pairs * pairs * e) + 2.0 * steps * (2.0 * n * n * triples + 4.0 * n * triples)
     return moments < steps * 4.0 * e * n * n
 
@@ -482,7 +489,7 @@ def _squarem_step(phase: int, state: dict, pick, put, gradient, tol: float) -> t
 
 
 def _horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
-                    iteration_dtype: torch.dtype):
+                    iteration_dtype: torch.dtype, moments: bool = False):
     """:func:`_horst_batched` for one mesh (ypad [1, E, n], a [1, R, n, n]) on CPU, bitwise.
 
     The same products of the same shapes and layouts on the same operands: each step's active
@@ -494,7 +501,7 @@ def _horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: i
     """
     _, e_max, n = ypad.shape
     r = a.shape[1]
-    gradient = _gradient(ypad, r, iteration_dtype)
+    gradient = _gradient(ypad, r, iteration_dtype, moments)
     state = _squarem_state(a)
     iters = [0] * r
     act = list(range(r))                                              # active restarts, in order
@@ -519,7 +526,7 @@ def _horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: i
 
 
 def _horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
-                   iteration_dtype: torch.dtype):
+                   iteration_dtype: torch.dtype, moments: bool = False):
     """Horst's iteration for any batch on any device (see :func:`_horst`), accelerated by
     SQUAREM: each cycle makes two plain steps A1 = F(A0), A2 = F(A1) (F(A) = polar factor of
     Yᵀ (Y A)^3), then a third from the extrapolated point X = :func:`_extrapolated` (A0, A1,
@@ -539,7 +546,7 @@ def _horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: in
     active = torch.ones(nb, r, dtype=torch.bool, device=dev)
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
 
-    whole = _gradient(ypad, r, iteration_dtype)
+    whole = _gradient(ypad, r, iteration_dtype, moments)
     live = torch.arange(nb, device=dev)
     gradient = whole
     for step in range(max_iter):
