@@ -3,11 +3,13 @@ edges (issue 13, features at full resolution), one thread, process CPU time.
 
 1. **Per step**, on random scaled forms [E, n]: the moments' one-time cost (``Qᵀ Q`` over column
    pairs), a step of 9 rotations and of 1 (``_FourthMoments``) against the products'
-   (``_Products`` in float64), and what the size rule (``_moments_pay``) picks.
+   (``_Products`` in float64), and what the size rule (``_moments_pay``) picks for 180 steps
+   of single rotations (20 per restart).
 2. **Whole untangling** (``ta.untangle``, 8 restarts besides the identity, the default float32
    phase then the float64 one) of real AKVFs, n = 32 at full resolution and n = 16, 24, 32 at
-   4000 faces: the size rule's choice against the products forced, best of ``--repeat``
-   interleaved rounds, with the iteration counts and the largest rotation difference.
+   4000 faces: the size rule's choice for the float64 phase (from the float32 phase's step
+   count) against the products forced, best of ``--repeat`` interleaved rounds, with the
+   iteration counts and the largest rotation difference.
 
 Usage::
 
@@ -55,8 +57,26 @@ def per_step_rows(sizes):
         p1, _ = best_ms(lambda: prod(al[:, :1]))
         err = float((g - h).abs().max() / h.abs().max())
         rows.append(f"| {e} | {n} | {once:.0f} | {m9:.1f} | {p9:.1f} | {m1:.2f} | {p1:.2f} | {err:.0e} | "
-                    f"{'moments' if untangle_mod._moments_pay(e, n, 9) else 'products'} |")
+                    f"{'moments' if untangle_mod._moments_pay(e, n, 180) else 'products'} |")
     return rows
+
+
+def _choice(fields, n: int) -> str:
+    """What the untangling's float64 phase took, read off a run with the rule spied on."""
+    seen = []
+    pay = untangle_mod._moments_pay
+
+    def spy(e, n_, steps):
+        out = pay(e, n_, steps)
+        seen.append(f"{'moments' if out else 'products'} ({steps} steps)")
+        return out
+
+    untangle_mod._moments_pay = spy
+    try:
+        ta.untangle(fields, n=n, restarts=8)
+    finally:
+        untangle_mod._moments_pay = pay
+    return ", ".join(seen)
 
 
 def whole_rows(cases, repeat: int):
@@ -69,7 +89,7 @@ def whole_rows(cases, repeat: int):
             for side in (["rule", "products"] if rnd % 2 == 0 else ["products", "rule"]):
                 pay = untangle_mod._moments_pay
                 if side == "products":
-                    untangle_mod._moments_pay = lambda e, n, r: False
+                    untangle_mod._moments_pay = lambda e, n, steps: False
                 try:
                     t = time.process_time()
                     u = ta.untangle(fields, n=n, restarts=8)
@@ -80,7 +100,7 @@ def whole_rows(cases, repeat: int):
         e = int(fields.batch.edge_ptr[1])
         diff = float((res["rule"].rotation - res["products"].rotation).abs().max())
         same = torch.equal(res["rule"].iterations, res["products"].iterations)
-        choice = "moments" if untangle_mod._moments_pay(e, n, 9) else "products"
+        choice = _choice(fields, n)          # the float64 phase's, from the float32 phase's steps
         rows.append(f"| {label} | {e} | {n} | {choice} | {best['rule']:.2f} | {best['products']:.2f} | "
                     f"{best['products'] / best['rule']:.2f}x | {same} | {diff:.0e} |")
         for k in tot:
