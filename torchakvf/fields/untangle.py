@@ -309,7 +309,8 @@ def _horst(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
            iteration_dtype: torch.dtype, moments: bool = False):
     """Horst's iteration, accelerated (:func:`_horst_batched`), from rotations a [b, R, n, n]
     (float64) for scaled forms [b, Emax, n]; the products Y A and Yᵀ (Y A)^3 in
-    ``iteration_dtype``. Returns (rotations [b, R, n, n], iterations [b, R]: Horst steps, i.e.
+    ``iteration_dtype``, or with ``moments`` (float64 only) Yᵀ (Y A)^3 from Y's fourth moments
+    (:class:`_FourthMoments`). Returns (rotations [b, R, n, n], iterations [b, R]: Horst steps, i.e.
     evaluations of Yᵀ (Y A)^3); a restart stops when a plain step changes trace(D) by less
     than tol (relative), and returns that step's rotation.
 
@@ -324,8 +325,7 @@ def _horst(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
 def _horst_step(gradient, al: torch.Tensor):
     """One Horst step of rotations al [m, q, n, n] (float64): G = Yᵀ (Y A)^3 per rotation
     [m, q, n, n] (float64, from ``gradient``: :class:`_Products` or :class:`_FourthMoments`),
-    its polar factor U Vᵀ (the step's rotation) and
-    trace(D) = Σ σ(G) [m, q]."""
+    its polar factor U Vᵀ (the step's rotation) and trace(D) = Σ σ(G) [m, q]."""
     g = gradient(al)
     with single_threaded():
         u, sv, vh = torch.linalg.svd(g)
@@ -338,11 +338,11 @@ class _Products:
     fresh allocations of that size cost more than the GEMMs (measured 2.2x per step at 30k
     edges)."""
 
-    def __init__(self, y: torch.Tensor, restarts: int, iteration_dtype: torch.dtype, buf=None):
+    def __init__(self, y: torch.Tensor, restarts: int, iteration_dtype: torch.dtype):
         self.y = y.to(iteration_dtype)
         self.dtype = iteration_dtype
         nb, e, n = y.shape
-        self.buf = self.y.new_empty(nb * e * restarts * n) if buf is None else buf
+        self.buf = self.y.new_empty(nb * e * restarts * n)
 
     def select(self, meshes: torch.Tensor) -> "_Products":
         """The same for a subset of the meshes (indices into this one's), sharing the buffer."""
@@ -381,11 +381,14 @@ class _FourthMoments:
     the same products in another order: they agree to round-off. Zero rows (padding) add nothing.
     """
 
-    def __init__(self, y: torch.Tensor, chunk: int = 2048):
+    def __init__(self, y: torch.Tensor):
         nb, e, n = y.shape
         dev = y.device
         self.n = n
         first, second = torch.triu_indices(n, n, device=dev)              # pairs i <= j
+        # Rows per pass: 2048 for one mesh (its [2048, P] pair products, 8.6 MB at n = 32, stay
+        # in cache), fewer for a large batch so that [m, rows, P] stays near 16 MB.
+        chunk = min(2048, max(16, 2 ** 21 // (nb * len(first))))
         pair = torch.zeros(n, n, dtype=torch.long, device=dev)
         pair[first, second] = torch.arange(len(first), device=dev)
         pair[second, first] = pair[first, second]
