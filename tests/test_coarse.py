@@ -10,9 +10,13 @@ from torchakvf import shapes
 from torchakvf.errors import ParameterError
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh import MeshBatch, clean_mesh, face_areas
-from torchakvf.mesh.coarse import (_drop_non_manifold, coarse_mesh, decimate, locate_on_surface)
+from torchakvf.mesh.coarse import (SurfaceIndex, _drop_non_manifold, _igl, coarse_mesh, decimate,
+                                   locate_on_surface)
 
 pytest.importorskip("fast_simplification")
+
+#: The closest-point searches of SurfaceIndex; "aabb" needs libigl.
+SEARCHES = ["samples", pytest.param("aabb", marks=pytest.mark.skipif(_igl() is None, reason="libigl is not installed"))]
 
 
 def _brute_force_closest(vertices, faces, points):
@@ -24,8 +28,8 @@ def _brute_force_closest(vertices, faces, points):
     bary = np.stack([1 - u[keep] - v[keep], u[keep], v[keep]], axis=1)      # [S, 3]
     tri = vertices[faces]                                                     # [F, 3, 3]
     samples = np.einsum("sc,fcx->fsx", bary, tri).reshape(-1, 3)
-    d = np.linalg.norm(samples[None] - points[:, None], axis=-1)
-    return d.min(axis=1)
+    return np.concatenate([np.linalg.norm(samples[None] - points[i:i + 20, None], axis=-1).min(axis=1)
+                           for i in range(0, len(points), 20)])          # ([20, S, 3] at a time)
 
 
 def test_located_points_reconstruct_and_match_brute_force():
@@ -143,16 +147,21 @@ def _every_face_closest(vertices, faces, points):
     return d.argmin(axis=1), d.min(axis=1), d
 
 
-def _check_exact(vertices, faces, points):
-    loc = locate_on_surface(vertices, faces, points)
-    face, dist, all_d = _every_face_closest(vertices, faces, points)
+def _check_exact(vertices, faces, points, search="auto"):
+    loc = locate_on_surface(vertices, faces, points, index=SurfaceIndex(vertices, faces, search=search))
     scale = np.abs(vertices).max()
+    face, dist, found, second = [], [], [], []
+    for i in range(0, len(points), 200):      # brute force in chunks ([P, F, 3] arrays)
+        f, d, all_d = _every_face_closest(vertices, faces, points[i:i + 200])
+        face.append(f), dist.append(d)
+        found.append(all_d[np.arange(len(f)), loc.face[i:i + 200]])
+        second.append(np.sort(all_d, axis=1)[:, 1] if all_d.shape[1] > 1 else np.full(len(f), np.inf))
+    face, dist, found, second = map(np.concatenate, (face, dist, found, second))
     # Same distance as brute force, and the face found is one of the nearest (a different
     # face only where two faces are equally near within round-off: a shared edge or corner).
     assert np.allclose(loc.distance, dist, rtol=0, atol=1e-12 * scale)
-    rows = np.arange(len(points))
-    assert np.all(all_d[rows, loc.face] <= dist + 1e-12 * scale)
-    tie = np.sort(all_d, axis=1)[:, 1] - dist <= 1e-12 * scale
+    assert np.all(found <= dist + 1e-12 * scale)
+    tie = second - dist <= 1e-12 * scale
     assert np.array_equal(loc.face[~tie], face[~tie])
     assert np.all(loc.bary >= -1e-12) and np.allclose(loc.bary.sum(1), 1)
     closest = np.einsum("pc,pcx->px", loc.bary, vertices[faces[loc.face]])
@@ -160,10 +169,9 @@ def _check_exact(vertices, faces, points):
     return tie
 
 
-@pytest.mark.parametrize("shape", ["torus", "dumbbell", "icosphere"])
-def test_locate_is_exact_against_every_face_on_builtin_meshes(shape):
-    s = shapes.icosphere(2) if shape == "icosphere" else getattr(shapes, shape)()
-    rng = np.random.default_rng(1)
+def _points_with_ties(s, seed):
+    """[1200, 3] points around shape s: anywhere, near the surface, on edges, near corners."""
+    rng = np.random.default_rng(seed)
     lo, hi = s.vertices.min(0), s.vertices.max(0)
     far = rng.uniform(lo - 0.3 * (hi - lo), hi + 0.3 * (hi - lo), size=(300, 3))   # anywhere
     f = rng.integers(len(s.faces), size=300)
@@ -174,11 +182,59 @@ def test_locate_is_exact_against_every_face_on_builtin_meshes(shape):
     t = rng.uniform(size=(300, 1))
     edge = t * s.vertices[e[:, 0]] + (1 - t) * s.vertices[e[:, 1]]
     corner = s.vertices[e[:, 2]] * (1 + rng.uniform(-0.05, 0.05, size=(300, 1)))
-    tie = _check_exact(s.vertices, s.faces, np.concatenate([far, near, edge, corner]))
+    return np.concatenate([far, near, edge, corner])
+
+
+@pytest.mark.parametrize("search", SEARCHES)
+@pytest.mark.parametrize("shape", ["torus", "dumbbell", "icosphere"])
+def test_locate_is_exact_against_every_face_on_builtin_meshes(shape, search):
+    s = shapes.icosphere(2) if shape == "icosphere" else getattr(shapes, shape)()
+    tie = _check_exact(s.vertices, s.faces, _points_with_ties(s, 1), search)
     assert tie.sum() > 50                                      # the ties were exercised
 
 
-def test_locate_is_exact_on_a_random_soup_with_slivers():
+@pytest.mark.skipif(_igl() is None, reason="libigl is not installed")
+@pytest.mark.parametrize("shape", ["torus", "dumbbell", "icosphere"])
+def test_aabb_and_sample_searches_agree(shape):
+    # The same bits wherever one face is nearest by more than round-off, and wherever the
+    # nearest faces meet at the closest point (an edge or corner: the AABB search measures the
+    # faces around it and keeps the lowest index, as the sample search does). Only two faces
+    # equally near at two different points (a symmetric configuration) may go either way.
+    s = shapes.icosphere(2) if shape == "icosphere" else getattr(shapes, shape)()
+    rng = np.random.default_rng(5)
+    vert = rng.choice(len(s.vertices), size=min(300, len(s.vertices)), replace=False)
+    face = rng.choice(len(s.faces), size=300)
+    points = np.concatenate([_points_with_ties(s, 4), s.vertices[vert],
+                             0.5 * (s.vertices[s.faces[face, 0]] + s.vertices[s.faces[face, 1]])])
+    a = SurfaceIndex(s.vertices, s.faces, search="samples").locate(points)
+    b = SurfaceIndex(s.vertices, s.faces, search="aabb").locate(points)
+    scale = np.abs(s.vertices).max()
+    assert np.allclose(a.distance, b.distance, rtol=0, atol=1e-12 * scale)
+    # How many faces are nearest within round-off, by brute force (in chunks: [P, F, 3] arrays).
+    count = np.concatenate([(lambda d: (d[2] <= d[1][:, None] + 1e-9 * scale).sum(axis=1))(
+        _every_face_closest(s.vertices, s.faces, points[i:i + 200])) for i in range(0, len(points), 200)])
+    one = count == 1
+    same = (a.face == b.face) & (a.bary == b.bary).all(axis=1) & (a.distance == b.distance)
+    assert same[one].all()
+    # Points on vertices and edge midpoints (every face around them equally near, up to
+    # round-off): the AABB search's pick is resolved over them as the sample search's is.
+    v = len(_points_with_ties(s, 4))
+    assert (~one[v:]).all() and same[v:].all()
+
+
+def test_surface_index_search_is_checked(monkeypatch):
+    s = shapes.icosphere(1)
+    with pytest.raises(ParameterError, match="search"):
+        SurfaceIndex(s.vertices, s.faces, search="bvh")
+    import torchakvf.mesh.coarse as coarse_module
+    monkeypatch.setattr(coarse_module, "_igl", lambda: None)
+    with pytest.raises(ParameterError, match="libigl"):
+        SurfaceIndex(s.vertices, s.faces, search="aabb")
+    assert SurfaceIndex(s.vertices, s.faces).search == "samples"      # the fallback without it
+
+
+@pytest.mark.parametrize("search", SEARCHES)
+def test_locate_is_exact_on_a_random_soup_with_slivers(search):
     # Random triangles of very different sizes and shapes (slivers included), and points among
     # them: where the nearest barycenters say little about the nearest face.
     rng = np.random.default_rng(2)
@@ -188,10 +244,11 @@ def test_locate_is_exact_on_a_random_soup_with_slivers():
     tri[:40, 2] = tri[:40, 0] + 1e-3 * (tri[:40, 1] - tri[:40, 0]) + 1e-4   # slivers
     v = tri.reshape(-1, 3)
     f = np.arange(len(v)).reshape(-1, 3)
-    _check_exact(v, f, rng.uniform(-1.2, 1.2, size=(500, 3)))
+    _check_exact(v, f, rng.uniform(-1.2, 1.2, size=(500, 3)), search)
 
 
-def test_locate_finds_what_nearest_barycenters_miss():
+@pytest.mark.parametrize("search", SEARCHES)
+def test_locate_finds_what_nearest_barycenters_miss(search):
     # A long triangle whose barycenter is far away, next to many small ones: the point lies
     # over the long one's far end. (The former search, among the 8 faces with the nearest
     # barycenters, returned small face 19, 29 units away.)
@@ -200,7 +257,7 @@ def test_locate_finds_what_nearest_barycenters_miss():
     tri = np.concatenate([small, long])
     v = tri.reshape(-1, 3)
     f = np.arange(len(v)).reshape(-1, 3)
-    loc = locate_on_surface(v, f, np.array([[30.0, 0.05, 0.0]]))
+    loc = SurfaceIndex(v, f, search=search).locate(np.array([[30.0, 0.05, 0.0]]))
     assert loc.face[0] == 20 and np.isclose(loc.distance[0], 0.05)
 
 

@@ -27,8 +27,8 @@ from typing import Any, Callable
 #: freed heap pages back after each batch (:func:`_release_freed_memory`), and a fresh process
 #: costs ~2.5 s of imports and first calls (25: 15 of them on the PSB corpus, 5% of its CPU).
 RECYCLE_AFTER = 100
-#: Thread-count variables of the BLAS/OpenMP runtimes a worker may load (set before its imports).
-_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+#: Thread-count variables of the BLAS/OpenMP runtimes and libigl a worker may load (set before its imports).
+_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "IGL_NUM_THREADS")
 
 
 def default_workers(device: str = "cpu") -> int:
