@@ -222,6 +222,18 @@ def test_aabb_and_sample_searches_agree(shape):
     assert (~one[v:]).all() and same[v:].all()
 
 
+@pytest.mark.parametrize("search", SEARCHES)
+def test_locate_takes_no_points_and_refuses_non_finite_ones(search):
+    s = shapes.icosphere(1)
+    index = SurfaceIndex(s.vertices, s.faces, search=search)
+    none = index.locate(np.zeros((0, 3)))
+    assert none.face.shape == (0,) and none.bary.shape == (0, 3) and none.distance.shape == (0,)
+    with pytest.raises(ParameterError, match="1 of 2 points .* not finite .* row 0"):
+        index.locate(np.array([[np.nan, 0.0, 0.0], [1.0, 0.0, 0.0]]))
+    with pytest.raises(ParameterError, match="not finite"):
+        index.locate(np.array([[0.0, np.inf, 0.0]]))
+
+
 def test_surface_index_search_is_checked(monkeypatch):
     s = shapes.icosphere(1)
     with pytest.raises(ParameterError, match="search"):

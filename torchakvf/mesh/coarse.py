@@ -366,7 +366,13 @@ class SurfaceIndex:
         """The closest point of the mesh to each of ``points`` [P, 3] (ties between faces at the
         same distance go to the lower face index)."""
         points = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-        if self.search == "aabb" and len(points) and len(self.faces):
+        if not len(points):
+            return SurfacePoints(face=np.zeros(0, dtype=np.int64), bary=np.zeros((0, 3)), distance=np.zeros(0))
+        bad = ~np.isfinite(points).all(axis=1)
+        if bad.any():
+            raise ParameterError(f"{int(bad.sum())} of {len(points)} points to locate are not finite "
+                                 f"(NaN or inf; the first is row {int(np.flatnonzero(bad)[0])})")
+        if self.search == "aabb" and len(self.faces):
             return self._locate_aabb(points)
         if not hasattr(self, "tree"):
             self._build_samples()
