@@ -297,15 +297,18 @@ def _drop_small_components(f: np.ndarray) -> np.ndarray:
 class SurfaceIndex:
     """Exact closest points on a triangle mesh (vertices [V, 3], faces [F, 3]).
 
-    Two searches give the same answer (the closest face; among faces at the same distance the
-    lowest index; the barycentric coordinates and distance of :meth:`_closest`):
+    Two searches give the closest face (among faces at the same distance the lowest index),
+    with the barycentric coordinates and distance of :meth:`_closest`; they give the same bits
+    except where two faces are equally near, within round-off, at two different points of the
+    surface (a symmetric configuration), which each may settle its own way:
 
     * **AABB** (``search="aabb"``, the default where libigl imports): libigl's
       ``point_mesh_squared_distance`` (a bounding-box tree in C++) finds a closest face; a
       point whose closest point lies on an edge or corner of that face is as close to the faces
       around it, so those are measured too and the lowest index among the nearest kept.
-      3.5-4x faster than the sample search on PSB meshes decimated to 4000 faces
-      (benchmarks/results/surface_map_aabb.md).
+      2.99x faster than the sample search over the PSB meshes decimated to 4000 faces
+      (2.2-3.7x per mesh; the same bits at all but 30 of 11.5 million points;
+      benchmarks/results/surface_map_aabb.md).
     * **samples** (``search="samples"``; the fallback without libigl, and the reference the
       tests hold the AABB search to): a ``cKDTree`` of sample points on the faces, each face
       sampled at the centers of a uniform L x L subdivision (L^2 sub-triangles, L by face
@@ -523,7 +526,7 @@ def _igl():
     worker processes of :mod:`torchakvf.pipeline.parallel` get 1."""
     try:
         import igl
-    except ImportError:
+    except (ImportError, OSError):     # not installed, or its compiled library does not load
         return None
     return igl
 
