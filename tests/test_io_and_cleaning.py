@@ -309,7 +309,33 @@ def test_unreferenced_vertices_removed(ico3, ico3_eigs):
     c = ta.clean_mesh(mesh)
     assert c.report["unreferenced_vertices"] == 3
     assert len(c.vertices) == len(V)
+    # The kept vertices (in the merge's lexicographic order), the faces renumbered onto them.
+    np.testing.assert_array_equal(c.vertices, np.unique(V, axis=0))
+    np.testing.assert_array_equal(c.vertices[c.faces], V[F])
     np.testing.assert_allclose(_akvf_eigs(mesh), ico3_eigs, rtol=1e-9, atol=1e-10)
+
+
+def test_renumbering_and_orientation_with_unreferenced_vertices_scattered(ico3):
+    # Unreferenced vertices among the used ones and flipped faces: the clean mesh's vertices are
+    # the referenced ones in input order (np.unique's numbering), every edge's two faces
+    # traverse it in opposite directions, and each face is its input face up to the flip.
+    V, F = ico3
+    rng = np.random.default_rng(7)
+    order = rng.permutation(len(V) + 9)
+    V2 = np.vstack([V, rng.random((9, 3)) + 3.0])[np.argsort(order)]
+    F2 = order[F]
+    F2[::3] = F2[::3, ::-1]
+    c = ta.clean_mesh(ta.Mesh(V2, F2))
+    # The vertices the faces use, in the duplicate merge's (lexicographic) order.
+    np.testing.assert_array_equal(c.vertices, np.unique(V2[np.unique(F2)], axis=0))
+    assert c.report["unreferenced_vertices"] == 9
+    input_id = {tuple(v): i for i, v in enumerate(V2.tolist())}
+    ids = np.array([input_id[tuple(v)] for v in c.vertices.tolist()])[c.faces]
+    np.testing.assert_array_equal(c.face_index, np.arange(len(F2)))
+    np.testing.assert_array_equal(np.sort(ids, axis=1), np.sort(F2, axis=1))
+    assert c.report["flipped_faces"] in (len(F2[::3]), len(F2) - len(F2[::3]))
+    half = np.stack([c.faces, c.faces[:, [1, 2, 0]]], axis=2).reshape(-1, 2)
+    assert len({tuple(h) for h in half.tolist()}) == len(half)      # no half-edge twice
 
 
 def test_degenerate_faces_dropped_outputs_sized_to_input(ico3):

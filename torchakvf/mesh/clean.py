@@ -158,12 +158,18 @@ def clean_mesh(mesh: Mesh, zip_cracks: bool = True) -> CleanMesh:
                               f"{int(counts[e])} faces ({int((counts > 2).sum())} such edges); "
                               "repair the mesh (e.g. split it into manifold pieces) first")
 
-    used, faces = np.unique(faces, return_inverse=True)
-    faces = faces.reshape(-1, 3)
-    report["unreferenced_vertices"] = len(verts) - len(used)
-    verts = verts[used]
+    # Renumber the vertices the faces use, in their order (np.unique(faces, return_inverse)'s
+    # numbering, by a count instead of a sort). The renumbering keeps the order of vertex pairs,
+    # so the edge table carries over with its pairs renumbered.
+    referenced = np.bincount(faces.ravel(), minlength=len(verts)) > 0
+    report["unreferenced_vertices"] = len(verts) - int(referenced.sum())
+    if not referenced.all():
+        rank = np.cumsum(referenced) - 1
+        faces = rank[faces]
+        edge_faces = _EdgeTable(rank[edge_faces.unique], edge_faces.inverse)
+        verts = verts[referenced]
 
-    faces, flipped = _orient_consistently(faces, name)
+    faces, flipped = _orient_consistently(faces, name, edge_faces)
     report["flipped_faces"] = flipped
 
     n_comp, vertex_comp = connected_components(_vertex_adjacency(faces, len(verts)), directed=False)
@@ -277,14 +283,15 @@ def _vertex_adjacency(faces: np.ndarray, n: int) -> sp.csr_matrix:
     return sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)).tocsr()
 
 
-def _orient_consistently(faces: np.ndarray, name: str) -> tuple[np.ndarray, int]:
+def _orient_consistently(faces: np.ndarray, name: str, table: _EdgeTable | None = None) -> tuple[np.ndarray, int]:
     """Flip faces so that each interior edge is traversed once in each direction.
 
     Returns the oriented faces and how many were flipped. Each component keeps the orientation
     of its lowest-numbered face. Raises on non-orientable surfaces (e.g. a Moebius strip).
+    table : ``_undirected_edges(faces)`` if at hand.
     """
     half = _half_edges(faces)
-    table = _undirected_edges(faces)
+    table = _undirected_edges(faces) if table is None else table
     forward = half[:, 0] < half[:, 1]
     # An interior edge is consistent when its two half-edges point opposite ways.
     n_fwd = np.bincount(table.inverse, weights=forward, minlength=len(table.unique))
