@@ -317,8 +317,8 @@ def test_unreferenced_vertices_removed(ico3, ico3_eigs):
 
 def test_renumbering_and_orientation_with_unreferenced_vertices_scattered(ico3):
     # Unreferenced vertices among the used ones and flipped faces: the clean mesh's vertices are
-    # the referenced ones in input order (np.unique's numbering), every edge's two faces
-    # traverse it in opposite directions, and each face is its input face up to the flip.
+    # the referenced ones (in the duplicate merge's order), every edge's two faces traverse it
+    # in opposite directions, and each face is its input face up to the flip.
     V, F = ico3
     rng = np.random.default_rng(7)
     order = rng.permutation(len(V) + 9)
