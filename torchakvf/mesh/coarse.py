@@ -324,9 +324,10 @@ class SurfaceIndex:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, search: str = "auto"):
         if search not in ("auto", "aabb", "samples"):
             raise ParameterError(f"search must be 'auto', 'aabb' or 'samples', got {search!r}")
-        if search == "aabb" and _igl() is None:
+        have_igl = _igl() is not None
+        if search == "aabb" and not have_igl:
             raise ParameterError("search='aabb' needs libigl: pip install libigl")
-        self.search = "aabb" if search == "aabb" or (search == "auto" and _igl() is not None) else "samples"
+        self.search = "samples" if search == "samples" or not have_igl else "aabb"
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.tri = self.vertices[self.faces]                              # [F, 3, 3]
