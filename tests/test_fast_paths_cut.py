@@ -275,6 +275,9 @@ def test_region_graph_and_costs_with_shared_arrays_are_those_computed_afresh():
         np.testing.assert_array_equal(getattr(g0, name), getattr(g1, name))
     np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, 4, weights, dual),
                                   merge_parts(labels, f, v, feats, area, 4, weights, dual, unit=unit, bends=bends))
+    for k in (2, 4):   # one region graph made beforehand serves every k
+        np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, k, weights, dual),
+                                      merge_parts(labels, f, v, feats, area, k, weights, dual, graph=g1))
     assert next_merge_cost(labels, dual, feats, area, weights) == \
         next_merge_cost(labels, dual, feats, area, weights, unit=unit, bends=bends)
     assert partition_cost(labels, feats) == partition_cost(labels, feats, unit=unit)
@@ -283,19 +286,26 @@ def test_region_graph_and_costs_with_shared_arrays_are_those_computed_afresh():
     assert partition_cost(every, feats) == _partition_cost_plain(every, feats)
 
 
-def test_segment_rounds_with_caches_kept_across_k_equal_one_k_at_a_time():
+def test_segment_rounds_with_caches_kept_across_k_equal_one_k_at_a_time(monkeypatch):
     """cut_parts keeps per-mesh arrays (dual edges, bending sums, cut costs) across the rounds
-    of one solve: segmenting at k = 2, 3, 4 in one go gives each k's labels and costs as a
-    solve-free run at that k alone (fresh caches)."""
+    of one solve, and the over-segmentation carried to the mesh (boundaries, clean-up, region
+    graph) across the k's clustered alike: segmenting at k = 2, 3, 4 in one go (one k-means at
+    k' = 3 min_k, one over-segmentation) gives each k's labels and costs as a solve-free run at
+    that k alone (fresh caches)."""
     pytest.importorskip("gco")
     import torchakvf as ta
+    from torchakvf.parts import engine
     from torchakvf.parts.engine import SegmentOptions, segment_rounds
 
     s = shapes.three_blobs(n_around=20)
     batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="blobs")])
     fields = ta.akvf(batch, n=24, remedy="smooth")
     opts = SegmentOptions(refine=False)
+    made, real = [], engine._over_segmentation
+    monkeypatch.setattr(engine, "_over_segmentation", lambda *a, **kw: made.append(a[3]) or real(*a, **kw))
     together = {r.ks[0]: r.meshes[0] for r in segment_rounds(fields, [[2, 3, 4]], opts)}
+    assert len(made) == 1                       # the three k's shared one over-segmentation
+    assert len({seg.params["k_oversegment"] for seg in together.values()}) == 1
     for k in (2, 3, 4):
         alone = next(iter(segment_rounds(fields, [[k]], opts))).meshes[0]
         np.testing.assert_array_equal(together[k].labels, alone.labels)
@@ -332,3 +342,23 @@ def test_part_generators_equal_a_masked_sum_per_part(n_fields):
     ref = _generators_loop(labels, feats, area, energies, 5, min_share=0.3)
     assert [[(g.field, g.share, g.energy) for g in part] for part in got] == ref    # bitwise shares
     assert part_generators(labels, feats, area, energies, 0) == []
+
+
+def test_cached_over_segmentation_serves_only_an_identical_clustering():
+    """The over-segmentation cut_parts keeps is reused only for equal features, centers and
+    labels and the same boundary options: one label changed, or another boundary rule, makes
+    a new one."""
+    from torchakvf.parts.engine import SegmentOptions, _OverSegmentation
+
+    rng = np.random.default_rng(3)
+    feats, centers, labels = rng.random((50, 4)), rng.random((3, 4)), rng.integers(0, 3, 50)
+    opts = SegmentOptions()
+    entry = _OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy(), _OverSegmentation.settings(opts)),
+                              mesh=None, vdist=None, feats=None, labels=None, area=None, unit=None)
+    assert entry.made_from((feats, centers, labels), opts)
+    moved = labels.copy()
+    moved[7] = (moved[7] + 1) % 3
+    assert not entry.made_from((feats, centers, moved), opts)
+    assert not entry.made_from((feats, centers[:2], labels), opts)
+    assert not entry.made_from((feats, centers, labels), SegmentOptions(boundary="faces"))
+    assert not entry.made_from((feats, centers, labels), SegmentOptions(min_part_fraction=0.02))

@@ -37,7 +37,7 @@ from .generators import part_generators
 from .concavity import dual_edges
 from .graphcut import CornerMeans, GraphCut, edge_weights, graphcut_labels
 from .merge import (MergeWeights, boundary_bends, merge_parts, merged_distances, next_merge_cost,
-                    oversegment_k, partition_cost, unit_rows)
+                    oversegment_k, partition_cost, region_graph, unit_rows)
 from .results import MeshSegmentation, Segmentation
 from .topology import face_adjacency
 
@@ -322,32 +322,27 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
     :class:`~torchakvf.cluster.spherical_kmeans.KMeansResult` of the round (with
     :func:`cluster_count` clusters for mesh b), k : mesh b's k in it.
     mesh_cache : a dict kept for mesh b across the rounds of one solve: what depends on its
-        mesh alone (face adjacency, dual edges) is computed once, not once per k.
+        mesh alone (face adjacency, dual edges) is computed once, not once per k, and what
+        depends on its clustering alone (:class:`_OverSegmentation`) once per clustering.
     """
     cache = {} if mesh_cache is None else mesh_cache
     unt = untangled
     n_b = int(unt.n_fields[b])
-    clean = batch.meshes[b]
     f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
-    feats = unt.mesh_features(b).detach().cpu().numpy()
-    area = fields.system.geometry.face_area[f0:f1].detach().cpu().numpy()
     k_cluster = cluster_count(k, f1 - f0, opts)
-    centers = km.centers[b, :k_cluster, :n_b].detach().cpu().numpy()
+    clustered = (unt.mesh_features(b).detach().cpu().numpy(),
+                 km.centers[b, :k_cluster, :n_b].detach().cpu().numpy(),
+                 km.labels[b, :f1 - f0].detach().cpu().numpy())
     cost = float(km.cost[b])
     merge_next = None
-    labels = km.labels[b, :f1 - f0].detach().cpu().numpy()
-    vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
-    coarse = batch.coarse_of(b)
-    if coarse is not None:
-        # Solved on a decimated mesh: the distance fields are interpolated at the fine
-        # vertices, so boundaries (isolines) and everything after are cut on the fine mesh.
-        clean, vdist = coarse.fine, coarse.vertex_field(vdist)
-        feats, labels = coarse.face_values(feats), coarse.face_values(labels)
-        area = coarse.fine_area
-    if opts.boundary == "isoline":
-        labels = isoline_face_labels(clean.faces, vdist)
-    if "adjacency" not in cache:
-        cache["adjacency"] = face_adjacency(clean.faces)
+    over = cache.get("over") if opts.eps == 0 else None
+    if over is None or not over.made_from(clustered, opts):
+        over = _over_segmentation(batch, fields, b, clustered, opts, cache)
+        if opts.eps == 0:
+            # k's clustered alike (the merge method's k <= min_k) share it; one entry, as the
+            # rounds visit a mesh's k's in order
+            cache["over"] = over
+    clean, vdist, feats, labels, area = over.mesh, over.vdist, over.feats, over.labels, over.area
     adjacency = cache["adjacency"]
     if opts.eps > 0:
         labels = connecting_region(labels, face_margins(clean.faces, vdist), opts.eps)
@@ -355,7 +350,6 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=True)
         labels = absorb_single_neighbour_regions(labels, adjacency)
     else:
-        labels = remove_small_parts(labels, adjacency, area, opts.min_part_fraction, into_connecting=False)
         if "dual" not in cache:
             cache["dual"] = dual_edges(clean.vertices, clean.faces)
         dual = cache["dual"]
@@ -364,12 +358,16 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         if bends_key not in cache:
             cache[bends_key] = boundary_bends(dual, opts.merge.crease_angle)
         bends = cache[bends_key]
-        unit = unit_rows(feats)    # per k: the merge, its cost and the next merge's all read them
+        unit = over.unit
         if merging(opts):
-            over = labels
-            labels = merge_parts(over, clean.faces, clean.vertices, feats, area, k, opts.merge,
-                                 dual=dual, unit=unit, bends=bends)
-            vdist = merged_distances(vdist, over, labels)   # the refined cut follows the merged parts
+            graph_key = ("graph", opts.merge.crease_angle)
+            if graph_key not in over.graphs:
+                over.graphs[graph_key] = region_graph(labels, dual, feats, area, opts.merge.crease_angle,
+                                                      unit=unit, bends=bends)
+            merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
+                                 dual=dual, unit=unit, bends=bends, graph=over.graphs[graph_key])
+            vdist = merged_distances(vdist, labels, merged)   # the refined cut follows the merged parts
+            labels = merged
             # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
             cost = partition_cost(labels, feats, unit=unit) * (f1 - f0) / len(labels)
             if opts.graphcut is not None:
@@ -394,7 +392,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     boundary=opts.boundary, kmeans_restarts=opts.kmeans_restarts,
                     kmeans_max_iter=opts.kmeans_max_iter, kmeans_seeded_restarts=opts.kmeans_seeded_restarts,
                     untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
-                    coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
+                    coarse_faces=0 if batch.coarse_of(b) is None else len(batch.coarse_of(b).coarse.faces),
                     solver=opts.solver, method=opts.method,
                     **({"graphcut": True, **{f"graphcut_{name}": float(v) for name, v in vars(opts.graphcut).items()}}
                        if opts.graphcut is not None and merging(opts) else {}),
@@ -402,6 +400,72 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     **({"k_oversegment": k_cluster, **{f"merge_{name}": float(v) for name, v in
                                                        vars(opts.merge).items() if v is not None}} if merging(opts) else {})),
         converged=converged, max_residual=residual)
+
+
+@dataclass
+class _OverSegmentation:
+    """One mesh's clustering carried to the mesh its parts are cut on, up to the merge: the
+    boundaries (isolines) and, with ε = 0, the clean-up of small pieces. It depends on the
+    clustering alone, not on k, so k's clustered alike (the merge method's k <= min_k, one
+    k-means) share it (:func:`cut_parts` keeps the last one in its mesh cache).
+
+    source : (features [F_b, n], centers [k', n], labels [F_b]) as clustered, on the solved mesh,
+        and the options read here: an entry serves only an identical clustering
+    mesh : the mesh the parts are cut on (the fine one when solved on a decimated mesh) and, on
+        it, vdist [V, k'] (each vertex's distance to each center), feats [F, n], labels [F]
+        (with ε = 0 cleaned of small pieces), area [F] (unit total), unit [F, n] (unit feature
+        rows; None with ε > 0)
+    graphs : the merge's region graph of ``labels``, by crease angle (made when first asked)
+    """
+
+    source: tuple
+    mesh: object
+    vdist: np.ndarray
+    feats: np.ndarray
+    labels: np.ndarray
+    area: np.ndarray
+    unit: np.ndarray | None
+    graphs: dict = field(default_factory=dict)
+
+    @staticmethod
+    def settings(opts: SegmentOptions) -> tuple:
+        return (opts.boundary, opts.eps > 0, opts.min_part_fraction)
+
+    def made_from(self, clustered: tuple, opts: SegmentOptions) -> bool:
+        """Whether this entry is for exactly this clustering (equal arrays) and these options."""
+        *arrays, settings = self.source
+        return settings == self.settings(opts) and all(
+            a.shape == c.shape and np.array_equal(a, c) for a, c in zip(arrays, clustered))
+
+
+def _over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: tuple,
+                       opts: SegmentOptions, cache: dict) -> _OverSegmentation:
+    """:class:`_OverSegmentation` of mesh b from its clustering (features, centers, labels on
+    the solved mesh); puts the mesh's face adjacency in ``cache`` ("adjacency")."""
+    feats, centers, labels = clustered
+    clean = batch.meshes[b]
+    f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+    area = fields.system.geometry.face_area[f0:f1].detach().cpu().numpy()
+    vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
+    coarse = batch.coarse_of(b)
+    if coarse is not None:
+        # Solved on a decimated mesh: the distance fields are interpolated at the fine
+        # vertices, so boundaries (isolines) and everything after are cut on the fine mesh.
+        clean, vdist = coarse.fine, coarse.vertex_field(vdist)
+        feats, labels = coarse.face_values(feats), coarse.face_values(labels)
+        area = coarse.fine_area
+    if opts.boundary == "isoline":
+        labels = isoline_face_labels(clean.faces, vdist)
+    if "adjacency" not in cache:
+        cache["adjacency"] = face_adjacency(clean.faces)
+    unit = None
+    if opts.eps == 0:
+        labels = remove_small_parts(labels, cache["adjacency"], area, opts.min_part_fraction,
+                                    into_connecting=False)
+        unit = unit_rows(feats)    # the merge, its cost and the next merge's all read them
+    return _OverSegmentation(source=(*(np.array(a) for a in clustered), _OverSegmentation.settings(opts)),
+                             mesh=clean,
+                             vdist=vdist, feats=feats, labels=labels, area=area, unit=unit)
 
 
 @dataclass

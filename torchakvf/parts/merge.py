@@ -251,7 +251,7 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
 def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, features: np.ndarray,
                 face_area: np.ndarray, k: int, weights: MergeWeights | None = None,
                 dual: DualEdges | None = None, *, unit: np.ndarray | None = None,
-                bends: tuple | None = None) -> np.ndarray:
+                bends: tuple | None = None, graph: RegionGraph | None = None) -> np.ndarray:
     """Labels [F] of an over-segmentation merged down to k adjacent-part unions.
 
     labels : [F] int part per face (negative = no part, kept as is); faces [F, 3] and
@@ -259,14 +259,17 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
     per-face features; face_area : [F]; k : parts wanted; weights : :class:`MergeWeights`
     (default: the cross-validated ones); dual : :func:`dual_edges` of the mesh, if at hand;
     unit, bends : :func:`unit_rows` (features), :func:`boundary_bends` (dual, the weights'
-    crease angle), if at hand.
+    crease angle), if at hand; graph : :func:`region_graph` of these labels (at the weights'
+    crease angle), if at hand (it does not depend on k: a caller merging one over-segmentation
+    to several k makes it once).
     Returns labels in 0..k_out-1 (k_out = k unless fewer parts were given or no adjacent pair
     was left, e.g. more connected components than k).
     """
     weights = MergeWeights() if weights is None else weights
     if dual is None:
         dual = dual_edges(vertices, faces)
-    graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends)
+    if graph is None:
+        graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends)
     new_id, _ = greedy_merge(graph, k, weights)
     out = np.where(graph.labels >= 0, new_id[np.maximum(graph.labels, 0)], graph.labels)
     return out.astype(np.asarray(labels).dtype, copy=False)
