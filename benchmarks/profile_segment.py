@@ -185,8 +185,7 @@ def report(a, r) -> str:
              f"`python benchmarks/profile_segment.py` — PSB ids {a.ids[0]}..{a.ids[-1]} ({len(a.ids)} meshes: "
              f"2 per labelled category, held-back categories excluded), coarse_faces={a.coarse_faces}, "
              f"{a.batch_meshes} meshes per batch, every human k of each mesh, seed {a.seed}, refine=False (as eval), one thread, "
-             f"baseline = the engine/untangle/k-means code of {a.baseline} at its own defaults "
-             f"(0cc7d7a's: 20 k-means, 8 untangling restarts), new = this checkout at "
+             f"baseline = the engine/untangle/k-means code of {a.baseline} at its own defaults, new = this checkout at "
              f"{'restarts ' + a.new_restarts if a.new_restarts else 'its defaults'}; same process, interleaved.", "",
              "| sub-stage | baseline s | new s | baseline / new |", "|---|---:|---:|---:|"]
     for st in ("untangle", "kmeans", "cut"):
