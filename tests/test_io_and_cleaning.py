@@ -547,6 +547,40 @@ def test_vectorized_off_reader_equals_the_line_reader(text):
     assert all(np.array_equal(a, b) for a, b in zip(parse_off(raw, "x.off"), ref))
 
 
+@pytest.mark.parametrize("body, by_text_reader", [
+    ("0.1 -2.5e-3 7\n1e-320 .5 -0\n3.14159265358979323846264 1E+2 +4\n3 0 1 2\n", True),
+    ("0.1 -2.5e-3 7\n\n1 0 0\n0 1 0\n\n3 +0 1 2\n", True),          # blank lines, a signed index
+    ("1 0 0\n0 1 0\n0 0 1\n3 0 1 2", True),                             # no newline at the end
+    ("nan 0 0\n1 0 0\n0 1 inf\n3 0 1 2\n", False),                    # read as Python's float does
+    ("1_0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", False),
+    ("1 0 0\n1 0 0\n0 1 0\n3 0 1_0 2\n", False),
+])
+def test_off_text_reader_equals_the_line_reader_bitwise(body, by_text_reader, monkeypatch):
+    """The usual file goes to numpy's text reader (:func:`_read_sections`), whose numbers are
+    Python's float/int bit for bit (correctly rounded, subnormals too); bytes it is not given
+    (nan, underscores) go the token way, with the same values as the line reader."""
+    from torchakvf.io import off
+    raw = ("OFF\n3 1 0\n" + body).encode()
+    taken, real = [], off._read_sections
+    monkeypatch.setattr(off, "_read_sections", lambda *a: taken.append(real(*a)) or taken[-1])
+    fast = off.parse_off(raw, "x.off")
+    assert (len(taken) == 1 and taken[0] is not None) == by_text_reader
+    ref = off._parse_off_by_lines(raw, "x.off")
+    for a, b in zip(fast, ref):
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_off_text_reader_on_random_digits_equals_python_float():
+    from torchakvf.io.off import parse_off
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(200, 3)) * 10.0 ** rng.integers(-30, 30, size=(200, 3))
+    text = "".join(" ".join(repr(float(t)) if i % 3 else f"{t:.25g}" for i, t in enumerate(row)) + "\n"
+                   for row in x)
+    raw = f"OFF\n200 1 0\n{text}3 0 1 2\n".encode()
+    expect = np.array([[float(t) for t in line.split()] for line in text.splitlines()])
+    assert parse_off(raw, "x.off")[0].tobytes() == expect.tobytes()
+
+
 @pytest.mark.parametrize("text, problem", [
     ("OFF\n3 1 0\n0 0 0\n1 0\n0 1 0\n3 0 1 2\n", "vertex line"),
     ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2 0\n", "only triangle"),
