@@ -63,6 +63,7 @@ from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
 from torchakvf.mesh.coarse import coarse_mesh
 from torchakvf.solvers import cholmod
+from timing import write_report
 
 REPO = Path(__file__).resolve().parents[1]
 IDS = [1, 21, 121, 181, 301]
@@ -281,10 +282,7 @@ def main(argv=None) -> int:
                   + ", ".join(f"{i}: {best[i]['decimate']:.2f} s ({best[i]['decimate'] / best[i]['ta']:.0%} of ta)"
                               for i in args.ids)
                   + f"; total {dec:.2f} s = {dec / tot['ta']:.0%} of ta's whole full-resolution solve."]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
+    write_report("\n".join(lines) + "\n", args.out)
     return 0
 
 

@@ -22,10 +22,7 @@ import time
 
 import torch
 
-from segment_compare_common import AnswerComparison, segment_answers
-from torchakvf.evaluate import psb as P
-from torchakvf.io import load_mesh
-from torchakvf.mesh import MeshBatch
+from segment_compare_common import AnswerComparison, segment_answers, solved_psb_meshes
 from torchakvf.parts import engine as new_engine
 
 
@@ -40,16 +37,11 @@ def main():
     a = ap.parse_args()
     torch.set_num_threads(1)
     import torchakvf_base.parts.engine as base_engine
-    ents = {e.mesh_id: e for e in P.find_psb_meshes(P.default_psb_root())}
     engines = {"base": base_engine, "new": new_engine}
     secs = {"base": 0.0, "new": 0.0}
     prof = cProfile.Profile() if a.profile else None
     comparison = AnswerComparison()
-    for j, i in enumerate(int(v) for v in a.ids.split(",")):
-        e = ents[i]
-        ks = sorted(set(P.human_segment_counts(e)))
-        mb = MeshBatch.from_meshes([load_mesh(e.mesh_path)], coarse_faces=4000)
-        fields, _ = new_engine.solve_akvfs(mb, 36, new_engine.SegmentOptions(refine=False))
+    for j, i, ks, fields in solved_psb_meshes([int(v) for v in a.ids.split(",")], new_engine):
         res = {}
         for name in (["base", "new"] if j % 2 == 0 else ["new", "base"]):
             res[name], s = segment_answers(engines[name], fields, [ks], engines[name].SegmentOptions(refine=a.refine),

@@ -26,12 +26,9 @@ import time
 
 import torch
 
-from torchakvf.evaluate import psb as P
-from torchakvf.io import load_mesh
-from torchakvf.mesh import MeshBatch
 from torchakvf.parts import engine as new_engine
 
-from segment_compare_common import AnswerComparison, segment_answers
+from segment_compare_common import AnswerComparison, segment_answers, solved_psb_meshes
 
 #: Functions whose per-call cost the report lists (cumulative process CPU seconds).
 WATCH = ("segment_rounds", "_round_untangled", "spherical_kmeans", "cut_parts", "graphcut_labels", "potts_expansion", "expansion", "allowed_labels", "merge_parts",
@@ -59,17 +56,12 @@ def main():
     a = ap.parse_args()
     torch.set_num_threads(1)
     import torchakvf_base.parts.engine as base_engine
-    ents = {e.mesh_id: e for e in P.find_psb_meshes(P.default_psb_root())}
     engines = {"base": base_engine, "new": new_engine}
     runs = [(side, method) for side in ("base", "new") for method in ("merge", "paper")]
     secs = {r: 0.0 for r in runs}
     profs = {r: cProfile.Profile(time.process_time) for r in runs} if a.profile else {}
     comparisons = {m: AnswerComparison() for m in ("merge", "paper")}
-    for j, i in enumerate(int(v) for v in a.ids.split(",")):
-        e = ents[i]
-        ks = sorted(set(P.human_segment_counts(e)))
-        mb = MeshBatch.from_meshes([load_mesh(e.mesh_path)], coarse_faces=4000)
-        fields, _ = new_engine.solve_akvfs(mb, 36, new_engine.SegmentOptions(refine=False))
+    for j, i, ks, fields in solved_psb_meshes([int(v) for v in a.ids.split(",")], new_engine):
         res = {}
         for r in runs[j % 4:] + runs[:j % 4]:
             side, method = r
@@ -80,7 +72,7 @@ def main():
         for method in ("merge", "paper"):
             for d in comparisons[method].add(res[("base", method)], res[("new", method)]):
                 print(f"  mesh {i} k {d.key[1]} {method}: labels differ on {d.changed:.4f} of faces", flush=True)
-        print(f"mesh {i} ({len(mb.meshes[0].faces)} faces) ks {ks}: "
+        print(f"mesh {i} ({len(fields.batch.meshes[0].faces)} faces) ks {ks}: "
               + " ".join(f"{s}/{m} {secs[(s, m)]:.2f}s" for s, m in runs), flush=True)
     print()
     print("| side | merge s | paper s | merge / paper |")

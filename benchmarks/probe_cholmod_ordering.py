@@ -35,6 +35,7 @@ from torchakvf.mesh import clean_mesh
 from torchakvf.operators.killing import killing_operator
 from torchakvf.solvers import cholmod
 from torchakvf.solvers.factor import _CpuFactor, _cholesky, _lower_pattern
+from timing import best_of, write_report
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -45,15 +46,6 @@ def shifted_pattern(mesh_id: int, psb: Path, sigma: float = -1.0):
     idx, vals = system.stiffness.indices(), system.stiffness.values()
     pattern = _lower_pattern(idx[0], idx[1], vals, len(system.mass))
     return pattern, -sigma * system.mass.to(torch.float64)
-
-
-def best_of(fn, times: int):
-    best, out = math.inf, None
-    for _ in range(times):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return out, best
 
 
 def main(argv=None) -> int:
@@ -84,7 +76,7 @@ def main(argv=None) -> int:
                         best[side]["total"] = min(best[side].get("total", math.inf), time.perf_counter() - t)
                     out = torch.empty(n, 4, dtype=torch.float64)
                     rhs_c = rhs.T.contiguous()
-                    _, ts = best_of(lambda: solver.solve(rhs_c, out), 5)
+                    ts, _ = best_of(lambda: solver.solve(rhs_c, out), 5)
                 else:
                     t = time.perf_counter()
                     eng = _CpuFactor(pattern, ordering=side)
@@ -92,7 +84,7 @@ def main(argv=None) -> int:
                     t = time.perf_counter()
                     assert eng.factorize(diagonal)
                     tn = time.perf_counter() - t
-                    _, ts = best_of(lambda: eng.factor.solve_rows(rhs), 5)
+                    ts, _ = best_of(lambda: eng.factor.solve_rows(rhs), 5)
                     b = best[side]
                     b["analyse"] = min(b.get("analyse", math.inf), ta_)
                     b["numeric"] = min(b.get("numeric", math.inf), tn)
@@ -129,10 +121,7 @@ def main(argv=None) -> int:
             f"{m['mflop']:.0f} | {ms(nd['analyse'])} | {ms(nd['numeric'])} | {ms(nd['total'])} | "
             f"{nd['solve4'] * 1e3:.1f} | {nd['nnz']:,.0f} | {nd['mflop']:.0f} | "
             f"{c['total'] / d['total']:.2f}x |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
+    write_report("\n".join(lines) + "\n", args.out)
     return 0
 
 

@@ -27,7 +27,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 import torch
 
 import torchakvf as ta
@@ -38,6 +37,7 @@ from torchakvf.mesh import clean_mesh
 from torchakvf.operators import killing_operator
 from torchakvf.solvers import factor as factor_module
 from torchakvf.solvers.factor import SHIFTS, ShiftedFactor
+from timing import best_of
 
 _IP = ctypes.POINTER(ctypes.c_int32)
 
@@ -94,15 +94,6 @@ class PardisoFactor:
             pass
 
 
-def best(fn, repeat=5):
-    out, t = None, float("inf")
-    for _ in range(repeat):
-        s = time.perf_counter()
-        out = fn()
-        t = min(t, time.perf_counter() - s)
-    return out, t
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--psb", type=Path, default=default_psb_root())
@@ -118,7 +109,7 @@ def main(argv=None) -> int:
         print("libmkl_rt not found (pip install mkl): nothing to probe")
         return 0
     mkl.MKL_Set_Threading_Layer(ctypes.c_int(1 if args.threading == "seq" else 3))
-    lines = [f"# Probe: MKL PARDISO against cholespy (CHOLMOD simplicial)", "",
+    lines = ["# Probe: MKL PARDISO against cholespy (CHOLMOD simplicial)", "",
              f"- torch {torch.__version__} ({torch.get_num_threads()} threads), MKL threading layer "
              f"{args.threading}; seconds are wall time, best of 5 (factor) / 10 (solves)", "",
              "| mesh | edges | cholespy factor ms | solve4 ms | PARDISO AMD analyse + numeric ms | solve4 ms "
@@ -128,9 +119,9 @@ def main(argv=None) -> int:
         mesh = clean_mesh(load_mesh(args.psb / "meshes" / f"{i}.off.gz"))
         system = killing_operator(ta.MeshBatch.from_meshes([mesh]), remedy="smooth")
         r, c, v, n = system.block(0)
-        chol, t_chol = best(lambda: ShiftedFactor(r, c, v, system.mass))
+        t_chol, chol = best_of(lambda: ShiftedFactor(r, c, v, system.mass), 5)
         rhs = torch.randn(n, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-        ref, t_cs = best(lambda: chol.solve(rhs), 10)
+        t_cs, ref = best_of(lambda: chol.solve(rhs), 10)
         row = [str(i), str(n), f"{t_chol * 1e3:.0f}", f"{t_cs * 1e3:.1f}"]
         diff = 0.0
         for ordering in (0, 2):
@@ -141,7 +132,7 @@ def main(argv=None) -> int:
                 pf.pt[:] = 0
                 s = time.perf_counter(); pf.call(11, None, None, 1); t11 = min(t11, time.perf_counter() - s)
                 s = time.perf_counter(); pf.call(22, None, None, 1); t22 = min(t22, time.perf_counter() - s)
-            x, t_ps = best(lambda: pf.solve(rhs), 10)
+            t_ps, x = best_of(lambda: pf.solve(rhs), 10)
             diff = max(diff, float((x - ref).abs().max() / ref.abs().max()))
             row += [f"{t11 * 1e3:.0f} + {t22 * 1e3:.0f}", f"{t_ps * 1e3:.1f}", f"{int(pf.iparm[17]):,}", str(int(pf.iparm[18]))]
         lines.append("| " + " | ".join(row + [f"{diff:.0e}"]) + " |")

@@ -24,6 +24,7 @@ import torchakvf.solvers.factor as factor
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.fields.akvf import as_batch
 from torchakvf.io import load_mesh
+from timing import write_report
 
 LADDERS = {
     "x8 (default)": factor.SHIFTS,
@@ -79,10 +80,7 @@ def main(argv=None) -> int:
              f"| mesh | spurious dropped | {head} |", "|" + "---:|" * (2 + 4 * len(names)),
              *rows, "",
              "Totals: " + ", ".join(f"{n} {totals[n]:.2f} s" for n in names)]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        args.out.write_text(text)
+    write_report("\n".join(lines) + "\n", args.out)
     return 0
 
 

@@ -29,18 +29,16 @@ import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
+from timing import best_of, write_report
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
 REPO = Path(__file__).resolve().parents[1]
 
 
 def best_ms(fn, repeat: int = 5):
-    best, out = float("inf"), None
-    for _ in range(repeat):
-        t = time.process_time()
-        out = fn()
-        best = min(best, time.process_time() - t)
-    return 1e3 * best, out
+    """(milliseconds of this process's CPU in the fastest of ``repeat`` calls, the result)."""
+    seconds, out = best_of(fn, repeat, time.process_time)
+    return 1e3 * seconds, out
 
 
 def per_step_rows(sizes):
@@ -142,10 +140,7 @@ def main(argv=None) -> int:
         lines += whole_rows(cases, args.repeat)
     else:
         lines += ["", "(PSB not found: whole-untangling rows skipped)"]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        args.out.write_text(text)
+    write_report("\n".join(lines) + "\n", args.out)
     return 0
 
 

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from timing import best_of
 
 ROOT = Path(__file__).resolve().parents[1]
 #: PSB categories (first id of each, 20 meshes each); 261-280 are not in the benchmark.
@@ -36,15 +37,6 @@ def baseline_package(rev: str, into: Path):
     return importlib.import_module("torchakvf_base")
 
 
-def best_of(fn, repeat: int):
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t = time.process_time()
-        out = fn()
-        best = min(best, time.process_time() - t)
-    return best, out
-
-
 def stages(pkg, path: str, repeat: int, faces: int):
     """Seconds per sub-stage and the outputs of ``pkg`` (a torchakvf package) on one mesh."""
     from importlib import import_module
@@ -53,10 +45,10 @@ def stages(pkg, path: str, repeat: int, faces: int):
     coarse_mod = import_module(pkg.__name__ + ".mesh.coarse")
     batch_mod = import_module(pkg.__name__ + ".mesh.batch")
     t, out = {}, {}
-    t["load"], out["mesh"] = best_of(lambda: load(path), repeat)
-    t["clean"], out["clean"] = best_of(lambda: clean_mod.clean_mesh(out["mesh"]), repeat)
-    t["decimate"], out["decimated"] = best_of(lambda: coarse_mod.decimate(out["clean"], faces), repeat)
-    t["clean_coarse"], out["coarse"] = best_of(lambda: clean_mod.clean_mesh(out["decimated"]), repeat)
+    t["load"], out["mesh"] = best_of(lambda: load(path), repeat, time.process_time)
+    t["clean"], out["clean"] = best_of(lambda: clean_mod.clean_mesh(out["mesh"]), repeat, time.process_time)
+    t["decimate"], out["decimated"] = best_of(lambda: coarse_mod.decimate(out["clean"], faces), repeat, time.process_time)
+    t["clean_coarse"], out["coarse"] = best_of(lambda: clean_mod.clean_mesh(out["decimated"]), repeat, time.process_time)
     fine, coarse = out["clean"], out["coarse"]
     centers = fine.vertices[fine.faces].mean(axis=1)
     if hasattr(coarse_mod, "SurfaceIndex"):
@@ -67,9 +59,9 @@ def stages(pkg, path: str, repeat: int, faces: int):
         def surface_map():
             return (coarse_mod.locate_on_surface(coarse.vertices, coarse.faces, fine.vertices),
                     coarse_mod.locate_on_surface(coarse.vertices, coarse.faces, centers))
-    t["surface_map"], out["map"] = best_of(surface_map, repeat)
-    t["pack"], _ = best_of(lambda: batch_mod.MeshBatch.from_meshes([coarse]), repeat)
-    t["total"], _ = best_of(lambda: batch_mod.MeshBatch.from_meshes([load(path)], coarse_faces=faces), repeat)
+    t["surface_map"], out["map"] = best_of(surface_map, repeat, time.process_time)
+    t["pack"], _ = best_of(lambda: batch_mod.MeshBatch.from_meshes([coarse]), repeat, time.process_time)
+    t["total"], _ = best_of(lambda: batch_mod.MeshBatch.from_meshes([load(path)], coarse_faces=faces), repeat, time.process_time)
     return t, out
 
 

@@ -181,7 +181,7 @@ def winrate_report(w) -> str:
 
 def report(a, r) -> str:
     sb, sn = r["stages"]["baseline"], r["stages"]["new"]
-    lines = [f"# Segment stage profile (issue 13)", "",
+    lines = ["# Segment stage profile (issue 13)", "",
              f"`python benchmarks/profile_segment.py` — PSB ids {a.ids[0]}..{a.ids[-1]} ({len(a.ids)} meshes: "
              f"2 per labelled category, held-back categories excluded), coarse_faces={a.coarse_faces}, "
              f"{a.batch_meshes} meshes per batch, every human k of each mesh, seed {a.seed}, refine=False (as eval), one thread, "

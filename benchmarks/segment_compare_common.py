@@ -8,7 +8,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from torchakvf.evaluate import psb as P
 from torchakvf.evaluate.metrics import rand_index_error
+from torchakvf.io import load_mesh
+from torchakvf.mesh import MeshBatch
 
 
 @dataclass
@@ -18,6 +21,18 @@ class Answer:
     labels: np.ndarray
     cost: float
     refined: object = None
+
+
+def solved_psb_meshes(ids, engine, coarse_faces: int = 4000, n: int = 36):
+    """Yields (position, PSB mesh id, its distinct human segment counts ascending, its AKVFs)
+    for each of ``ids``: the mesh decimated to ``coarse_faces`` and n AKVFs solved with
+    ``engine``'s solve_akvfs, as ``torchakvf eval`` solves them."""
+    ents = {e.mesh_id: e for e in P.find_psb_meshes(P.default_psb_root())}
+    for j, i in enumerate(ids):
+        e = ents[i]
+        mb = MeshBatch.from_meshes([load_mesh(e.mesh_path)], coarse_faces=coarse_faces)
+        fields, _ = engine.solve_akvfs(mb, n, engine.SegmentOptions(refine=False))
+        yield j, i, sorted(set(P.human_segment_counts(e))), fields
 
 
 def segment_answers(eng, fields, ks, opts, prof=None, clock=time.process_time):
