@@ -463,6 +463,9 @@ def _over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: 
         labels = remove_small_parts(labels, cache["adjacency"], area, opts.min_part_fraction,
                                     into_connecting=False)
         unit = unit_rows(feats)    # the merge, its cost and the next merge's all read them
+    for shared in (vdist, feats, labels, unit):
+        if shared is not None:     # read by every k that shares them: a write would be a bug
+            shared.flags.writeable = False
     return _OverSegmentation(source=(*(np.array(a) for a in clustered), _OverSegmentation.settings(opts)),
                              mesh=clean,
                              vdist=vdist, feats=feats, labels=labels, area=area, unit=unit)
