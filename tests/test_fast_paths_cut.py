@@ -362,3 +362,34 @@ def test_cached_over_segmentation_serves_only_an_identical_clustering():
     assert not entry.made_from((feats, centers[:2], labels), opts)
     assert not entry.made_from((feats, centers, labels), SegmentOptions(boundary="faces"))
     assert not entry.made_from((feats, centers, labels), SegmentOptions(min_part_fraction=0.02))
+
+
+def test_segment_rounds_drops_an_over_segmentation_no_later_k_shares(monkeypatch):
+    """A mesh's over-segmentation (fine-mesh arrays) is kept only while its next k clusters
+    alike: after k = 2 (k = 3 next, the same k-means) it stays, after k = 3 (k = 9 next, other
+    fields and clusters) and after a mesh's last k it goes."""
+    pytest.importorskip("gco")
+    import torchakvf as ta
+    from torchakvf.parts import engine
+    from torchakvf.parts.engine import SegmentOptions, segment_rounds
+
+    s = shapes.three_blobs(n_around=20)
+    batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="a"), ta.Mesh(s.vertices, s.faces, name="b")])
+    fields = ta.akvf(batch, n=36, remedy="smooth")
+    opts = SegmentOptions(refine=False)
+    seen, real = [], engine.cut_parts
+
+    def spy(*a):
+        out = real(*a)
+        seen.append((a[4], a[5], a[7]))          # mesh, k, its cache (as cut_parts leaves it)
+        return out
+
+    monkeypatch.setattr(engine, "cut_parts", spy)
+    kept = []
+    for rnd in segment_rounds(fields, [[2, 3, 9], [5]], opts):
+        kept.append({(b, k): "over" in cache for b, k, cache in seen})
+        seen.clear()
+    assert kept == [{(0, 2): True, (1, 5): False}, {(0, 3): False}, {(0, 9): False}]
+    keys = engine._next_round_keys(fields, [[2, 3, 9], [5]], 0, None, opts, [len(s.faces)] * 2)
+    assert keys[1] is None and keys[0][1] == engine.cluster_count(2, len(s.faces), opts)
+    assert engine._next_round_keys(fields, [[2, 3, 9], [5]], 2, None, opts, [len(s.faces)] * 2) is None

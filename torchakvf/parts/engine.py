@@ -561,11 +561,34 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         if opts.kmeans_seeded_restarts:
             for b in active:
                 prev_labels[b] = km.labels[b]
-        meshes = [cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
-                  if b in active else None for b in range(nb)]
+        meshes = [None] * nb
+        following = _next_round_keys(fields, ks, r, n_fields, opts, n_faces)
+        for b in active:
+            meshes[b] = cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
+            if following is None or following[b] != (ns[b], km_ks[b]):
+                # the mesh's next k clusters otherwise (or it has none): its over-segmentation
+                # (fine-mesh arrays, ~10 MB at 20k faces) goes, not kept for the batch's life
+                mesh_caches[b].pop("over", None)
         t2 = time.perf_counter()
         yield KRound(ks=round_ks, active=active, meshes=meshes, untangled=unt,
                      seconds={"untangle": t1 - t0, "cluster": t2 - t1})
+
+
+def _next_round_keys(fields: AKVFResult, ks: list, r: int, n_fields, opts: SegmentOptions,
+                     n_faces: list) -> list | None:
+    """[B] (fields, clusters) of each mesh in round r + 1 of :func:`segment_rounds` (None for a
+    mesh without a k there), or None when there is no such round or its field counts cannot be
+    had (the round itself then raises, as before)."""
+    nb = len(ks)
+    if not any(r + 1 < len(kb) for kb in ks):
+        return None
+    round_ks = [ks[b][r + 1] if r + 1 < len(ks[b]) else PAD_K for b in range(nb)]
+    try:
+        ns = field_counts(fields, round_ks, n_fields, opts.method, merge_min_k(opts))
+    except ParameterError:
+        return None
+    return [(ns[b], cluster_count(round_ks[b], n_faces[b], opts)) if r + 1 < len(ks[b]) else None
+            for b in range(nb)]
 
 
 def previous_centroids(x: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor, k: int) -> torch.Tensor | None:
