@@ -323,6 +323,37 @@ def test_read_write_seg_plain_and_gz(tmp_path):
     assert read_seg(tmp_path / "crlf.seg").tolist() == [1, 2, 3]
 
 
+@pytest.mark.parametrize("data, vectorized", [
+    (b"0\n3\n3\n1\n", True),
+    (b"12\n007\n\n 40 5\t6\r\n999999999999999999", True),    # multi-digit, leading zeros, blanks
+    (b"1\n2\n3", True),
+    (b"-1\n2\n", False),                                         # a sign: the general parsers
+    (b"+4\n2\n", False),
+    (b"1\x0b2\n", False),
+    (b"1234567890123456789\n", False),                            # 19 digits
+])
+def test_seg_digit_parser_equals_the_token_parser(data, vectorized, tmp_path):
+    """The all-digits fast path of read_seg gives int() of every token; other files go to the
+    general parsers, with the same values."""
+    from torchakvf.evaluate.psb import _parse_digit_tokens, _read_seg_slow
+    fast = _parse_digit_tokens(data)
+    ref = _read_seg_slow(tmp_path / "x.seg", data)
+    assert (fast is not None) == vectorized
+    if fast is not None:
+        assert fast.dtype == np.int64 and fast.tolist() == ref.tolist()
+    (tmp_path / "x.seg").write_bytes(data)
+    got = read_seg(tmp_path / "x.seg")
+    assert got.dtype == np.int64 and got.tolist() == ref.tolist()
+
+
+def test_segment_count_is_the_number_of_distinct_labels():
+    from torchakvf.evaluate.psb import segment_count
+    rng = np.random.default_rng(2)
+    for labels in (np.array([4]), np.array([], dtype=np.int64), rng.integers(0, 7, 500),
+                   rng.integers(-3, 3, 50), np.array([0, 10 ** 12, 5, 5]), rng.integers(0, 10 ** 6, 30)):
+        assert segment_count(labels) == np.unique(labels).size
+
+
 def test_read_seg_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="missing.seg"):
         read_seg(tmp_path / "missing.seg")

@@ -12,7 +12,6 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 
 from ..errors import MeshError, ParameterError, TorchAKVFError
 from ..io import load_mesh, peek_face_count
@@ -183,7 +182,7 @@ def _usable_humans(entry, faces: int) -> tuple[list, list, list]:
                             f"segmentation left out")
             continue
         ok.append(s)
-        counts.append(int(np.unique(lab).size))
+        counts.append(P.segment_count(lab))
     return ok, counts, problems
 
 

@@ -187,7 +187,7 @@ def _gallery_item(plan, row):
     if not ks:
         return None
     humans = [P.read_seg(s) for s in plan.entry.seg_paths]
-    counts = [len(np.unique(h)) for h in humans]
+    counts = [P.segment_count(h) for h in humans]
     pick = next((i for i, c in enumerate(counts) if c in ks), 0)
     k = counts[pick] if counts[pick] in ks else ks[0]
     pred, human = P.read_seg(plan.pred_path(k)), humans[pick]

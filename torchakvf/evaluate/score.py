@@ -130,7 +130,7 @@ def score_protocol(scorer, preds, gts, protocol, k=None) -> dict:
 
 
 def _count(labels) -> int:
-    return int(np.unique(labels).size)
+    return P.segment_count(labels)
 
 
 def score_mesh(plan: PredictionPlan, mesh, protocol, groups, auto, failure) -> MeshScore:
