@@ -31,14 +31,17 @@ def rasterize(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray, width: int, 
     """
     tri = xy[faces]                                                   # [F, 3, 2]
     z = depth[faces]
-    lo = np.clip(np.floor(tri.min(axis=1) - 0.5).astype(np.int64) + 1, 0, [width - 1, height - 1])
-    hi = np.clip(np.floor(tri.max(axis=1) - 0.5).astype(np.int64), -1, [width - 1, height - 1])
+    corner_min = np.minimum(np.minimum(tri[:, 0], tri[:, 1]), tri[:, 2])  # tri.min(axis=1), faster
+    corner_max = np.maximum(np.maximum(tri[:, 0], tri[:, 1]), tri[:, 2])
+    lo = np.clip(np.floor(corner_min - 0.5).astype(np.int64) + 1, 0, [width - 1, height - 1])
+    hi = np.clip(np.floor(corner_max - 0.5).astype(np.int64), -1, [width - 1, height - 1])
     span = np.maximum(hi - lo + 1, 0)
     count = span[:, 0] * span[:, 1]
     ids = np.full(width * height, -1, dtype=np.int64)
     zbuf = np.full(width * height, -np.inf)
     (x0, y0), (x1, y1), (x2, y2) = tri[:, 0].T, tri[:, 1].T, tri[:, 2].T
-    det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    e1x, e1y, e2x, e2y = x1 - x0, y1 - y0, x2 - x0, y2 - y0
+    det = e1x * e2y - e2x * e1y
     ok = (count > 0) & (np.abs(det) > 1e-12)
     order = np.flatnonzero(ok)
     cum = np.cumsum(count[order])
@@ -51,24 +54,31 @@ def rasterize(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray, width: int, 
         c = count[sel]
         face = np.repeat(sel, c)
         local = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
-        w = span[face, 0]
-        px = lo[face, 0] + local % w
-        py = lo[face, 1] + local // w
-        cx, cy = px + 0.5, py + 0.5
+        row, col = np.divmod(local, span[face, 0])
+        px = lo[face, 0] + col
+        py = lo[face, 1] + row
+        # each face's values gathered once per fragment (a[face] - b[face] is (a - b)[face] to
+        # the bit, so the coordinates are those of the per-corner expression)
+        dx, dy = (px + 0.5) - x0[face], (py + 0.5) - y0[face]
         dt = det[face]
-        b1 = ((cx - x0[face]) * (y2[face] - y0[face]) - (x2[face] - x0[face]) * (cy - y0[face])) / dt
-        b2 = ((x1[face] - x0[face]) * (cy - y0[face]) - (cx - x0[face]) * (y1[face] - y0[face])) / dt
+        b1 = (dx * e2y[face] - e2x[face] * dy) / dt
+        b2 = (e1x[face] * dy - dx * e1y[face]) / dt
         b0 = 1.0 - b1 - b2
-        inside = (b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9)
-        face, px, py = face[inside], px[inside], py[inside]
+        inside = np.flatnonzero((b0 >= -1e-9) & (b1 >= -1e-9) & (b2 >= -1e-9))
+        pix = (py * width + px)[inside]
+        face = face[inside]
         zz = (b0[inside] * z[face, 0] + b1[inside] * z[face, 1] + b2[inside] * z[face, 2])
-        pix = py * width + px
-        # nearest fragment per pixel: sort by (pixel, -depth), keep the first of each pixel
-        srt = np.lexsort((-zz, pix))
-        pix, zz, face = pix[srt], zz[srt], face[srt]
-        first = np.ones(len(pix), dtype=bool)
-        first[1:] = pix[1:] != pix[:-1]
-        pix, zz, face = pix[first], zz[first], face[first]
+        # nearest fragment per pixel, the first of them (in fragment order) on equal depths: the
+        # largest depth per pixel, then the lowest index among the fragments at it (two scatters,
+        # 3x a sort of the fragments by (pixel, -depth))
+        near = np.full(width * height, -np.inf)
+        np.maximum.at(near, pix, zz)
+        at = np.flatnonzero(zz == near[pix])
+        pick = np.full(width * height, len(zz))
+        np.minimum.at(pick, pix[at], at)
+        pix = np.flatnonzero(pick < len(zz))
+        pick = pick[pix]
+        zz, face = zz[pick], face[pick]
         nearer = zz > zbuf[pix]
         zbuf[pix[nearer]] = zz[nearer]
         ids[pix[nearer]] = face[nearer]
