@@ -94,6 +94,38 @@ def test_gallery_shows_prediction_beside_a_human_at_the_same_k(tiny_psb, run_by_
     assert err == rand_index_error(pred, d.part_labels) and 0.0 <= err < 0.05
 
 
+def test_galleries_drawn_in_worker_processes_equal_those_drawn_here(tiny_psb, run_by_seg, tmp_path):
+    """Categories are drawn side by side in worker processes: the same PNG bytes and the same
+    {category: path} (in the plans' order) as drawn one after another in this process."""
+    import copy
+    import dataclasses
+    import shutil
+    from torchakvf.evaluate.plan import find_entries, plan_meshes
+    from torchakvf.evaluate.report import write_galleries
+
+    root, _ = tiny_psb
+    out, summary, _ = run_by_seg
+    plan = plan_meshes(find_entries(root)[0], out, "by-segmentation", False, 6)[0]
+    row = summary.row(1)
+    # mesh 1 once more, as mesh 2 of a second category, so that two galleries can be drawn at once
+    twin_dir = tmp_path / "pred2"
+    twin_dir.mkdir()
+    for seg in plan.pred_dir.glob("1_k*.seg"):
+        shutil.copy(seg, twin_dir / seg.name.replace("1_k", "2_k"))
+    twin = dataclasses.replace(plan, entry=dataclasses.replace(plan.entry, mesh_id=2, category="Cup"),
+                               pred_dir=twin_dir)
+    twin_row = copy.copy(row)
+    twin_row.mesh_id, twin_row.category = 2, "Cup"
+    plans, rows = [plan, twin], [row, twin_row]
+    got = {}
+    for workers in (1, 2):
+        got[workers] = write_galleries(tmp_path / f"w{workers}", plans, rows, workers=workers)
+        assert list(got[workers]) == ["Human", "Cup"]
+    assert got[1] == got[2]
+    for rel in got[1].values():
+        assert (tmp_path / "w1" / rel).read_bytes() == (tmp_path / "w2" / rel).read_bytes()
+
+
 def test_predictions_of_another_method_are_not_resumed(tiny_psb, run_by_seg):
     root, _ = tiny_psb
     out, summary, _ = run_by_seg             # made with the default method, "merge"

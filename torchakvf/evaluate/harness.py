@@ -277,7 +277,7 @@ def evaluate_psb(psb_root, out_dir, categories=None, protocol: str = "by-segment
 
     wall = time.perf_counter() - t_start
     summary = write_reports(out, rows, plans, protocol, groups, auto, wall, pred_settings,
-                            run_settings, plot=plot, problems=problems)
+                            run_settings, plot=plot, problems=problems, workers=n_workers)
     summary.predict_seconds = predict_seconds
     summary.score_seconds = score_seconds
     n_failed = sum(r.status.startswith("failed") for r in summary.rows)
