@@ -72,6 +72,55 @@ def test_rasterize_coverage_and_occlusion():
     assert np.all(np.isinf(z[ids < 0]))
 
 
+def _rasterize_by_sorting(xy, depth, faces, width, height):
+    """The z-buffer written plainly: every pixel center inside a face's bounding box, tested by
+    its barycentric coordinates; per pixel the nearest fragment, the first in face order among
+    equal depths (a stable sort by pixel, then by -depth; NaN depths sort last)."""
+    pix_all, z_all, face_all = [], [], []
+    for fi, (a, b, c) in enumerate(faces):
+        (x0, y0), (x1, y1), (x2, y2) = xy[a], xy[b], xy[c]
+        det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        lo = np.clip(np.floor(np.minimum(np.minimum(xy[a], xy[b]), xy[c]) - 0.5).astype(int) + 1, 0, [width - 1, height - 1])
+        hi = np.clip(np.floor(np.maximum(np.maximum(xy[a], xy[b]), xy[c]) - 0.5).astype(int), -1, [width - 1, height - 1])
+        if abs(det) <= 1e-12:
+            continue
+        for py in range(lo[1], hi[1] + 1):
+            for px in range(lo[0], hi[0] + 1):
+                dx, dy = (px + 0.5) - x0, (py + 0.5) - y0
+                b1 = (dx * (y2 - y0) - (x2 - x0) * dy) / det
+                b2 = ((x1 - x0) * dy - dx * (y1 - y0)) / det
+                b0 = 1.0 - b1 - b2
+                if b0 >= -1e-9 and b1 >= -1e-9 and b2 >= -1e-9:
+                    pix_all.append(py * width + px)
+                    z_all.append(b0 * depth[a] + b1 * depth[b] + b2 * depth[c])
+                    face_all.append(fi)
+    ids, zbuf = np.full(width * height, -1), np.full(width * height, -np.inf)
+    order = np.lexsort((-np.array(z_all), np.array(pix_all)))
+    seen = set()
+    for i in order:
+        if pix_all[i] not in seen:
+            seen.add(pix_all[i])
+            if z_all[i] > zbuf[pix_all[i]]:
+                ids[pix_all[i]], zbuf[pix_all[i]] = face_all[i], z_all[i]
+    return ids.reshape(height, width), zbuf.reshape(height, width)
+
+
+@pytest.mark.parametrize("chunk", [4_000_000, 150])
+def test_rasterize_equals_a_plain_z_buffer_with_ties_and_nan_depths(chunk):
+    """Overlapping triangles, some at equal depths (the first face wins), some with a NaN corner
+    depth (never nearer), cut into chunks of fragments or not: the face ids and depths of a
+    plain per-pixel z-buffer."""
+    rng = np.random.default_rng(4)
+    xy = rng.random((60, 2)) * 30
+    depth = rng.integers(0, 4, 60).astype(float)         # few distinct depths: many ties
+    depth[::11] = np.nan
+    faces = rng.integers(0, 60, (80, 3))
+    ids, zbuf = rasterize(xy, depth, faces, 32, 24, chunk=chunk)
+    want_ids, want_z = _rasterize_by_sorting(xy, depth, faces, 32, 24)
+    np.testing.assert_array_equal(ids, want_ids)
+    np.testing.assert_array_equal(zbuf, want_z)
+
+
 def test_sphere_fills_its_picture(tmp_path):
     s = shapes.icosphere(level=3)
     labels = np.zeros(len(s.faces), dtype=np.int64)

@@ -72,7 +72,7 @@ def rasterize(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray, width: int, 
         # largest depth per pixel, then the lowest index among the fragments at it (two scatters,
         # 3x a sort of the fragments by (pixel, -depth))
         near = np.full(width * height, -np.inf)
-        np.maximum.at(near, pix, zz)
+        np.fmax.at(near, pix, zz)                          # (a NaN depth never wins, as in a sort)
         at = np.flatnonzero(zz == near[pix])
         pick = np.full(width * height, len(zz))
         np.minimum.at(pick, pix[at], at)
