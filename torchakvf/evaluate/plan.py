@@ -12,7 +12,6 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-
 from ..errors import MeshError, ParameterError, TorchAKVFError
 from ..io import load_mesh, peek_face_count
 from ..mesh.coarse import DECIMATE_ABOVE
