@@ -140,13 +140,18 @@ print(best)
 """
 
 
-def fresh_process_sides(psb: Path, ids, n: int, repeat: int, clock: str, device: str) -> dict:
-    """{"batched": s, "alone": s}: each side timed in fresh processes (two each, alternating,
-    best of ``repeat`` calls in each), so neither inherits the other's heap. In one long-lived
-    process the batched call measured 0.88-0.89x of one call per mesh twice, while fresh
-    processes gave 0.92-1.08x (the same work, profiled: eigensolver_fullres_v6.md, v7)."""
+def fresh_process_sides(psb: Path, ids, n: int, repeat: int, clock: str, device: str,
+                        per_side: int = 2) -> dict | None:
+    """{"batched": s, "alone": s}: each side timed in ``per_side`` fresh processes (alternating,
+    best of ``repeat`` calls in each), so neither inherits the other's heap (None when
+    per_side is 0). In one long-lived process the batched call measured 0.88-0.89x of one call
+    per mesh twice, while fresh processes gave 0.92-1.08x (the same work, profiled:
+    eigensolver_fullres_v6.md, v7)."""
+    if per_side <= 0:
+        return None
     out = {"batched": math.inf, "alone": math.inf}
-    for mode in ("batched", "alone", "alone", "batched"):
+    modes = [("batched", "alone") if i % 2 == 0 else ("alone", "batched") for i in range(per_side)]
+    for mode in (m for pair in modes for m in pair):
         run = subprocess.run([sys.executable, "-c", _FRESH_SIDE, str(psb), mode, str(n), str(repeat), clock,
                               device, ",".join(map(str, ids))], capture_output=True, text=True, check=True,
                              env={**os.environ, "OMP_NUM_THREADS": "1"})
@@ -184,6 +189,9 @@ def main(argv=None) -> int:
                         "then, so that numpy's BLAS keeps its default too)")
     p.add_argument("--device", default="cpu",
                    help="device of the ta side (default cpu; cuda needs --clock wall)")
+    p.add_argument("--fresh", type=int, default=2,
+                   help="fresh processes per side for the batched row (default 2; 0: only the "
+                        "in-process figure, e.g. on a GPU machine's short budget)")
     p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "eigensolver_fullres.md")
     args = p.parse_args(argv)
     dev = torch.device(args.device)
@@ -268,7 +276,7 @@ def main(argv=None) -> int:
     same = max(float(np.max(np.abs(rb.eigenvalues[b].cpu().numpy() - a.eigenvalues[0].cpu().numpy())
                             / np.maximum(np.abs(a.eigenvalues[0].cpu().numpy()), 1)))
                for b, a in enumerate(alone))
-    fresh = fresh_process_sides(args.psb, args.ids, n, args.repeat, args.clock, args.device)
+    fresh = fresh_process_sides(args.psb, args.ids, n, args.repeat, args.clock, args.device, args.fresh)
 
     tot = {k: sum(best[i][k] for i in args.ids) for k in ("ta", "cholespy", "ref", "eigsh")}
     lines = [
@@ -313,10 +321,11 @@ def main(argv=None) -> int:
         f"| **{tot['cholespy'] / tot['ta']:.2f}** | | | | | | | | | |")
     lines += [
         "",
-        f"Batched (all {len(args.ids)} in one `ta.akvf` call) against one call per mesh, each side in "
-        f"fresh processes (two each, alternating, best of {args.repeat} calls in each): "
-        f"{fresh['batched']:.2f} s against {fresh['alone']:.2f} s: **{fresh['alone'] / fresh['batched']:.2f}x**. "
-        f"The same in this long-lived process, interleaved: {t_batch:.2f} s against {t_alone:.2f} s "
+        f"Batched (all {len(args.ids)} in one `ta.akvf` call) against one call per mesh"
+        + (f", each side in fresh processes ({args.fresh} each, alternating, best of {args.repeat} calls "
+           f"in each): {fresh['batched']:.2f} s against {fresh['alone']:.2f} s: "
+           f"**{fresh['alone'] / fresh['batched']:.2f}x**. The same" if fresh else "")
+        + f" in this long-lived process, interleaved: {t_batch:.2f} s against {t_alone:.2f} s "
         f"({t_alone / t_batch:.2f}x). Largest eigenvalue difference between the two {same:.1e}.",
         "",
         f"All ta residuals <= 1e-6: {all(info[i]['res_ta'] <= 1e-6 for i in args.ids)}; all converged: "

@@ -122,7 +122,7 @@ if [ "$has_cuda" = 1 ] && [ "$(left)" -gt 40 ]; then
   t=$(cap 75)
   echo "== full-resolution ta.akvf on cuda, PSB 21 and 301 (at most $t s)"
   timeout "$t" python3 benchmarks/bench_akvf_fullres.py --psb "$psb" --device cuda --clock wall \
-      --threads 0 --ids 21 301 --repeat 2 --decimate 0 --out "$OUT/akvf_fullres_cuda.md" \
+      --threads 0 --ids 21 301 --repeat 2 --decimate 0 --fresh 0 --out "$OUT/akvf_fullres_cuda.md" \
       > "$OUT/akvf_fullres_cuda.log" 2>&1
   rc=$?
   if [ -f "$OUT/akvf_fullres_cuda.md" ]; then
