@@ -348,12 +348,12 @@ def test_cached_over_segmentation_serves_only_an_identical_clustering():
     """The over-segmentation cut_parts keeps is reused only for equal features, centers and
     labels and the same boundary options: one label changed, or another boundary rule, makes
     a new one."""
-    from torchakvf.parts.engine import SegmentOptions, _OverSegmentation
+    from torchakvf.parts.engine import SegmentOptions, _OverSegmentation, _over_settings
 
     rng = np.random.default_rng(3)
     feats, centers, labels = rng.random((50, 4)), rng.random((3, 4)), rng.integers(0, 3, 50)
     opts = SegmentOptions()
-    entry = _OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy(), _OverSegmentation.settings(opts)),
+    entry = _OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy()), settings=_over_settings(opts),
                               mesh=None, vdist=None, feats=None, labels=None, area=None, unit=None)
     assert entry.made_from((feats, centers, labels), opts)
     moved = labels.copy()
@@ -390,6 +390,6 @@ def test_segment_rounds_drops_an_over_segmentation_no_later_k_shares(monkeypatch
         kept.append({(b, k): "over" in cache for b, k, cache in seen})
         seen.clear()
     assert kept == [{(0, 2): True, (1, 5): False}, {(0, 3): False}, {(0, 9): False}]
-    keys = engine._next_round_keys(fields, [[2, 3, 9], [5]], 0, None, opts, [len(s.faces)] * 2)
-    assert keys[1] is None and keys[0][1] == engine.cluster_count(2, len(s.faces), opts)
-    assert engine._next_round_keys(fields, [[2, 3, 9], [5]], 2, None, opts, [len(s.faces)] * 2) is None
+    round_ks, active, _, km_ks = engine._round_plan(fields, [[2, 3, 9], [5]], 1, None, opts)
+    assert round_ks == [3, engine.PAD_K] and active == [0]
+    assert km_ks[0] == engine.cluster_count(2, len(s.faces), opts)      # k = 3 clusters as k = 2

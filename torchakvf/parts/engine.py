@@ -409,8 +409,9 @@ class _OverSegmentation:
     clustering alone, not on k, so k's clustered alike (the merge method's k <= min_k, one
     k-means) share it (:func:`cut_parts` keeps the last one in its mesh cache).
 
-    source : (features [F_b, n], centers [k', n], labels [F_b]) as clustered, on the solved mesh,
-        and the options read here: an entry serves only an identical clustering
+    source : (features [F_b, n], centers [k', n], labels [F_b]) as clustered, on the solved
+        mesh; settings : the options read here (:func:`_over_settings`): an entry serves only
+        an identical clustering under the same options
     mesh : the mesh the parts are cut on (the fine one when solved on a decimated mesh) and, on
         it, vdist [V, k'] (each vertex's distance to each center), feats [F, n], labels [F]
         (with ε = 0 cleaned of small pieces), area [F] (unit total), unit [F, n] (unit feature
@@ -419,6 +420,7 @@ class _OverSegmentation:
     """
 
     source: tuple
+    settings: tuple
     mesh: object
     vdist: np.ndarray
     feats: np.ndarray
@@ -427,15 +429,15 @@ class _OverSegmentation:
     unit: np.ndarray | None
     graphs: dict = field(default_factory=dict)
 
-    @staticmethod
-    def settings(opts: SegmentOptions) -> tuple:
-        return (opts.boundary, opts.eps > 0, opts.min_part_fraction)
-
     def made_from(self, clustered: tuple, opts: SegmentOptions) -> bool:
         """Whether this entry is for exactly this clustering (equal arrays) and these options."""
-        *arrays, settings = self.source
-        return settings == self.settings(opts) and all(
-            a.shape == c.shape and np.array_equal(a, c) for a, c in zip(arrays, clustered))
+        return self.settings == _over_settings(opts) and all(
+            a.shape == c.shape and np.array_equal(a, c) for a, c in zip(self.source, clustered))
+
+
+def _over_settings(opts: SegmentOptions) -> tuple:
+    """The options an :class:`_OverSegmentation` depends on besides its clustering."""
+    return (opts.boundary, opts.eps > 0, opts.min_part_fraction)
 
 
 def _over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: tuple,
@@ -466,7 +468,7 @@ def _over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: 
     for shared in (vdist, feats, labels, unit):
         if shared is not None:     # read by every k that shares them: a write would be a bug
             shared.flags.writeable = False
-    return _OverSegmentation(source=(*(np.array(a) for a in clustered), _OverSegmentation.settings(opts)),
+    return _OverSegmentation(source=tuple(np.array(a) for a in clustered), settings=_over_settings(opts),
                              mesh=clean,
                              vdist=vdist, feats=feats, labels=labels, area=area, unit=unit)
 
@@ -533,11 +535,17 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
     clusterings = {}    # (mesh, n, k') -> MeshClustering: k's with equal counts share one k-means
     if untangled is not None:
         assembled[tuple(int(v) for v in untangled.n_fields)] = untangled
-    for r in range(max(len(kb) for kb in ks)):
+    plans = {}          # round -> its _round_plan, made once: read by the round and the one before
+
+    def plan(r: int) -> tuple:
+        if r not in plans:
+            plans[r] = _round_plan(fields, ks, r, n_fields, opts)
+        return plans[r]
+
+    n_rounds = max(len(kb) for kb in ks)
+    for r in range(n_rounds):
         t0 = time.perf_counter()
-        active = [b for b in range(nb) if r < len(ks[b])]
-        round_ks = [ks[b][r] if r < len(ks[b]) else PAD_K for b in range(nb)]
-        ns = field_counts(fields, round_ks, n_fields, opts.method, merge_min_k(opts))
+        round_ks, active, ns, km_ks = plan(r)
         if untangled is not None:
             if untangled.source is not fields or any(int(untangled.n_fields[b]) != ns[b] for b in active):
                 raise ParameterError(f"the untangled fields given are for n = {list(untangled.n_fields)} "
@@ -546,8 +554,6 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         else:
             unt = _round_untangled(fields, ns, active, rotations, assembled, opts)
         t1 = time.perf_counter()
-        n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
-        km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
         if opts.kmeans_seeded_restarts and r > 0:
             xpad, mask = pad_packed(unt.features.double(), batch.face_ptr)
             # Warm start: each active mesh's last restart begins at the centroids, in this
@@ -562,10 +568,16 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
             for b in active:
                 prev_labels[b] = km.labels[b]
         meshes = [None] * nb
-        following = _next_round_keys(fields, ks, r, n_fields, opts, n_faces)
+        following = None
+        if r + 1 < n_rounds:
+            try:
+                following = plan(r + 1)
+            except ParameterError:     # that round raises it itself, after this one is yielded
+                pass
         for b in active:
             meshes[b] = cut_parts(batch, fields, unt, km, b, round_ks[b], opts, mesh_caches[b])
-            if following is None or following[b] != (ns[b], km_ks[b]):
+            if following is None or b not in following[1] or \
+                    (following[2][b], following[3][b]) != (ns[b], km_ks[b]):
                 # the mesh's next k clusters otherwise (or it has none): its over-segmentation
                 # (fine-mesh arrays, ~10 MB at 20k faces) goes, not kept for the batch's life
                 mesh_caches[b].pop("over", None)
@@ -574,21 +586,18 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
                      seconds={"untangle": t1 - t0, "cluster": t2 - t1})
 
 
-def _next_round_keys(fields: AKVFResult, ks: list, r: int, n_fields, opts: SegmentOptions,
-                     n_faces: list) -> list | None:
-    """[B] (fields, clusters) of each mesh in round r + 1 of :func:`segment_rounds` (None for a
-    mesh without a k there), or None when there is no such round or its field counts cannot be
-    had (the round itself then raises, as before)."""
+def _round_plan(fields: AKVFResult, ks: list, r: int, n_fields, opts: SegmentOptions) -> tuple:
+    """Round r of :func:`segment_rounds`: ([B] each mesh's k, :data:`PAD_K` for a mesh with no
+    k left; the meshes whose own k it is; [B] fields untangled per mesh, :func:`field_counts`;
+    [B] clusters per mesh, :func:`cluster_count`). Raises as field_counts does."""
+    batch = fields.batch
     nb = len(ks)
-    if not any(r + 1 < len(kb) for kb in ks):
-        return None
-    round_ks = [ks[b][r + 1] if r + 1 < len(ks[b]) else PAD_K for b in range(nb)]
-    try:
-        ns = field_counts(fields, round_ks, n_fields, opts.method, merge_min_k(opts))
-    except ParameterError:
-        return None
-    return [(ns[b], cluster_count(round_ks[b], n_faces[b], opts)) if r + 1 < len(ks[b]) else None
-            for b in range(nb)]
+    active = [b for b in range(nb) if r < len(ks[b])]
+    round_ks = [ks[b][r] if r < len(ks[b]) else PAD_K for b in range(nb)]
+    ns = field_counts(fields, round_ks, n_fields, opts.method, merge_min_k(opts))
+    n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
+    km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
+    return round_ks, active, ns, km_ks
 
 
 def previous_centroids(x: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor, k: int) -> torch.Tensor | None:
