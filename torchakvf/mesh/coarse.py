@@ -386,7 +386,7 @@ class SurfaceIndex:
         """:meth:`locate` by libigl's AABB tree, ties resolved over the faces around the
         closest point's edge or corner."""
         _, face, _ = _igl().point_mesh_squared_distance(points, self.vertices, self.faces)
-        face = np.asarray(face, dtype=np.int64)
+        face = np.array(face, dtype=np.int64)                             # our own: written below
         bary, dist = self._closest(points, face)
         # A closest point on (or within round-off of) an edge or corner of its face: the faces
         # around the corners that span it are as close, up to round-off; all of them are
@@ -405,9 +405,8 @@ class SurfaceIndex:
         pair_point = np.concatenate([edge, np.repeat(edge[row], count)])
         pair_face = np.concatenate([face[edge], ring_face[first + offset]])
         best = self._nearest_pairs(points, pair_point, pair_face)
-        out_face, out_bary, out_dist = face.copy(), bary.copy(), dist.copy()
-        out_face[edge], out_bary[edge], out_dist[edge] = best.face, best.bary, best.distance
-        return SurfacePoints(face=out_face, bary=out_bary, distance=out_dist)
+        face[edge], bary[edge], dist[edge] = best.face, best.bary, best.distance
+        return SurfacePoints(face=face, bary=bary, distance=dist)
 
     @cached_property
     def _vertex_faces(self) -> tuple[np.ndarray, np.ndarray]:

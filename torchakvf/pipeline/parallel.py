@@ -25,8 +25,8 @@ from typing import Any, Callable
 #: long-lived worker's resident memory grew with what it had served (on the whole PSB corpus a
 #: worker reached 2.4 GB on a mesh that peaks at 1.3 GB in a fresh process); workers now hand
 #: freed heap pages back after each batch (:func:`_release_freed_memory`), and a fresh process
-#: costs ~2.5 s of imports and first calls (25: 15 of them on the PSB corpus, 5% of its CPU).
-#: 250 (was 100): no worker is replaced on the PSB corpus (190 batches each on 2 workers); the
+#: costs ~2.5 s of imports and first calls (at 25 batches: 15 of them on the PSB corpus, 5% of
+#: its CPU). 250 (was 100): no worker is replaced on the PSB corpus (190 batches each on 2 workers); the
 #: largest worker's peak went 519-525 -> 538-554 MiB over three runs each
 #: (benchmarks/results/bench_psb_full_v13_*.md).
 RECYCLE_AFTER = 250
