@@ -11,6 +11,7 @@ import torch
 import torchakvf as ta
 from torchakvf.parts.merge import MergeWeights
 from torchakvf import shapes
+from torchakvf._restarts import best_restart
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh.batch import pad_packed
 from torchakvf.parts import engine
@@ -37,7 +38,7 @@ def test_rotations_of_a_subset_are_the_batch_untangling_bits(fields):
         assert torch.equal(rots[b].rotation, whole.rotation[b, :ns[b], :ns[b]].double())
         assert rots[b].score == float(whole.score[b])
         assert rots[b].restart_scores.shape == (4,)
-        assert rots[b].score == float(rots[b].restart_scores.max())
+        assert rots[b].score == float(rots[b].restart_scores[best_restart(rots[b].restart_scores[None], largest=True)[0]])
         # the mesh's own edges alone (no padding rows of the batch): the same bits
         e0, e1 = int(fields.batch.edge_ptr[b]), int(fields.batch.edge_ptr[b + 1])
         y = fields.forms[e0:e1, :ns[b]].double() * fields.system.mass[e0:e1].double().sqrt()[:, None]
@@ -55,7 +56,7 @@ def test_kmeans_of_a_mesh_does_not_depend_on_its_batch(fields):
     x, mask = pad_packed(unt.features.double(), fields.batch.face_ptr)
     both = spherical_kmeans(x, mask, [3, 7], restarts=6, seed=1)
     assert both.restart_costs.shape == (2, 6)
-    assert torch.equal(both.cost, both.restart_costs.min(dim=1).values)
+    assert torch.equal(both.cost, both.restart_costs[torch.arange(2), best_restart(both.restart_costs, largest=False)])
     for b, k in enumerate((3, 7)):
         alone = spherical_kmeans(x[b:b + 1], mask[b:b + 1], k, restarts=6, seed=1)
         assert torch.equal(alone.labels[0], both.labels[b])
@@ -74,7 +75,7 @@ def test_kmeans_of_a_mesh_does_not_depend_on_its_batch(fields):
     labels, cost, _, _ = km._lloyd(xn, w, seeds, 100, torch.float32, ok)
     # (padded centers and rows change the float32 GEMM's rounding, not the fixed points reached)
     torch.testing.assert_close(cost, both.restart_costs, rtol=1e-9, atol=0)
-    pick = cost.argmin(dim=1)
+    pick = best_restart(cost, largest=False)
     for b in range(2):
         agree = (labels[b, :, pick[b]][mask[b]] == both.labels[b][mask[b]]).double().mean()
         assert agree >= 0.999, agree
@@ -179,3 +180,19 @@ def test_kmeans_restarts_default_by_method(fields, monkeypatch):
         assert rec == want and type(rec) is int
     seg = ta.segment(fields, 3, refine=False)                             # segment's default: None
     assert used[-1] == 3 and seg.meshes[0].params["kmeans_restarts"] == 3
+
+
+def test_best_restart_breaks_round_off_ties_towards_the_first():
+    """Values within round-off of the best are a tie, won by the earliest restart; a genuinely
+    better later restart still wins; NaN never wins."""
+    base = 478.4012129587086
+    costs = torch.tensor([[650.66, 637.18, base * (1 + 2e-16), base],        # round-off tie: 2
+                          [5.0, 4.0, 4.0 * (1 - 1e-9), 6.0],                  # 1e-9 better: 2
+                          [float("nan"), 3.0, 3.0, 2.0],                      # NaN first: 3
+                          [1.0, 1.0, 1.0, 1.0]], dtype=torch.float64)
+    assert best_restart(costs, largest=False).tolist() == [2, 2, 3, 0]
+    scores = torch.tensor([[7.0, 9.0 * (1 - 1e-15), 9.0, 8.0],               # round-off tie: 1
+                           [7.0, 9.0 * (1 - 1e-9), 9.0, 8.0],                  # 2 is better: 2
+                           [-2.0, -1.0 - 1e-14, -1.0, -3.0]], dtype=torch.float64)  # negative: 1
+    assert best_restart(scores, largest=True).tolist() == [1, 2, 1]
+    assert best_restart(torch.full((1, 3), float("nan")), largest=True).tolist() == [0]

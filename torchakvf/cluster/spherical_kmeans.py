@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .._restarts import best_restart
 from ..errors import ParameterError
 
 _NEG = -4.0   # below any cosine: marks centers that do not exist for a mesh
@@ -21,7 +22,8 @@ class KMeansResult:
     """labels : [B, N_max] per padded row (rows as given to :func:`spherical_kmeans`, -1 on
     padding); centers : [B, k_max, d] unit vectors (0 when unused); cost : [B] Σ w (1 - cos) of
     the restart kept; iterations : [B] Lloyd iterations (float32 and float64 phases together);
-    restart_costs : [B, R] the cost every restart ended at (the kept one is the lowest)."""
+    restart_costs : [B, R] the cost every restart ended at (the kept one is the lowest; of
+    costs equal to round-off, the first: :func:`~torchakvf._restarts.best_restart`)."""
 
     labels: torch.Tensor
     centers: torch.Tensor
@@ -37,7 +39,8 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
 
     x : [B, N_max, d] padded feature rows (normalized here); mask : [B, N_max] bool
     k : int or sequence of B ints (each 1 <= k_b <= number of rows of mesh b)
-    restarts : independent k-means++ starts per mesh; the lowest cost is kept
+    restarts : independent k-means++ starts per mesh; the lowest cost is kept (the first of
+        those within round-off of it, so the pick does not depend on the BLAS's rounding)
     seed : each mesh's random draws come from ``torch.Generator().manual_seed(seed)`` alone, so
         a mesh gets the same clustering in any batch (with any other meshes and k's)
     weights : optional [B, N_max] row weights of the cost (e.g. face areas); default 1 per row
@@ -110,11 +113,11 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
             centers[b, :, :ks[b]] = p[3]
     else:
         labels, cost, iters, centers = _lloyd(x, w, centers, max_iter, iteration_dtype, center_ok)
-    pick = cost.argmin(dim=1)
+    pick = best_restart(cost, largest=False)
     ar = torch.arange(nb, device=dev)
     labels = labels[ar, :, pick].masked_fill(~mask, -1)
     return KMeansResult(labels=labels, centers=centers[ar, pick] * center_ok[..., None],
-                        cost=cost.min(dim=1).values, iterations=iters[ar, pick], restart_costs=cost)
+                        cost=cost[ar, pick], iterations=iters[ar, pick], restart_costs=cost)
 
 
 def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,

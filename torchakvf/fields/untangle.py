@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from .._restarts import best_restart
 from .._threads import single_threaded
 from ..errors import ParameterError
 from ..mesh.batch import pad_packed
@@ -287,9 +288,11 @@ def _orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter
         a, polish = _horst(ypad, a, tol, max_iter, torch.float64, _moments_pay(e_max, n, steps))
         iters = iters + polish
     score = _orthomax_objective(ypad, a)                              # [b, R]
-    best = score.argmax(dim=1)
+    # On a symmetric shape restarts reach the same rotation up to column order and signs, with
+    # objectives equal to round-off: the first of those wins on any machine.
+    best = best_restart(score, largest=True)
     ar = torch.arange(nb, device=dev)
-    return a[ar, best], score.max(dim=1).values, iters[ar, best], score
+    return a[ar, best], score[ar, best], iters[ar, best], score
 
 
 def _side(m: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,26 @@
+"""Which restart wins: the best value, with round-off ties going to the earliest restart."""
+from __future__ import annotations
+
+import torch
+
+#: Relative difference below which two restarts' values count as equal. On a symmetric shape
+#: several restarts reach the same clusters (or the same rotation) under other names; their
+#: values then differ only by the rounding of products whose rows come in another order, which
+#: depends on the BLAS kernel, the thread count and the batch's padding (measured: 1e-16
+#: relative on a dumbbell's k-means costs with MKL's compatible kernels). Differences between
+#: genuinely different results are many orders of magnitude above this.
+ROUND_OFF_TIE = 1e-12
+
+
+def best_restart(values: torch.Tensor, *, largest: bool) -> torch.Tensor:
+    """Index [B] of the winning restart of each row of values [B, R] (float).
+
+    The winner is the first restart whose value is within ``ROUND_OFF_TIE`` (relative) of the
+    row's best, so a tie decided by round-off goes to the same restart on any machine. NaN
+    values never win (a row of NaN picks restart 0).
+    """
+    v = values if largest else -values
+    finite = torch.where(torch.isnan(v), torch.full_like(v, -torch.inf), v)
+    top = finite.max(dim=1, keepdim=True).values
+    near = finite >= top - ROUND_OFF_TIE * top.abs()
+    return near.to(torch.int8).argmax(dim=1)
