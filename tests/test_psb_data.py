@@ -323,6 +323,16 @@ def test_read_write_seg_plain_and_gz(tmp_path):
     assert read_seg(tmp_path / "crlf.seg").tolist() == [1, 2, 3]
 
 
+@pytest.mark.parametrize("lo, hi", [(0, 12), (-1, 40), (-7, -2), (5, 5), (-10**12, 10**12)])
+def test_write_seg_text_is_one_decimal_per_line(tmp_path, lo, hi):
+    """The labels' table of strings (narrow ranges) and str per label (wide ones) write the
+    text Python's str gives, negatives and wide ranges included, every dtype widened alike."""
+    labels = np.random.default_rng(lo & 0xFFFF).integers(lo, hi + 1, 3000)
+    for dtype in (np.int64, np.int32) if abs(lo) < 2**31 and abs(hi) < 2**31 else (np.int64,):
+        path = write_seg(tmp_path / f"{dtype.__name__}.seg", labels.astype(dtype))
+        assert path.read_bytes() == "".join(f"{int(v)}\n" for v in labels).encode()
+
+
 @pytest.mark.parametrize("data, vectorized", [
     (b"0\n3\n3\n1\n", True),
     (b"12\n007\n\n 40 5\t6\r\n999999999999999999", True),    # multi-digit, leading zeros, blanks
