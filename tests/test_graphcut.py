@@ -180,3 +180,28 @@ def test_components_solved_alone_on_their_own_labels(seed):
             pytest.approx(best, abs=1e-3)
     whole = potts_expansion(costly, both, w)
     assert energy(got, costly, both, w) == pytest.approx(energy(whole, costly, both, w), abs=1e-3)
+
+
+def test_a_part_the_cut_would_shrink_below_the_fraction_keeps_its_faces():
+    """A cap part (20% of the area) whose faces prefer the other part except at its tip: the
+    cut alone leaves the tip (under 1%); with min_fraction 0.01 the part keeps its faces; a
+    part that was under the fraction before the cut is cut as before."""
+    s = shapes.icosphere(3)
+    d = dual_edges(s.vertices, s.faces)
+    area = face_areas(s.vertices, s.faces)
+    z = s.vertices[s.faces].mean(1)[:, 2]
+    labels = np.where(z > 0.6, 1, 0)
+    dist = np.zeros((len(labels), 2))
+    dist[:, 1] = 0.05                          # everywhere part 0 is nearer...
+    dist[z > 0.985, 0], dist[z > 0.985, 1] = 0.05, 0.0   # ...but at the tip
+    opts = GraphCut(smoothness=1e-3, beta=0.0, band=50)
+    tip = (z > 0.985)
+    assert 0 < area[tip].sum() / area.sum() < 0.01 < area[labels == 1].sum() / area.sum()
+    cut = graphcut_labels(labels, dist, d, area, opts)
+    np.testing.assert_array_equal(cut == 1, tip)
+    kept = graphcut_labels(labels, dist, d, area, opts, min_fraction=0.01)
+    np.testing.assert_array_equal(kept, labels)
+    # under the fraction already (a cap of 2%, floor 5%): the cut takes it down to its tip
+    small = np.where(z > 0.96, 1, 0)
+    assert area[small == 1].sum() / area.sum() < 0.05
+    np.testing.assert_array_equal(graphcut_labels(small, dist, d, area, opts, min_fraction=0.05) == 1, tip)

@@ -377,7 +377,8 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                 cut_key = ("cut_cost", opts.graphcut)
                 if cut_key not in cache:
                     cache[cut_key] = edge_weights(dual, opts.graphcut)
-                labels = graphcut_labels(labels, face_dist, dual, area, opts.graphcut, cut_cost=cache[cut_key])
+                labels = graphcut_labels(labels, face_dist, dual, area, opts.graphcut, cut_cost=cache[cut_key],
+                                         min_fraction=opts.min_part_fraction)
         # what merging two of these parts would cost (k auto's "merge" rule reads it)
         merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends)
     gens = part_generators(labels, feats, area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
