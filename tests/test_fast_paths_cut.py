@@ -386,20 +386,35 @@ def test_cached_over_segmentation_serves_only_an_identical_clustering():
     """The over-segmentation cut_parts keeps is reused only for equal features, centers and
     labels and the same boundary options: one label changed, or another boundary rule, makes
     a new one."""
-    from torchakvf.parts.engine import SegmentOptions, _OverSegmentation, _over_settings
+    from torchakvf.parts.engine import SegmentOptions, _OverSegmentation, _over_settings, part_floor
 
     rng = np.random.default_rng(3)
     feats, centers, labels = rng.random((50, 4)), rng.random((3, 4)), rng.integers(0, 3, 50)
     opts = SegmentOptions()
-    entry = _OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy()), settings=_over_settings(opts),
+    floor = part_floor(3, opts)
+    entry = _OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy()),
+                              settings=_over_settings(opts, floor),
                               mesh=None, vdist=None, feats=None, labels=None, area=None, unit=None)
-    assert entry.made_from((feats, centers, labels), opts)
+    assert entry.made_from((feats, centers, labels), opts, floor)
     moved = labels.copy()
     moved[7] = (moved[7] + 1) % 3
-    assert not entry.made_from((feats, centers, moved), opts)
-    assert not entry.made_from((feats, centers[:2], labels), opts)
-    assert not entry.made_from((feats, centers, labels), SegmentOptions(boundary="faces"))
-    assert not entry.made_from((feats, centers, labels), SegmentOptions(min_part_fraction=0.02))
+    assert not entry.made_from((feats, centers, moved), opts, floor)
+    assert not entry.made_from((feats, centers[:2], labels), opts, floor)
+    assert not entry.made_from((feats, centers, labels), SegmentOptions(boundary="faces"), floor)
+    wider = SegmentOptions(min_part_fraction=0.02)
+    assert not entry.made_from((feats, centers, labels), wider, part_floor(3, wider))
+    assert not entry.made_from((feats, centers, labels), opts, part_floor(40, opts))
+
+
+def test_part_floor_is_the_fraction_up_to_a_quarter_of_the_mean_part():
+    """min_part_fraction up to k = 25 at the default; beyond, a quarter of 1/k."""
+    from torchakvf.parts.engine import SegmentOptions, part_floor
+
+    opts = SegmentOptions()
+    assert [part_floor(k, opts) for k in (1, 8, 25)] == [0.01, 0.01, 0.01]
+    assert part_floor(50, opts) == 0.005 and part_floor(100, opts) == 0.0025
+    assert part_floor(50, SegmentOptions(min_part_fraction=0.001)) == 0.001
+    assert part_floor(3, SegmentOptions(min_part_fraction=0.0)) == 0.0
 
 
 def test_segment_rounds_drops_an_over_segmentation_no_later_k_shares(monkeypatch):

@@ -264,3 +264,14 @@ def test_segment_task_records_convergence_for_the_manifest(batch_seg):
         SegmentTask(3, method="greedy")
     with pytest.raises(ta.ParameterError, match="solver"):
         SegmentTask(3, solver="arpack")
+
+
+def test_many_parts_fit_under_the_part_floor():
+    """At k = 30 with min_part_fraction 0.05 (at most 20 parts of 5% fit), the floor drops to
+    0.25 / k: the segmentation has 30 parts, none under that floor of the area."""
+    s = shapes.icosphere(3)
+    mesh = ta.Mesh(s.vertices, s.faces, name="icosphere")
+    labels = ta.segment(mesh, 30, min_part_fraction=0.05).meshes[0].labels
+    area = face_areas(s.vertices, s.faces)
+    share = np.bincount(labels, weights=area) / area.sum()
+    assert len(share) == 30 and share.min() >= 0.25 / 30 * 0.999

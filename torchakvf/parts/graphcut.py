@@ -294,14 +294,21 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     # A part the cut emptied (a small part inside the band of its boundary, outweighed by its
     # cut length), or left below ``min_fraction`` of the area when it had that much, gets its
     # faces back: the cut moves boundaries, it does not change k (a dumbbell's handle, 8% of its
-    # area after the merge at k = 3, was cut down to 4 faces).
+    # area after the merge at k = 3, was cut down to 4 faces). Faces given back can leave a part
+    # that had grown into them under the floor in turn (its own faces taken by a third part), so
+    # this repeats until no part is; each round gives parts back their own faces only, which no
+    # other part given back claims, so it ends within k rounds.
     before = np.bincount(own, minlength=k)
-    after = np.bincount(new, minlength=k)
     floor = min_fraction * float(area.sum())
     area_before = np.bincount(own, weights=area, minlength=k)
-    area_after = np.bincount(new, weights=area, minlength=k)
-    gone = (before > 0) & ((after == 0) | ((area_after < floor) & (area_before >= floor)))
-    if gone.any():
+    restored = np.zeros(k, dtype=bool)
+    while True:
+        after = np.bincount(new, minlength=k)
+        area_after = np.bincount(new, weights=area, minlength=k)
+        gone = ~restored & (before > 0) & ((after == 0) | ((area_after < floor) & (area_before >= floor)))
+        if not gone.any():
+            break
+        restored |= gone
         back = gone[own]
         new[back] = own[back]
     out = labels.copy()

@@ -56,7 +56,9 @@ def segment(meshes, k, *, eps: float = 0.0, seed: int = 0, n_fields=None,
     boundary : "isoline" (labels from the g_ij = 0 isolines of vertex-averaged features,
         smooth part boundaries) or "faces" (raw k-means labels)
     min_part_fraction : connected pieces of a part below this fraction of the area are
-        removed (merged into a neighbour for ε = 0, made connecting region for ε > 0)
+        removed (merged into a neighbour for ε = 0, made connecting region for ε > 0); at k
+        parts the floor is at most 0.25 / k (:func:`~torchakvf.parts.engine.part_floor`), so
+        that k parts fit
     refine : also return the mesh cut along the part boundaries
     untangled : the :class:`~torchakvf.fields.UntangledFields` of these AKVFs to reuse (from
         :func:`~torchakvf.fields.untangle` with ``n=field_counts(fields, k, method=method, min_k=m)``, m the merge
