@@ -271,7 +271,9 @@ def test_many_parts_fit_under_the_part_floor():
     0.25 / k: the segmentation has 30 parts, none under that floor of the area."""
     s = shapes.icosphere(3)
     mesh = ta.Mesh(s.vertices, s.faces, name="icosphere")
-    labels = ta.segment(mesh, 30, min_part_fraction=0.05).meshes[0].labels
+    seg = ta.segment(mesh, 30, min_part_fraction=0.05).meshes[0]
+    labels = seg.labels
+    assert seg.params["min_part_fraction"] == 0.05 and seg.params["part_floor"] == 0.25 / 30
     area = face_areas(s.vertices, s.faces)
     share = np.bincount(labels, weights=area) / area.sum()
     assert len(share) == 30 and share.min() >= 0.25 / 30 * 0.999

@@ -394,6 +394,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
                     boundary=opts.boundary, kmeans_restarts=opts.kmeans_restarts,
                     kmeans_max_iter=opts.kmeans_max_iter, kmeans_seeded_restarts=opts.kmeans_seeded_restarts,
                     untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
+                    part_floor=floor,
                     coarse_faces=0 if batch.coarse_of(b) is None else len(batch.coarse_of(b).coarse.faces),
                     solver=opts.solver, method=opts.method,
                     **({"graphcut": True, **{f"graphcut_{name}": float(v) for name, v in vars(opts.graphcut).items()}}

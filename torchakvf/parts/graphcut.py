@@ -238,7 +238,7 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     cut_cost : [P] ``edge_weights(dual, opts)`` if at hand (it depends on the mesh alone).
     min_fraction : a part the cut would leave below this fraction of the labelled faces' area
         (having had at least that before) keeps its faces, as does a part the cut would empty
-        (the segmentation's ``min_part_fraction``).
+        (the segmentation passes its part floor, :func:`~torchakvf.parts.engine.part_floor`).
     """
     opts = GraphCut() if opts is None else opts
     labels = np.asarray(labels)
