@@ -23,4 +23,5 @@ def best_restart(values: torch.Tensor, *, largest: bool) -> torch.Tensor:
     finite = torch.where(torch.isnan(v), torch.full_like(v, -torch.inf), v)
     top = finite.max(dim=1, keepdim=True).values
     near = finite >= top - ROUND_OFF_TIE * top.abs()
-    return near.to(torch.int8).argmax(dim=1)
+    index = torch.arange(v.shape[1], device=v.device).expand_as(v)
+    return torch.where(near, index, v.shape[1]).min(dim=1).values
