@@ -196,3 +196,6 @@ def test_best_restart_breaks_round_off_ties_towards_the_first():
                            [-2.0, -1.0 - 1e-14, -1.0, -3.0]], dtype=torch.float64)  # negative: 1
     assert best_restart(scores, largest=True).tolist() == [1, 2, 1]
     assert best_restart(torch.full((1, 3), float("nan")), largest=True).tolist() == [0]
+    inf = float("inf")
+    assert best_restart(torch.tensor([[1.0, inf, inf], [2.0, -inf, 2.0]]), largest=True).tolist() == [1, 0]
+    assert best_restart(torch.tensor([[inf, -inf, 3.0, -inf]]), largest=False).tolist() == [1]

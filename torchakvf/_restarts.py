@@ -17,11 +17,14 @@ def best_restart(values: torch.Tensor, *, largest: bool) -> torch.Tensor:
 
     The winner is the first restart whose value is within ``ROUND_OFF_TIE`` (relative) of the
     row's best, so a tie decided by round-off goes to the same restart on any machine. NaN
-    values never win (a row of NaN picks restart 0).
+    values never win (a row of NaN picks restart 0); an infinite best wins as itself (no
+    relative slack around it).
     """
     v = values if largest else -values
-    finite = torch.where(torch.isnan(v), torch.full_like(v, -torch.inf), v)
-    top = finite.max(dim=1, keepdim=True).values
-    near = finite >= top - ROUND_OFF_TIE * top.abs()
+    ranked = torch.where(torch.isnan(v), torch.full_like(v, -torch.inf), v)
+    top = ranked.max(dim=1, keepdim=True).values
+    # (inf - inf would be NaN and match no restart, leaving no index to pick)
+    slack = torch.where(torch.isfinite(top), ROUND_OFF_TIE * top.abs(), torch.zeros_like(top))
+    near = ranked >= top - slack
     index = torch.arange(v.shape[1], device=v.device).expand_as(v)
     return torch.where(near, index, v.shape[1]).min(dim=1).values
