@@ -230,3 +230,36 @@ def test_next_merge_cost_and_the_merge_rule_of_k_auto():
     assert pick_k(ks, np.ones(5), "merge", next_costs=nxt, tau=10.0) == 2
     with pytest.raises(ParameterError, match="next-merge"):
         pick_k(ks, np.ones(5), "merge")
+
+
+def test_first_near_min_breaks_round_off_ties_towards_the_first():
+    """The merge's pick among candidate costs: the first entry (row-major) within round-off of
+    the smallest; a genuinely smaller later entry still wins; NaN never wins; nothing finite
+    gives the first smallest (an inf the merge loop stops at)."""
+    from torchakvf._restarts import first_near_min
+
+    inf, nan = float("inf"), float("nan")
+    assert first_near_min(np.array([[inf, 0.3 * (1 + 1e-15)], [0.3, inf]])) == 1     # tie: first
+    assert first_near_min(np.array([[inf, 0.3], [0.3 * (1 - 1e-9), inf]])) == 2      # smaller: it
+    assert first_near_min(np.array([nan, 2.0, 1.0])) == 2
+    assert first_near_min(np.array([[inf, inf], [nan, inf]])) == 0
+    assert first_near_min(np.array([-1.0 - 1e-14, -1.0, -2.0])) == 2                 # negative
+    assert first_near_min(np.array([0.0, 5e-324, 0.0])) == 0
+
+
+def test_greedy_merge_round_off_tie_goes_to_the_first_pair():
+    """Two candidate pairs equal but for the last bits of their cost (as a symmetric shape's
+    mirrored pairs are, their products summed in another order on another BLAS): the first
+    pair in row-major order is merged, not the one the rounding made cheaper."""
+    a = 0.5
+    mean = np.array([[1.0, 0.0], [np.cos(a), np.sin(a)], [np.cos(a - 3e-15), np.sin(a - 3e-15)]])
+    g = RegionGraph(labels=np.array([0, 1, 2]), area=np.ones(3), mean=mean,
+                    length=np.array([[0, 1, 1], [1, 0, 0], [1, 0, 0]], dtype=float),
+                    concave=np.zeros((3, 3)))
+    w = MergeWeights(symmetry=1.0, concavity=0.0, size=0.0, part_size=0.0, convexity=0.0, cut=0.0)
+    cost = merge_costs(g, w)
+    # (0, 2) is cheaper by round-off only: the tie the rule is for
+    assert cost[0, 2] < cost[0, 1] and cost[0, 1] - cost[0, 2] < 1e-12 * cost[0, 1]
+    new_id, history = greedy_merge(g, 2, w)
+    np.testing.assert_array_equal(new_id, [0, 0, 1])
+    assert history == [float(cost[0, 1])]

@@ -1,6 +1,7 @@
-"""Which restart wins: the best value, with round-off ties going to the earliest restart."""
+"""Which restart (or candidate) wins: the best value, with round-off ties going to the earliest."""
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 #: Relative difference below which two restarts' values count as equal. On a symmetric shape
@@ -28,3 +29,17 @@ def best_restart(values: torch.Tensor, *, largest: bool) -> torch.Tensor:
     near = ranked >= top - slack
     index = torch.arange(v.shape[1], device=v.device).expand_as(v)
     return torch.where(near, index, v.shape[1]).min(dim=1).values
+
+
+def first_near_min(values: np.ndarray) -> int:
+    """Flat (row-major) index of the first entry of ``values`` within ``ROUND_OFF_TIE``
+    (relative) of its smallest: :func:`best_restart`'s rule for a numpy array of candidates'
+    costs (the merge's pair costs, whose equal pairs on a symmetric shape differ by the
+    rounding of products summed in another order). NaN never wins; where nothing is finite,
+    the first smallest entry (so a caller testing it for finiteness stops)."""
+    flat = np.asarray(values, dtype=np.float64).ravel()
+    ranked = np.where(np.isnan(flat), np.inf, flat)
+    low = float(ranked.min())
+    if not np.isfinite(low):
+        return int(np.argmin(ranked))
+    return int(np.flatnonzero(ranked <= low + ROUND_OFF_TIE * abs(low))[0])

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._restarts import first_near_min
 from ..errors import ParameterError
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
@@ -208,8 +209,9 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     """Merge the cheapest adjacent pair until k parts remain (or no adjacent pair is left).
 
     Returns (part [K] -> new id in 0..k_out-1, in the order of the parts' smallest old id; the
-    cost of each merge done). Ties go to the first pair in row-major order, so the result is
-    deterministic. The merged part keeps the smaller id; only its row of costs changes (the
+    cost of each merge done). Ties, round-off ones included (within
+    :data:`~torchakvf._restarts.ROUND_OFF_TIE`, relative), go to the first pair in row-major
+    order, so the result is the same on any machine. The merged part keeps the smaller id; only its row of costs changes (the
     size term's total area does not change either).
     """
     if k < 1:
@@ -222,7 +224,7 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     owner = np.arange(K)
     history = []
     for _ in range(K - k):
-        flat = int(np.argmin(cost))
+        flat = first_near_min(cost)
         i, j = divmod(flat, K)
         if not np.isfinite(cost[i, j]):
             break
