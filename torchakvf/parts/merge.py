@@ -211,8 +211,8 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     Returns (part [K] -> new id in 0..k_out-1, in the order of the parts' smallest old id; the
     cost of each merge done). Ties, round-off ones included (within
     :data:`~torchakvf._restarts.ROUND_OFF_TIE`, relative), go to the first pair in row-major
-    order, so the result is the same on any machine. The merged part keeps the smaller id; only its row of costs changes (the
-    size term's total area does not change either).
+    order, so the result is the same on any machine. The merged part keeps the smaller id;
+    only its row of costs changes (the size term's total area does not change either).
     """
     if k < 1:
         raise ParameterError(f"k must be >= 1, got {k!r}")
