@@ -19,6 +19,7 @@ import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.fields import whitney_face_vectors
 from torchakvf.operators import batch_geometry, d0
+from torchakvf.solvers.factor import mesh_factor
 
 from torchakvf import scipy_reference as ref
 
@@ -469,7 +470,9 @@ def test_psb_smooth_remedy_matches_eigsh(psb, mesh_id):
     assert bool(res.converged.all()) and res.residuals.max().item() <= 1e-6
     R, s1 = scipy_matrices(res.system)
     assert abs(R - R.T).max() <= 1e-12 * abs(R).max()
-    sigma = float(res.shifts[0])
+    # eigsh's shift: below the spectrum (the definite factor's; ta.akvf's own may be interior)
+    sigma = mesh_factor(res.system, 0, "mesh").sigma
+    assert sigma <= float(res.shifts[0])
     v0 = np.random.default_rng(0).standard_normal(R.shape[0])
     n_dropped = int(res.dropped[0])
     lam_all = np.sort(spla.eigsh(R, k=n + n_dropped, M=sp.diags(s1).tocsc(), sigma=sigma, which="LM",

@@ -14,7 +14,7 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
-from ..solvers.factor import ShiftedFactor, mesh_factor
+from ..solvers.factor import ShiftedFactor, interior_factor, mesh_factor
 from ..solvers.krylov import block_krylov
 from ..solvers.lanczos import shift_invert_lanczos
 from ..solvers.lobpcg import segmented_lobpcg
@@ -224,17 +224,19 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
                                             factors=[factor_of(b) for b in meshes_] if cpu else None)
             if solver == "krylov":
                 # Only the n kept pairs (and the spurious ones below them) must converge; the
-                # room for spurious modes is returned as it is.
-                fac = [factor_of(b) for b in meshes_]
+                # room for spurious modes is returned as it is. The factor is at an interior
+                # shift where the mesh allows one (interior_factor), else the definite one.
+                fac = [interior_factor(system, b, n, lambda b=b: factor_of(b)) for b in meshes_]
                 eig = block_krylov(sub, count, tol=tol, seed=seed, names=sub_names, need=n,
                                    skip_below=SPURIOUS_BELOW if drop else None, factors=fac,
                                    grow=len(meshes_) == 1, meshes=meshes_)
                 if len(meshes_) == 1 and not bool(eig.converged[0]) and sub.mass.device.type == "cpu":
                     # Rare (seen on a mesh with 33 spurious modes and shift -512, where the
-                    # wanted pairs' 1/(λ - σ) all crowd together): ARPACK on the same factor.
+                    # wanted pairs' 1/(λ - σ) all crowd together): ARPACK on the definite factor.
                     one = sub if whole else system.select(meshes_)
                     k = min(eig.eigenvalues.shape[1], len(one.mass) - 1)
-                    eig = shift_invert_lanczos(one, k, tol=tol, seed=seed, names=sub_names, factors=fac)
+                    eig = shift_invert_lanczos(one, k, tol=tol, seed=seed, names=sub_names,
+                                               factors=[factor_of(b) for b in meshes_])
                 return eig
             return segmented_lobpcg(sub, count, tol=tol, seed=seed, names=sub_names, max_iter=max_iter)
         except SolverError as exc:

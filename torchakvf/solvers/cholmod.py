@@ -47,6 +47,11 @@ _GIVEN, _AMD, _METIS, _NESDIS = 1, 2, 3, 4
 _INT, _REAL, _DOUBLE, _PATTERN = 0, 1, 0, 0
 _SYS_A = 0
 _MAXMETHODS = 9
+#: Smallest pivot of an indefinite LDLᵀ factor, relative to the largest, that it is solved with
+#: (:meth:`CholmodFactor.factorize`). The interior shifts of the Krylov solver gave 2e-7 to 3e-3
+#: on PSB meshes, with eigenvalues equal to those of the definite shift to 1e-14; a breakdown is
+#: a zero. The solver checks its result anyway (every residual, and the count below the shift).
+PIVOT_FLOOR = 1e-12
 #: Fill-reducing orderings a :class:`CholmodFactor` can be asked for by name.
 ORDERINGS = {"amd": _AMD, "metis": _METIS, "nesdis": _NESDIS}
 
@@ -232,11 +237,18 @@ class CholmodFactor:
         chosen = c.method[c.selected]
         #: nonzeros of L and flops of the numeric factor, as CHOLMOD's analysis predicts them
         self.factor_nonzeros, self.factor_flops = float(chosen.lnz), float(chosen.fl)
-        self.positive_definite = False
+        self.positive_definite = self.usable = False
+        self.negative_pivots = 0
 
-    def factorize(self, values: np.ndarray) -> bool:
-        """Numeric factor for new values (same pattern, [nnz] float64); True if the matrix is
-        positive definite (else the factor is unusable until the next successful call)."""
+    def factorize(self, values: np.ndarray, indefinite: bool = False) -> bool:
+        """Numeric factor for new values (same pattern, [nnz] float64); True if it can be
+        solved with: the matrix is positive definite, or with ``indefinite`` every pivot of D is
+        finite and at least :data:`PIVOT_FLOOR` times the largest in magnitude (else the factor
+        is unusable until the next successful call).
+
+        Sets ``positive_definite`` and ``negative_pivots``, the number of negative entries of D:
+        by Sylvester's law of inertia the number of eigenvalues of the matrix below 0 (for a
+        shifted pencil ``R - σS``, the eigenvalues of ``R w = λ S w`` below σ)."""
         self._values[:] = values
         ok = self._lib.cholmod_factorize(C.byref(self._matrix), self._factor, C.byref(self._common))
         if not ok:
@@ -249,15 +261,24 @@ class CholmodFactor:
         # positive definite iff every D_jj > 0 (a NaN from a breakdown fails the test too).
         colptr = np.ctypeslib.as_array(C.cast(f.p, C.POINTER(C.c_int)), shape=(self.n + 1,))
         x = np.ctypeslib.as_array(C.cast(f.x, C.POINTER(C.c_double)), shape=(int(f.nzmax),))
-        self.positive_definite = bool(f.minor == self.n and np.all(x[colptr[:-1]] > 0))
-        return self.positive_definite
+        pivots = x[colptr[:-1]]
+        self.positive_definite = bool(f.minor == self.n and np.all(pivots > 0))
+        self.negative_pivots = int(np.count_nonzero(pivots < 0))
+        size = np.abs(pivots)
+        # Without pivoting, an LDLᵀ of an indefinite matrix is only as accurate as its smallest
+        # pivot allows; a breakdown shows as a zero, an infinity or a NaN.
+        self.usable = self.positive_definite or bool(
+            indefinite and f.minor == self.n and np.all(np.isfinite(pivots))
+            and size.min() >= PIVOT_FLOOR * size.max())
+        return self.usable
 
     def solve_rows(self, rows: torch.Tensor) -> torch.Tensor:
         """A⁻¹ applied to each row of rows [k, n] (float64, CPU): returns [k, n].
 
         Row-stacked vectors are column-major n x k, what CHOLMOD reads and writes."""
-        if not self.positive_definite:
-            raise SolverError("solve with a factor that is not positive definite")
+        if not self.usable:
+            raise SolverError("solve with a factor that is not usable (not positive definite, "
+                              "or an indefinite one with a breakdown)")
         b = np.ascontiguousarray(rows.detach().numpy(), dtype=np.float64)
         if b.ndim != 2 or b.shape[1] != self.n:
             raise SolverError(f"solve_rows takes [k, {self.n}] right-hand sides, got {tuple(b.shape)}")

@@ -112,14 +112,33 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         factor = factors[j] if factors is not None else mesh_factor(system, b, names[j])
         stiff = _stiffness(r, c, v, size)
         dims = (lambda k: max_dim) if max_dim else (lambda k: max(10 * k, 240))
-        lam, x, res, k = _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed,
-                                   block, dims, grow)
-        if block < WIDE_BLOCK and not bool(torch.isinf(res).all()) and _crowded(lam, block):
-            log.info("%s: %d eigenvalues within %.0e of each other at block %d; solving again at "
-                     "block %d", names[j], block, _CROWDED, block, WIDE_BLOCK)
-            lam, x, res, k2 = _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed,
-                                        WIDE_BLOCK, dims, grow)
-            k += k2
+
+        def solve(factor):
+            lam, x, res, k = _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed,
+                                       block, dims, grow)
+            if block < WIDE_BLOCK and not bool(torch.isinf(res).all()) and _crowded(lam, block):
+                log.info("%s: %d eigenvalues within %.0e of each other at block %d; solving again "
+                         "at block %d", names[j], block, _CROWDED, block, WIDE_BLOCK)
+                lam, x, res, k2 = _one_mesh(stiff, mass, factor, count, need, skip_below, tol,
+                                            seed, WIDE_BLOCK, dims, grow)
+                k += k2
+            return lam, x, res, k
+
+        lam, x, res, k = solve(factor)
+        if hasattr(factor, "definite"):
+            # An interior shift (InteriorFactor): the pairs below it must be exactly the ν
+            # eigenvalues its factor counts there, and every needed pair must have converged;
+            # else (or with an eigenvalue where no definite shift exists) the mesh is solved
+            # again with its positive definite factor.
+            found = int((lam < factor.sigma).sum())
+            ok = bool((res[:_needed(lam, need, skip_below)] <= tol).all()) and bool(lam[0] > factor.floor)
+            if found != factor.below or not ok:
+                log.info("%s: at the interior shift %g, %d pairs below it against %d eigenvalues "
+                         "(inertia), converged %s; solving again at a definite shift", names[j],
+                         factor.sigma, found, factor.below, ok)
+                factor = factor.definite()
+                lam, x, res, k2 = solve(factor)
+                k += k2
         short = bool(torch.isinf(res).all())
         if not short and not bool((res[:_needed(lam, need, skip_below)] <= tol).all()):
             log.info("%s: block Krylov stopped at a basis of %d with residual %.2e > tol %.1e",
@@ -163,6 +182,8 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
     e = len(mass)
     dev, dt = mass.device, torch.float64
     sigma = factor.sigma
+    # Ritz pairs in the order of λ, not of θ, where eigenvalues lie below the shift (θ < 0).
+    order_by = sigma if getattr(factor, "below", 0) > 0 else None
     inv_s = 1.0 / mass
     cap = min(max_dim(count), e)
     q = torch.empty(cap, e, dtype=dt, device=dev)
@@ -222,7 +243,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         if filled < max(k + p, next_check):
             continue
         # Ritz pairs of the current basis and their exact residual estimate.
-        theta, y = _ritz(hmat[:filled, :filled], filled)
+        theta, y = _ritz(hmat[:filled, :filled], filled, order_by)
         lam = sigma + 1.0 / theta
         nneed = _needed(lam, need, skip_below)            # over every Ritz value, not only k
         if nneed > k:
@@ -262,19 +283,24 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
             next_check = filled + int(min(skip, 0.25 * filled))
         last = (filled, worst)
     # Out of room: the best the basis has.
-    theta, y = _ritz(hmat[:filled, :filled], k)
+    theta, y = _ritz(hmat[:filled, :filled], k, order_by)
     lam_f, x, res = _final(stiff, mass, q[:filled], y)
     return lam_f, x, res, solved
 
 
-def _ritz(m: torch.Tensor, count: int):
-    """The ``count`` largest eigenpairs (θ descending, y) of the projection M, whose upper
-    triangle is the computed one (the lower is its transpose in exact arithmetic)."""
+def _ritz(m: torch.Tensor, count: int, sigma: float | None = None):
+    """The ``count`` eigenpairs (θ, y) of the projection M (whose upper triangle is the
+    computed one; the lower is its transpose in exact arithmetic) with the smallest λ = σ + 1/θ:
+    the largest θ, in descending order, for a shift below the spectrum (``sigma`` None); for an
+    interior shift ``sigma``, ascending λ (the θ < 0 first, most negative θ last among them)."""
     m = torch.triu(m) + torch.triu(m, 1).T
     with single_threaded():
         theta, y = torch.linalg.eigh(m)
     k = min(count, len(theta))
-    return theta.flip(0)[:k], y.flip(1)[:, :k]
+    if sigma is None:
+        return theta.flip(0)[:k], y.flip(1)[:, :k]
+    order = torch.argsort(sigma + 1.0 / theta)[:k]
+    return theta[order], y[:, order]
 
 
 def _orthonormal(w: torch.Tensor, basis: torch.Tensor, mass: torch.Tensor):
