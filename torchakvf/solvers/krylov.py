@@ -11,8 +11,16 @@ Why this and not ARPACK or LOBPCG (benchmarks/results/eigensolver_fullres.md):
 * Only the pairs that are asked for must converge (``need``): the extra pairs returned (room
   for spurious modes) need not, so the tiny gap after the last returned pair does not matter.
 
-Method, per mesh: with ``T = (R - σS)^{-1} S`` (S-self-adjoint, its largest eigenvalues
-``1/(λ - σ)`` are the wanted ones), build an S-orthonormal basis Q of the block Krylov space
+The shift: where the factor is an :class:`~torchakvf.solvers.factor.InteriorFactor`, σ lies
+among the wanted eigenvalues (about 60% of them below it), so that they map to large |θ| on both
+sides of 0 and the unwanted ones stay near 0: about 30% fewer solves than at σ below the
+spectrum. Its result is checked: the pairs below σ must be exactly the eigenvalues its factor
+counts there (inertia), every needed pair converged, else the mesh is solved again with its
+definite factor (σ below the spectrum, :class:`~torchakvf.solvers.factor.ShiftedFactor`).
+
+Method, per mesh: with ``T = (R - σS)^{-1} S`` (S-self-adjoint; its eigenvalues are
+``θ = 1/(λ - σ)``, and the wanted pairs are those with the smallest ``λ = σ + 1/θ``: the largest
+θ for a definite σ), build an S-orthonormal basis Q of the block Krylov space
 ``span{T X0, T² X0, ...}`` with full reorthogonalization (two Gram-Schmidt passes), and the
 projection ``M = Qᵀ S T Q``. A Ritz pair (θ, y) of M gives ``x = Q y``, ``λ = σ + 1/θ`` and
 exactly (Krylov relation ``T Q = Q M + Q_next B Eᵀ``)
