@@ -101,7 +101,11 @@ SPURIOUS_MARGIN = 8
 #: Lanczos / Krylov: 0.91 at ~1,500 edges (8 meshes at 1000 faces), 1.06 at ~3,000 (2000 faces),
 #: 1.46 at ~6,000 (19 meshes at 4000 faces, one thread; 1.36 on two), 1.3-1.4 at full
 #: resolution (14,112-45,594 edges). It was 10000, measured when the Krylov products went
-#: through numpy's BLAS.
+#: through numpy's BLAS. With the Krylov solver at its interior shift (2026-12-04, CPU time, one
+#: thread, 7 PSB meshes decimated to 800/1500/2500 faces): 1.44, 1.72 and 2.01 at ~1,200, ~2,250
+#: and ~3,750 edges, but 0.76-0.79 on icospheres of 480 and 1,920 edges (exactly repeated
+#: eigenvalues, where the Krylov solver widens its block and solves again) and 0.85-1.2 on the
+#: other small built-in shapes: a few ms either way, so the threshold stays.
 KRYLOV_MIN_EDGES = 4000
 
 
