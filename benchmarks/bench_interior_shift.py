@@ -24,7 +24,6 @@ import importlib
 import math
 import platform
 import time
-import warnings
 from pathlib import Path
 
 import torch
@@ -32,7 +31,7 @@ import torch
 import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.mesh import MeshBatch
-from timing import write_report
+from timing import akvf_agreement, one_thread_on_psb, write_report
 
 AKVF = importlib.import_module("torchakvf.fields.akvf")
 FULL = [1, 21, 121, 181, 301, 41, 81]
@@ -49,10 +48,7 @@ def main(argv=None) -> int:
     p.add_argument("--repeat", type=int, default=2)
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
-    if args.psb is None or not (args.psb / "meshes").is_dir():
-        p.error(f"no PSB meshes at {args.psb}: pass --psb or set TORCHAKVF_PSB")
-    torch.set_num_threads(1)
-    warnings.simplefilter("ignore")
+    one_thread_on_psb(p, args)
     interior = AKVF.interior_factor
     definite = lambda system, b, need, make: make()  # noqa: E731
     cases = [(i, None, args.n_full) for i in args.full] + [(i, 4000, args.n_decimated) for i in args.decimated]
@@ -72,11 +68,7 @@ def main(argv=None) -> int:
                 best[side] = min(best.get(side, math.inf), dt)
                 res[side] = r
         a, b = res["definite"], res["interior"]
-        dlam = float(((a.eigenvalues - b.eigenvalues).abs() / a.eigenvalues.abs().clamp(min=1)).max())
-        # The largest principal angle between the two sides' spans: the sides agree as subspaces
-        # where it is small even when their vectors differ inside clusters of close eigenvalues.
-        qa, qb = torch.linalg.qr(a.forms)[0], torch.linalg.qr(b.forms)[0]
-        span = float(torch.linalg.svdvals(qa.T @ qb).min().clamp(max=1).arccos().sin())
+        dlam, span = akvf_agreement(a, b)
         kind = "full" if coarse is None else "decimated"
         totals[kind][0] += best["definite"]
         totals[kind][1] += best["interior"]

@@ -19,7 +19,6 @@ import argparse
 import importlib
 import platform
 import time
-import warnings
 from collections import Counter
 from pathlib import Path
 
@@ -29,7 +28,7 @@ import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root, find_psb_meshes
 from torchakvf.mesh import MeshBatch
 from torchakvf.solvers.factor import InteriorFactor
-from timing import write_report
+from timing import akvf_agreement, one_thread_on_psb, write_report
 
 AKVF = importlib.import_module("torchakvf.fields.akvf")
 
@@ -42,10 +41,7 @@ def main(argv=None) -> int:
     p.add_argument("--limit", type=int, default=None)
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
-    if args.psb is None or not (args.psb / "meshes").is_dir():
-        p.error(f"no PSB meshes at {args.psb}: pass --psb or set TORCHAKVF_PSB")
-    torch.set_num_threads(1)
-    warnings.simplefilter("ignore")
+    one_thread_on_psb(p, args)
     interior = AKVF.interior_factor
     taken: list = []
 
@@ -91,9 +87,7 @@ def main(argv=None) -> int:
         else:
             path = f"interior σ = {got[-1]:g}"
         paths[path] += 1
-        dlam = float(((a.eigenvalues - b.eigenvalues).abs() / a.eigenvalues.abs().clamp(min=1)).max())
-        qa, qb = torch.linalg.qr(a.forms)[0], torch.linalg.qr(b.forms)[0]
-        span = float(torch.linalg.svdvals(qa.T @ qb).min().clamp(max=1).arccos().sin())
+        dlam, span = akvf_agreement(a, b)
         for key, v in (("dlam", dlam), ("span", span), ("res", float(b.residuals.max()))):
             if v > worst[key][0]:
                 worst[key] = (v, e.mesh_id)

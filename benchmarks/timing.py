@@ -1,10 +1,12 @@
-"""What the benchmark scripts share: the fastest of repeated calls, and writing a report.
+"""What the benchmark scripts share: the fastest of repeated calls, writing a report, the PSB
+check of a one-thread AKVF benchmark and comparing two AKVF results.
 
 Run as ``python benchmarks/<script>.py``, a script finds this module beside it (``benchmarks/``
 is the script's own folder, first on ``sys.path``)."""
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 
@@ -27,3 +29,28 @@ def write_report(text: str, out: Path | str | None) -> None:
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text)
+
+
+def one_thread_on_psb(parser, args) -> None:
+    """Stop with a usage error unless ``args.psb`` holds the PSB meshes; then one torch thread
+    (the AKVF benchmarks time process CPU time, one thread a side) and no warnings (a mesh that
+    does not converge is reported in the table, not on stderr)."""
+    import torch
+
+    if args.psb is None or not (args.psb / "meshes").is_dir():
+        parser.error(f"no PSB meshes at {args.psb}: pass --psb or set TORCHAKVF_PSB")
+    torch.set_num_threads(1)
+    warnings.simplefilter("ignore")
+
+
+def akvf_agreement(a, b) -> tuple[float, float]:
+    """(largest |λ_a − λ_b| / max(|λ_a|, 1), sine of the largest principal angle between the
+    spans of the two results' forms) of two :class:`~torchakvf.AKVFResult` of the same mesh. The
+    angle is Euclidean: small where the two agree as subspaces, even when their vectors differ by
+    a rotation among close eigenvalues."""
+    import torch
+
+    dlam = float(((a.eigenvalues - b.eigenvalues).abs() / a.eigenvalues.abs().clamp(min=1)).max())
+    qa, qb = torch.linalg.qr(a.forms)[0], torch.linalg.qr(b.forms)[0]
+    span = float(torch.linalg.svdvals(qa.T @ qb).min().clamp(max=1).arccos().sin())
+    return dlam, span
