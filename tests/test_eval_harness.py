@@ -493,12 +493,15 @@ def test_batches_of_several_workers_balance_the_work_under_the_budget():
     assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=2)) == [[5], [4], [0, 3], [1, 2]]
     # never more batches than meshes
     assert sorted(ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=4))) == [[i] for i in range(6)]
+    # None: one mesh per batch, whatever the budget; heaviest first (each into an empty batch)
+    assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=None)) == [[i] for i in (5, 4, 3, 2, 1, 0)]
+    # ... but one worker keeps the budget's consecutive batches (nothing to share)
+    assert ids(make_batches(p, faces, 10 ** 6, workers=1, work_of=work, per_worker=None)) == [list(range(6))]
 
 
-def test_cpu_batches_are_a_finer_share_than_one_per_worker():
+def test_cpu_batches_are_one_mesh_each_with_several_workers():
     import torch
 
-    from torchakvf.evaluate.plan import CPU_BATCHES_PER_WORKER, batches_per_worker
-    assert CPU_BATCHES_PER_WORKER > 1
-    assert batches_per_worker("cpu") == batches_per_worker(torch.device("cpu")) == CPU_BATCHES_PER_WORKER
+    from torchakvf.evaluate.plan import batches_per_worker
+    assert batches_per_worker("cpu") is batches_per_worker(torch.device("cpu")) is None
     assert batches_per_worker("cuda") == batches_per_worker("cuda:1") == 1

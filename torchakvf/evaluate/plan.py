@@ -254,22 +254,25 @@ def solved_face_counts(faces_of: dict, coarse_faces) -> dict:
     return {i: (f if f <= DECIMATE_ABOVE * coarse_faces else int(coarse_faces)) for i, f in faces_of.items()}
 
 
-#: Batches per worker on the CPU (at least, where there are meshes enough), for
-#: :func:`make_batches`' ``per_worker``: a CPU batch is solved one mesh at a time inside, so its
-#: size only sets how finely the work is shared, and with one batch per worker the error of the
-#: work estimate is all the imbalance (PSB 1-40 decimated at a budget of 80,000 faces, 2 workers:
-#: 0.90x one mesh per batch in wall time, 0.97x in CPU time: benchmarks/results/
-#: bench_budget_sweep_cpu_v4_base.md; with 4 per worker: bench_budget_sweep_cpu_v4.md).
-CPU_BATCHES_PER_WORKER = 4
+#: Batches per worker on the CPU: as many as there are meshes (each mesh its own batch) where
+#: several workers share the meshes. A CPU batch is solved one mesh at a time inside, so its
+#: size gains nothing and only sets how finely the work is shared; coarser shares lose to the
+#: error of the work estimate. PSB 1-40 decimated, 2 workers, batched / one mesh per batch in
+#: wall time: 0.90 at a budget of 80,000 faces with one batch per worker
+#: (benchmarks/results/bench_budget_sweep_cpu_v4_base.md), 1.00 with 4 per worker
+#: (bench_budget_sweep_cpu_v4.md), then 0.96 at 20,000 faces in a later run with 4 per worker
+#: (bench_budget_sweep_cpu_v5_base.md): never better than one mesh per batch.
+CPU_BATCHES_PER_WORKER = None
 
 
-def batches_per_worker(device) -> int:
-    """:data:`CPU_BATCHES_PER_WORKER` on the CPU; 1 elsewhere (on a GPU batching is the gain)."""
+def batches_per_worker(device) -> int | None:
+    """:data:`CPU_BATCHES_PER_WORKER` on the CPU (None: one mesh per batch where there are
+    several workers); 1 elsewhere (on a GPU batching is the gain)."""
     return CPU_BATCHES_PER_WORKER if str(device).startswith("cpu") else 1
 
 
 def make_batches(plans, faces_of: dict, budget: int, *, workers: int = 1, work_of: dict | None = None,
-                 per_worker: int = 1) -> list:
+                 per_worker: int | None = 1) -> list:
     """Plans grouped into batches of at most ``budget`` faces (``faces_of``: by mesh id); a mesh
     larger than the budget is a batch alone.
 
@@ -279,12 +282,14 @@ def make_batches(plans, faces_of: dict, budget: int, *, workers: int = 1, work_o
     few batches as workers, consecutive meshes sorted by their k's gave one worker the
     meshes with the most k's (PSB 1-40 at a budget of 80,000 faces: 43.4 s against 33.1 s one
     mesh per batch). With ``per_worker``, at least that many batches per worker (where there
-    are meshes enough), for a finer share of the work (:func:`batches_per_worker`). Each mesh's
-    answer depends on that mesh alone, so the grouping changes no answer."""
+    are meshes enough), for a finer share of the work; None: one mesh per batch
+    (:func:`batches_per_worker`). Each mesh's answer depends on that mesh alone, so the grouping
+    changes no answer."""
     consecutive = cut_by_budget(plans, lambda p: faces_of[p.mesh_id], budget)
     if workers <= 1 or work_of is None or len(plans) <= 1:
         return consecutive
-    count = max(len(consecutive), min(workers * max(1, int(per_worker)), len(plans)))
+    wanted = len(plans) if per_worker is None else workers * max(1, int(per_worker))
+    count = max(len(consecutive), min(wanted, len(plans)))
     return balanced_batches(plans, faces_of, budget, work_of, count)
 
 
