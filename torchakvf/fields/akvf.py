@@ -36,7 +36,9 @@ class AKVFResult:
     converged : [B] bool, every one of the mesh's n residuals <= tol; a mesh where it is False
         was returned with a :class:`~torchakvf.errors.ConvergenceWarning` and must not be used
         as if solved
-    iterations, shifts : [B] eigensolver diagnostics
+    iterations, shifts : [B] eigensolver diagnostics: LOBPCG iterations or shift-invert solves
+        (Lanczos, Krylov: right-hand sides); the shift σ of the factor, λ·area (negative: below
+        the spectrum; positive: the Krylov solver's interior shift; see :class:`EigenResult`)
     dropped : [B] spurious negative modes (λ·area < SPURIOUS_BELOW) skipped under a remedy
     solved : [B] eigenpairs computed per mesh (n + room for spurious modes; decided per mesh)
     batch : the :class:`MeshBatch`; ``system``: its :class:`KillingSystem`

@@ -48,7 +48,9 @@ class EigenResult:
     residuals : [B, n] ||S1^{-1/2}(R w - λ S1 w)|| / max(|λ|, 1) for S1-normalized w
     iterations : [B] LOBPCG iterations per mesh (Lanczos: shift-invert solves; block Krylov:
         shift-invert right-hand sides)
-    shifts : [B] the shift σ of each mesh's factor
+    shifts : [B] the shift σ of each mesh's factor, λ·area: below every eigenvalue (-1, -8, ...)
+        for a definite factor; the block Krylov solver's interior shift (5n or 5n/2, inside the
+        wanted eigenvalues) where it took one (:class:`~torchakvf.solvers.factor.InteriorFactor`)
     converged : [B] bool, every residual <= tol
     """
 
