@@ -90,6 +90,11 @@ def _budget_lines(sweep: dict) -> list:
                  f"{', '.join(_f(x) for x in row.get('seconds_each', []))} |")
     if sweep.get("one_at_a_time_seconds_each"):
         L.append(f"\none at a time s, each repeat: {', '.join(_f(x) for x in sweep['one_at_a_time_seconds_each'])}")
+    if sweep["rows"] and all(row["batches"] == sweep["meshes"] for row in sweep["rows"]):
+        L.append("\nEvery budget ran one mesh per batch, the plan of the one-at-a-time run: on the CPU "
+                 "with several workers the meshes are never grouped (a CPU batch is solved one mesh "
+                 "at a time inside; `torchakvf.evaluate.plan.CPU_BATCHES_PER_WORKER`), so these "
+                 "ratios show the machine's run-to-run noise.")
     L.append("\nratio = one-at-a-time seconds / batched seconds (>= 1: batching at least as fast); "
              "CPU-time ratio: the same with the CPU seconds of this process and its workers (other "
              "processes' load does not inflate them; on a GPU the wall ratio is the one that counts); "
