@@ -3,6 +3,7 @@ scipy reference (eigenvalues, cluster spans, residuals), batching, reproducibili
 Whitney vectors, CUDA and two real PSB meshes."""
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import importlib
 import importlib.util
@@ -356,6 +357,13 @@ def test_whitney_sparse_product_equals_the_gathered_einsum():
     assert float((single.double() - einsum).abs().max()) <= 1e-6 * scale
     # an empty batch of forms (n = 0) keeps its shape
     assert whitney_face_vectors(batch, geo, forms[:, :0]).shape == (len(batch.faces), 0, 3)
+    # geometry needing gradients (vertex positions being optimized) takes the einsum too, and
+    # its gradient arrives
+    moving = dataclasses.replace(geo, grad_bary=geo.grad_bary.clone().requires_grad_(True))
+    out = whitney_face_vectors(batch, moving, forms)
+    assert float((out.detach() - einsum).abs().max()) <= 1e-14 * scale
+    out.sum().backward()
+    assert moving.grad_bary.grad is not None and bool(moving.grad_bary.grad.abs().sum() > 0)
 
 
 def test_parameter_errors():

@@ -23,7 +23,7 @@ def whitney_face_vectors(batch: MeshBatch, geo: BatchGeometry, forms: torch.Tens
     # edge k of a face runs v_k -> v_k+1: its coefficient (∇l_{k+1} - ∇l_k), signed to the
     # edge's own orientation, over 3
     coef = (g.roll(-1, dims=1) - g) * (sign[..., None] / 3.0)   # [F, 3(edge k), 3(xyz)]
-    if forms.device.type == "cpu" and not forms.requires_grad:
+    if forms.device.type == "cpu" and not (forms.requires_grad or coef.requires_grad):
         return _sparse_product(fe, coef, forms)
     return torch.einsum("fkn,fkc->fnc", forms[fe], coef)
 
