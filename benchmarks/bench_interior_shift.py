@@ -20,7 +20,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib
 import math
 import platform
 import time
@@ -31,9 +30,9 @@ import torch
 import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.mesh import MeshBatch
-from timing import akvf_agreement, one_thread_on_psb, write_report
+from torchakvf.solvers.factor import interior_factor
+from timing import akvf_agreement, definite_only, interior_factor_as, one_thread_on_psb, write_report
 
-AKVF = importlib.import_module("torchakvf.fields.akvf")
 FULL = [1, 21, 121, 181, 301, 41, 81]
 DECIMATED = [1, 41, 81, 91, 101, 121, 141, 181, 301, 341]
 
@@ -49,22 +48,17 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
     one_thread_on_psb(p, args)
-    interior = AKVF.interior_factor
-    definite = lambda system, b, need, make: make()  # noqa: E731
     cases = [(i, None, args.n_full) for i in args.full] + [(i, 4000, args.n_decimated) for i in args.decimated]
     rows, totals = [], {"full": [0.0, 0.0], "decimated": [0.0, 0.0]}
     for i, coarse, n in cases:
         batch = MeshBatch.from_meshes([ta.load_mesh(args.psb / "meshes" / f"{i}.off.gz")], coarse_faces=coarse)
         best, res = {}, {}
         for _ in range(args.repeat):
-            for side, fn in (("definite", definite), ("interior", interior)):
-                AKVF.interior_factor = fn
-                try:
+            for side, fn in (("definite", definite_only), ("interior", interior_factor)):
+                with interior_factor_as(fn):
                     t = time.process_time()
                     r = ta.akvf(batch, n=n)
                     dt = time.process_time() - t
-                finally:
-                    AKVF.interior_factor = interior
                 best[side] = min(best.get(side, math.inf), dt)
                 res[side] = r
         a, b = res["definite"], res["interior"]

@@ -16,7 +16,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib
 import platform
 import time
 from collections import Counter
@@ -27,10 +26,9 @@ import torch
 import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root, find_psb_meshes
 from torchakvf.mesh import MeshBatch
-from torchakvf.solvers.factor import InteriorFactor
-from timing import akvf_agreement, one_thread_on_psb, write_report
+from torchakvf.solvers.factor import InteriorFactor, interior_factor
+from timing import akvf_agreement, definite_only, interior_factor_as, one_thread_on_psb, write_report
 
-AKVF = importlib.import_module("torchakvf.fields.akvf")
 
 
 def main(argv=None) -> int:
@@ -42,15 +40,13 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
     one_thread_on_psb(p, args)
-    interior = AKVF.interior_factor
     taken: list = []
 
     def recording(system, b, need, definite):
-        f = interior(system, b, need, definite)
+        f = interior_factor(system, b, need, definite)
         taken.append(f.sigma if isinstance(f, InteriorFactor) else None)
         return f
 
-    definite = lambda system, b, need, make: make()  # noqa: E731
     entries = sorted(find_psb_meshes(args.psb), key=lambda e: e.mesh_id)[:args.limit]
     paths, secs = Counter(), {"definite": 0.0, "interior": 0.0}
     worst = {"dlam": (0.0, None), "span": (0.0, None), "res": (0.0, None)}
@@ -65,14 +61,11 @@ def main(argv=None) -> int:
         order = ("definite", "interior") if j % 2 == 0 else ("interior", "definite")
         try:
             for side in order:
-                AKVF.interior_factor = definite if side == "definite" else recording
                 taken.clear()
-                try:
+                with interior_factor_as(definite_only if side == "definite" else recording):
                     t = time.process_time()
                     res[side] = ta.akvf(batch, n=args.n)
                     secs[side] += time.process_time() - t
-                finally:
-                    AKVF.interior_factor = interior
                 if side == "interior":
                     got = list(taken)
         except ta.TorchAKVFError as exc:

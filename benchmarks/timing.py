@@ -1,10 +1,13 @@
 """What the benchmark scripts share: the fastest of repeated calls, writing a report, the PSB
-check of a one-thread AKVF benchmark and comparing two AKVF results.
+check of a one-thread AKVF benchmark, comparing two AKVF results, and ``ta.akvf`` with its
+interior shift replaced (by the definite shift ladder, or a recording wrapper).
 
 Run as ``python benchmarks/<script>.py``, a script finds this module beside it (``benchmarks/``
 is the script's own folder, first on ``sys.path``)."""
 from __future__ import annotations
 
+import contextlib
+import importlib
 import time
 import warnings
 from pathlib import Path
@@ -54,3 +57,22 @@ def akvf_agreement(a, b) -> tuple[float, float]:
     qa, qb = torch.linalg.qr(a.forms)[0], torch.linalg.qr(b.forms)[0]
     span = float(torch.linalg.svdvals(qa.T @ qb).min().clamp(max=1).arccos().sin())
     return dlam, span
+
+
+def definite_only(system, b, need, definite):
+    """An ``interior_factor`` that never takes an interior shift: every mesh at its definite
+    shift, the Krylov solver as it was before the interior shift."""
+    return definite()
+
+
+@contextlib.contextmanager
+def interior_factor_as(fn):
+    """Within the block, ``ta.akvf`` makes its Krylov factors with ``fn`` (the signature of
+    :func:`torchakvf.solvers.factor.interior_factor`) instead; restored on leaving."""
+    akvf_module = importlib.import_module("torchakvf.fields.akvf")
+    kept = akvf_module.interior_factor
+    akvf_module.interior_factor = fn
+    try:
+        yield
+    finally:
+        akvf_module.interior_factor = kept
