@@ -41,6 +41,22 @@ def test_moment_gradient_equals_the_products(n):
     assert float((sub(al[1:]) - got[1:]).abs().max()) <= 1e-13 * scale
 
 
+@pytest.mark.parametrize("n", [3, 9, 32])
+def test_moments_over_several_row_passes(n):
+    """Rows taken in passes of up to 2048 (the last one partial) and every group of the
+    quadruple blocks: each moment M_iklm (i any, k <= l <= m) equals the direct sum over rows."""
+    y = _forms(1, 4100, n, seed=20 + n)
+    got = untangle_mod._FourthMoments(y)
+    k, l, m = got._k, got._l, got._m
+    want = torch.einsum("ei,ec->ic", y[0], y[0, :, k] * y[0, :, l] * y[0, :, m])
+    mult = torch.where((k == l) & (l == m), 1.0, torch.where((k == l) | (l == m), 3.0, 6.0))
+    scale = float((y[0].abs() ** 4).sum(0).max())
+    assert got.moments.shape == (1, n, len(k))
+    assert float((got.moments[0] - want * mult.double()).abs().max()) <= 1e-13 * 6 * scale
+    # the pair products by index gathers (other devices' way) are the same products
+    assert torch.equal(untangle_mod._FourthMoments(y, gather=True).moments, got.moments)
+
+
 def test_moment_steps_reach_the_products_rotations():
     """The whole float64 iteration (SQUAREM, restarts stopping at different steps) from the
     moments against the products: the same step counts and rotations equal to far below the
