@@ -39,6 +39,9 @@ def test_moment_gradient_equals_the_products(n):
     # batch size may round differently)
     sub = untangle_mod._FourthMoments(y).select(torch.tensor([1]))
     assert float((sub(al[1:]) - got[1:]).abs().max()) <= 1e-13 * scale
+    # a batch's pair products by index gathers (other devices' way) are the same products
+    assert torch.equal(untangle_mod._FourthMoments(y, gather=True).moments,
+                       untangle_mod._FourthMoments(y).moments)
 
 
 @pytest.mark.parametrize("n", [3, 9, 32])
