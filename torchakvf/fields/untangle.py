@@ -379,10 +379,10 @@ class _FourthMoments:
     y_em, which does not depend on A: computed once (the entries of ``Qᵀ Q`` at sorted
     quadruples, for Q [E, P] the products of column pairs, P = n(n+1)/2), each step then costs
     a product of n x C by C x q·n per mesh (C = n(n+1)(n+2)/6 sorted triples k <= l <= m),
-    whatever E is. Where E is large against n
-    (:func:`_moments_pay`) that is far cheaper than two float64 GEMMs over E per step: on PSB 21
-    (45,594 edges, n = 32) the float64 steps took 3.1 of the untangling's 4.5 s. Both ways sum
-    the same products in another order: they agree to round-off. Zero rows (padding) add nothing.
+    whatever E is. Where E is large against n (:func:`_moments_pay`) that is far cheaper than
+    two float64 GEMMs over E per step: on PSB 21 (45,594 edges, n = 32) the float64 steps took
+    3.1 of the untangling's 4.5 s. Both ways sum the same products in another order: they agree
+    to round-off. Zero rows (padding) add nothing.
     """
 
     def __init__(self, y: torch.Tensor, gather: bool | None = None):
@@ -405,7 +405,7 @@ class _FourthMoments:
         groups = sorted({round(n * g / 4) for g in range(5)})
         # Rows per pass: 2048 for one mesh (its [2048, P] pair products, 8.6 MB at n = 32, stay
         # in cache), fewer for a large batch so that [m, rows, P] stays near 16 MB.
-        chunk = min(2048, max(16, 2 ** 21 // (nb * p)), e)
+        chunk = max(1, min(2048, max(16, 2 ** 21 // (nb * p)), e))
         gram = y.new_zeros(nb, p, p)
         cols = y.new_empty(nb, chunk, p)
         rows_t = y.new_empty(nb, p, chunk)
@@ -413,8 +413,9 @@ class _FourthMoments:
         if gather:
             # One gather per pass on other devices, where 2n small products would be 2n kernel
             # launches per pass (and a large batch makes many short passes).
-            c_first, c_second = torch.triu_indices(n, n, device=dev)
-            r_second, r_first = torch.triu_indices(n, n, device=dev).flip(0)[:, _by_second(n)]
+            pairs = torch.triu_indices(n, n)
+            c_first, c_second = pairs.to(dev)
+            r_first, r_second = pairs[:, _by_second(n)].to(dev)
         for s in range(0, e, chunk):
             yc = y[:, s:s + chunk]
             h = yc.shape[1]
