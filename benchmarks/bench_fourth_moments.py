@@ -13,10 +13,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import platform
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -25,26 +22,12 @@ import torch
 import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
-from timing import best_of, one_thread_on_psb, write_report
+from timing import best_of, module_at_revision, one_thread_on_psb, write_report
 
 new_untangle = importlib.import_module("torchakvf.fields.untangle")
-REPO = Path(__file__).resolve().parents[1]
 #: main before the moments were computed from sorted quadruples only (the baseline).
 BASELINE_REV = "f2f523b"
 PATH = "torchakvf/fields/untangle.py"
-
-
-def baseline_module(rev: str):
-    """torchakvf.fields.untangle as it is at git revision ``rev``."""
-    src = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:{PATH}"], check=True,
-                         capture_output=True, text=True).stdout
-    name = "torchakvf.fields._baseline_untangle"
-    spec = importlib.util.spec_from_loader(name, loader=None)
-    mod = importlib.util.module_from_spec(spec)
-    mod.__package__, mod.__file__ = "torchakvf.fields", f"{rev}:{PATH}"
-    sys.modules[name] = mod
-    exec(compile(src, mod.__file__, "exec"), mod.__dict__)
-    return mod
 
 
 def scaled_forms(mesh_path: Path, n: int, coarse_faces: int | None) -> torch.Tensor:
@@ -65,7 +48,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path)
     args = ap.parse_args(argv)
     one_thread_on_psb(ap, args)
-    old = baseline_module(args.baseline)
+    old = module_at_revision(args.baseline, PATH, "torchakvf.fields._baseline_untangle")
     gen = torch.Generator().manual_seed(0)
     rows, tot = [], [0.0, 0.0]
     cases = [(c, n) for c in (None, 4000) for n in (16, 24, 32)]

@@ -9,8 +9,6 @@ many meshes' results differ (vertices, faces, face_index, face_component, report
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -18,19 +16,14 @@ import numpy as np
 
 from torchakvf.io import load_mesh
 from torchakvf.mesh.clean import clean_mesh
+from timing import module_at_revision
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def baseline_clean(rev: str):
     """torchakvf/mesh/clean.py as of git revision ``rev``, as a module of torchakvf.mesh."""
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:torchakvf/mesh/clean.py"], check=True,
-                         capture_output=True, text=True).stdout
-    mod = type(sys)("torchakvf.mesh._baseline_clean")
-    mod.__package__ = "torchakvf.mesh"
-    sys.modules[mod.__name__] = mod          # dataclasses look their module up there
-    exec(compile(src, f"{rev}:torchakvf/mesh/clean.py", "exec"), mod.__dict__)
-    return mod
+    return module_at_revision(rev, "torchakvf/mesh/clean.py", "torchakvf.mesh._baseline_clean")
 
 
 def same(a, b) -> bool:

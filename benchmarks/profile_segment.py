@@ -21,10 +21,7 @@ Figures: benchmarks/results/segment_profile.md.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -32,6 +29,7 @@ import numpy as np
 import torch
 
 from segment_compare_common import AnswerComparison, segment_answers
+from timing import module_at_revision
 from torchakvf.evaluate import psb as P
 from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch
@@ -49,19 +47,8 @@ MODULES = {"engine": ("torchakvf.parts", "torchakvf/parts/engine.py"),
 def load_revision(rev: str) -> dict:
     """{"engine", "untangle", "kmeans"} modules as they are at git revision ``rev``, the engine
     wired to that revision's untangle and spherical_kmeans."""
-    root = Path(__file__).resolve().parents[1]
-    mods = {}
-    for key, (package, path) in MODULES.items():
-        src = subprocess.run(["git", "-C", str(root), "show", f"{rev}:{path}"], check=True,
-                             capture_output=True, text=True).stdout
-        name = f"{package}._baseline_{key}"
-        spec = importlib.util.spec_from_loader(name, loader=None)
-        mod = importlib.util.module_from_spec(spec)
-        mod.__package__ = package
-        mod.__file__ = f"{rev}:{path}"
-        sys.modules[name] = mod
-        exec(compile(src, mod.__file__, "exec"), mod.__dict__)
-        mods[key] = mod
+    mods = {key: module_at_revision(rev, path, f"{package}._baseline_{key}")
+            for key, (package, path) in MODULES.items()}
     eng = mods["engine"]
     eng.spherical_kmeans = mods["kmeans"].spherical_kmeans
     if hasattr(eng, "untangle"):
