@@ -413,9 +413,10 @@ class _FourthMoments:
         if gather:
             # One gather per pass on other devices, where 2n small products would be 2n kernel
             # launches per pass (and a large batch makes many short passes).
-            pairs = torch.triu_indices(n, n)
-            c_first, c_second = pairs.to(dev)
-            r_first, r_second = pairs[:, _by_second(n)].to(dev)
+            first, second = torch.triu_indices(n, n)           # the pairs by first index: columns
+            by_second = torch.argsort(second * n + first)       # the same by second index: rows
+            c_first, c_second = first.to(dev), second.to(dev)
+            r_first, r_second = first[by_second].to(dev), second[by_second].to(dev)
         for s in range(0, e, chunk):
             yc = y[:, s:s + chunk]
             h = yc.shape[1]
@@ -442,8 +443,8 @@ class _FourthMoments:
         i = torch.arange(n, device=dev)[:, None].expand(-1, len(k))
         quad = torch.stack([i, k.expand_as(i), l.expand_as(i), m.expand_as(i)], -1).sort(-1).values
         a, b, c, d = quad.unbind(-1)
-        row = b * (b + 1) // 2 + a
-        col = c * n - c * (c - 1) // 2 + (d - c)
+        row = torch.tensor(row_start, device=dev)[b] + a
+        col = torch.tensor(col_start, device=dev)[c] + (d - c)
         self.moments = gram[:, row, col] * mult                              # [m, n, C]
 
     def select(self, meshes: torch.Tensor) -> "_FourthMoments":
@@ -460,13 +461,6 @@ class _FourthMoments:
         cubes = a[:, self._k] * a[:, self._l]
         cubes.mul_(a[:, self._m])                                           # [m, C, q·n]
         return torch.bmm(self.moments, cubes).reshape(nb, n, q, n).permute(0, 2, 1, 3)
-
-
-def _by_second(n: int) -> torch.Tensor:
-    """[P] the triu order's pairs (c <= d, by c) reordered by d, then c: the pairs (a <= b) by
-    their second index b, as :class:`_FourthMoments` lays out its rows."""
-    first, second = torch.triu_indices(n, n)
-    return torch.argsort(second * n + first)
 
 
 def _moments_pay(e: int, n: int, steps: int) -> bool:
