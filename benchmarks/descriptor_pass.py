@@ -1,0 +1,199 @@
+"""One pass over the PSB meshes computing, per mesh, everything the learning benchmarks
+(``learn_boundaries.py``, ``classify_descriptors.py``) need, cached as one .npz per mesh.
+
+Per mesh, on the mesh decimated as the eval does (``MeshBatch.from_meshes(coarse_faces=4000)``;
+a mesh whose decimated solve fails is solved at full resolution, as segmentation does):
+
+* ``akvf`` [F, 27]: :func:`torchakvf.fields.descriptors.face_descriptors` at 8, 16 and 32
+  fields (``akvf_names``); ``phi32`` [F, 32] the raw untangled norms at 32 (for the older
+  histogram descriptor), ``eigenvalues`` [32], ``energies32`` [32];
+* the classical groups of ``classical_descriptors.py`` and ``shapedna`` [32];
+* ``target`` [F]: for meshes with human segmentations, the fraction of the people whose cut
+  passes within :data:`BOUNDARY_RADIUS` (geodesic, on the dual graph, unit-area lengths) of the
+  face; the human labels are carried to the decimated faces through the fine face closest to
+  each decimated face's barycenter;
+* ``area`` [F] (unit total), ``trivial`` [5], ``seconds_akvf`` / ``seconds_classical``.
+
+Meshes are visited category-interleaved (1st mesh of every category, then the 2nd, ...), so a
+pass stopped early covers every category about equally. Run::
+
+    PYTHONPATH=$PWD nice -n 5 python benchmarks/descriptor_pass.py --cache /work/features_cache
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+import classical_descriptors as classical
+
+COARSE_FACES = 4000
+N_FIELDS = 32
+SEED = 0
+#: Geodesic radius (lengths at unit area) within which a face counts as on a person's cut:
+#: about one and a half face rings of a mesh decimated to 4000 faces.
+BOUNDARY_RADIUS = 0.02
+CACHE_VERSION = "1"
+
+log = logging.getLogger("descriptor_pass")
+
+
+def dual_graph(v: np.ndarray, f: np.ndarray) -> sp.csr_matrix:
+    """[F, F] faces joined across interior edges, weighted by centroid distance."""
+    from torchakvf.mesh.batch import mesh_edges
+
+    _, face_edges, _ = mesh_edges(f)
+    nf = len(f)
+    order = np.argsort(face_edges.ravel(), kind="stable")
+    e_sorted = face_edges.ravel()[order]
+    face_of = np.repeat(np.arange(nf), 3)[order]
+    same = np.flatnonzero(e_sorted[1:] == e_sorted[:-1])
+    a, b = face_of[same], face_of[same + 1]
+    c = v[f].mean(axis=1)
+    w = np.maximum(np.linalg.norm(c[a] - c[b], axis=1), 1e-12)
+    return sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([a, b]), np.concatenate([b, a]))),
+                         shape=(nf, nf)).tocsr()
+
+
+def boundary_target(graph: sp.csr_matrix, labelings: list[np.ndarray]) -> np.ndarray:
+    """[F] fraction of the labelings with a cut within BOUNDARY_RADIUS of each face."""
+    coo = graph.tocoo()
+    near = np.zeros(graph.shape[0])
+    for lab in labelings:
+        cut = np.unique(np.concatenate([coo.row[lab[coo.row] != lab[coo.col]],
+                                        coo.col[lab[coo.row] != lab[coo.col]]]))
+        if len(cut) == 0:
+            continue
+        d = dijkstra(graph, directed=False, indices=cut, min_only=True, limit=BOUNDARY_RADIUS)
+        near += d <= BOUNDARY_RADIUS
+    return near / max(len(labelings), 1)
+
+
+def labels_on_packed(batch, entry) -> list[np.ndarray]:
+    """Every human segmentation of ``entry`` carried to the packed (decimated) faces."""
+    from torchakvf.evaluate.psb import read_seg
+    from torchakvf.mesh.coarse import locate_on_surface
+
+    packed = batch.meshes[0]
+    coarse = batch.coarse_of(0)
+    if coarse is None:
+        input_face = packed.face_index
+    else:
+        fine = coarse.fine
+        at = locate_on_surface(fine.vertices, fine.faces, packed.vertices[packed.faces].mean(axis=1))
+        input_face = fine.face_index[at.face]
+    return [read_seg(p)[input_face] for p in entry.seg_paths]
+
+
+def trivial(mesh) -> np.ndarray:
+    """log F, log V, principal extent ratios s2/s1, s3/s1, number of components (input mesh)."""
+    from scipy.sparse.csgraph import connected_components
+
+    v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
+    s = np.linalg.svd(v - v.mean(0), compute_uv=False)
+    nv = len(v)
+    adj = sp.coo_matrix((np.ones(f.size), (f.ravel(), np.roll(f, 1, axis=1).ravel())), shape=(nv, nv))
+    return np.array([np.log(len(f)), np.log(nv), s[1] / s[0], s[2] / s[0],
+                     connected_components(adj, directed=False)[0]], dtype=np.float64)
+
+
+def one_mesh(entry) -> dict:
+    """Everything of the module docstring for one PSB entry."""
+    from torchakvf import MeshBatch, load_mesh
+    from torchakvf.fields import untangle
+    from torchakvf.fields.akvf import akvf_falling_back
+    from torchakvf.fields.descriptors import DEFAULT_COUNTS, descriptor_names, face_descriptors
+    from torchakvf.parts.segment import DEFAULT_REMEDY
+
+    mesh = load_mesh(entry.mesh_path)
+    t0 = time.perf_counter()
+    batch = MeshBatch.from_meshes([mesh], coarse_faces=COARSE_FACES)
+    fields, fell_back = akvf_falling_back(batch, n=N_FIELDS, seed=SEED, remedy=DEFAULT_REMEDY)
+    unt = {n: untangle(fields, n, seed=SEED) for n in DEFAULT_COUNTS}
+    desc = face_descriptors(fields, DEFAULT_COUNTS, untangled=unt)[0].numpy()
+    t1 = time.perf_counter()
+    packed = fields.batch.meshes[0]
+    v, f = np.asarray(packed.vertices, dtype=np.float64), np.asarray(packed.faces, dtype=np.int64)
+    out = classical.classical_descriptors(v, f)
+    t2 = time.perf_counter()
+    vu, area = classical.unit_area(v, f)
+    out.update(akvf=desc.astype(np.float32), akvf_names=np.array(descriptor_names()),
+               phi32=unt[N_FIELDS].mesh_features(0).numpy().astype(np.float32),
+               eigenvalues=fields.eigenvalues[0].numpy(), energies32=unt[N_FIELDS].energies[0].numpy(),
+               area=area, trivial=trivial(mesh), fell_back=np.bool_(bool(fell_back)),
+               seconds_akvf=np.float64(t1 - t0), seconds_classical=np.float64(t2 - t1))
+    if entry.seg_paths:
+        out["target"] = boundary_target(dual_graph(vu, f), labels_on_packed(fields.batch, entry))
+    return out
+
+
+def cache_path(cache: Path, entry) -> Path:
+    h = hashlib.sha256(entry.mesh_path.read_bytes())
+    h.update(json.dumps({"coarse": COARSE_FACES, "n": N_FIELDS, "seed": SEED, "r": BOUNDARY_RADIUS,
+                         "v": CACHE_VERSION}).encode())
+    return cache / f"{entry.mesh_id}_{h.hexdigest()[:16]}.npz"
+
+
+def ordered_entries(psb: str) -> list:
+    from torchakvf.evaluate.psb import find_psb_meshes
+
+    return sorted(find_psb_meshes(psb), key=lambda e: ((e.mesh_id - 1) % 20, e.mesh_id))
+
+
+def load_all(psb: str, cache: Path, compute: bool = True) -> tuple[list[dict], list[int]]:
+    """(one dict per mesh with mesh_id and category added, ids that failed or are not cached)."""
+    from torchakvf import TorchAKVFError
+
+    cache.mkdir(parents=True, exist_ok=True)
+    data, missing = [], []
+    for e in ordered_entries(psb):
+        path = cache_path(cache, e)
+        if not path.exists() and compute:
+            t = time.perf_counter()
+            try:
+                d = one_mesh(e)
+            except (TorchAKVFError, RuntimeError, ValueError) as exc:
+                log.warning("mesh %d: %s (left out)", e.mesh_id, exc)
+                missing.append(e.mesh_id)
+                continue
+            tmp = path.with_suffix(".tmp.npz")
+            np.savez_compressed(tmp, **d)
+            tmp.replace(path)
+            log.info("mesh %d (%s): %.1f s (AKVF %.1f, classical %.1f)", e.mesh_id, e.category,
+                     time.perf_counter() - t, d["seconds_akvf"], d["seconds_classical"])
+        if not path.exists():
+            missing.append(e.mesh_id)
+            continue
+        with np.load(path) as z:
+            d = {k: z[k] for k in z.files}
+        d["mesh_id"], d["category"] = e.mesh_id, e.category
+        data.append(d)
+    return data, missing
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--psb", default="/work/shared/psb")
+    ap.add_argument("--cache", default="/work/features_cache")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    import torch
+
+    torch.set_num_threads(args.threads)
+    t = time.perf_counter()
+    data, missing = load_all(args.psb, Path(args.cache))
+    log.info("%d meshes in %.0f s; left out: %s", len(data), time.perf_counter() - t, missing)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
