@@ -4,7 +4,7 @@
 Per mesh, on the mesh decimated as the eval does (``MeshBatch.from_meshes(coarse_faces=4000)``;
 a mesh whose decimated solve fails is solved at full resolution, as segmentation does):
 
-* ``akvf`` [F, 27]: :func:`torchakvf.fields.descriptors.face_descriptors` at 8, 16 and 32
+* ``akvf`` [F, 33]: :func:`torchakvf.fields.descriptors.face_descriptors` at 8, 16 and 32
   fields (``akvf_names``); ``phi32`` [F, 32] the raw untangled norms at 32 (for the older
   histogram descriptor), ``eigenvalues`` [32], ``energies32`` [32];
 * the classical groups of ``classical_descriptors.py`` and ``shapedna`` [32];
@@ -14,8 +14,8 @@ a mesh whose decimated solve fails is solved at full resolution, as segmentation
   each decimated face's barycenter;
 * ``area`` [F] (unit total), ``trivial`` [5], ``seconds_akvf`` / ``seconds_classical``.
 
-Meshes are visited category-interleaved (1st mesh of every category, then the 2nd, ...), so a
-pass stopped early covers every category about equally. Run::
+Meshes with human segmentations are visited first, category-interleaved (1st mesh of every
+category, then the 2nd, ...), so a pass stopped early covers every category about equally. Run::
 
     PYTHONPATH=$PWD nice -n 5 python benchmarks/descriptor_pass.py --cache /work/features_cache
 """
@@ -41,7 +41,7 @@ SEED = 0
 #: Geodesic radius (lengths at unit area) within which a face counts as on a person's cut:
 #: about one and a half face rings of a mesh decimated to 4000 faces.
 BOUNDARY_RADIUS = 0.02
-CACHE_VERSION = "1"
+CACHE_VERSION = "2"
 
 log = logging.getLogger("descriptor_pass")
 
@@ -142,19 +142,25 @@ def cache_path(cache: Path, entry) -> Path:
     return cache / f"{entry.mesh_id}_{h.hexdigest()[:16]}.npz"
 
 
-def ordered_entries(psb: str) -> list:
+def ordered_entries(psb: str, reverse: bool = False) -> list:
+    """Meshes with human segmentations first, then the others; each group category-interleaved
+    (``reverse``: each group in the opposite order, for a second worker sharing the cache)."""
     from torchakvf.evaluate.psb import find_psb_meshes
 
-    return sorted(find_psb_meshes(psb), key=lambda e: ((e.mesh_id - 1) % 20, e.mesh_id))
+    groups = [[], []]
+    for e in sorted(find_psb_meshes(psb), key=lambda e: ((e.mesh_id - 1) % 20, e.mesh_id)):
+        groups[0 if e.seg_paths else 1].append(e)
+    return [e for g in groups for e in (g[::-1] if reverse else g)]
 
 
-def load_all(psb: str, cache: Path, compute: bool = True) -> tuple[list[dict], list[int]]:
+def load_all(psb: str, cache: Path, compute: bool = True,
+             reverse: bool = False) -> tuple[list[dict], list[int]]:
     """(one dict per mesh with mesh_id and category added, ids that failed or are not cached)."""
     from torchakvf import TorchAKVFError
 
     cache.mkdir(parents=True, exist_ok=True)
     data, missing = [], []
-    for e in ordered_entries(psb):
+    for e in ordered_entries(psb, reverse):
         path = cache_path(cache, e)
         if not path.exists() and compute:
             t = time.perf_counter()
@@ -184,13 +190,15 @@ def main(argv=None) -> int:
     ap.add_argument("--psb", default="/work/shared/psb")
     ap.add_argument("--cache", default="/work/features_cache")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--reverse", action="store_true",
+                    help="visit the meshes in the opposite order (a second worker on the same cache)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     import torch
 
     torch.set_num_threads(args.threads)
     t = time.perf_counter()
-    data, missing = load_all(args.psb, Path(args.cache))
+    data, missing = load_all(args.psb, Path(args.cache), reverse=args.reverse)
     log.info("%d meshes in %.0f s; left out: %s", len(data), time.perf_counter() - t, missing)
     return 0
 

@@ -30,9 +30,21 @@ column                        meaning, range
                               at radius r (unit-area lengths, :data:`CONTRAST_RADII`): high
                               where the face's primitive changes within r (a part boundary);
                               [0, 1]
+``coherence_r@n``             how much the span of the n fields at f agrees with their span
+                              averaged by heat diffusion at radius r: with X(f) the [n, 3]
+                              field vectors at f and Y(f) the diffused ones,
+                              |X(f)ᵀY(f)|² / (|X(f)ᵀX(f)| |Y(f)ᵀY(f)|) (Frobenius). A function
+                              of the raw AKVFs' span alone, so it does not depend on the
+                              untangling (nor its seed) at all; low where the rigid motions
+                              carried by the face change within r; [0, 1]
 ============================  ================================================================
 
-Counts and radii make ``len(counts) * (7 + len(CONTRAST_RADII))`` columns, named by
+The untangling-based columns are reproducible where the orthomax optimum is well separated;
+where it is not (a shape with a continuous symmetry, such as a surface of revolution, where any
+rotation of a part's fields about the axis is as good), another seed may pick another optimum
+and only ``log_density`` and the coherences are guaranteed to repeat.
+
+Counts and radii make ``len(counts) * (7 + 2 * len(CONTRAST_RADII))`` columns, named by
 :func:`descriptor_names` in the order :func:`face_descriptors` returns them.
 """
 from __future__ import annotations
@@ -66,9 +78,11 @@ DENSITY_FLOOR = 1e-12
 def descriptor_names(counts: Sequence[int] = DEFAULT_COUNTS,
                      radii: Sequence[float] = CONTRAST_RADII) -> list[str]:
     """Column names of :func:`face_descriptors`' output, e.g. ``"share1@8"``,
-    ``"contrast_0.05@32"``: for each count, :data:`BASE_COLUMNS` then one contrast per radius."""
+    ``"contrast_0.05@32"``: for each count, :data:`BASE_COLUMNS`, one contrast per radius, then
+    one coherence per radius."""
     return [f"{c}@{n}" for n in counts
-            for c in list(BASE_COLUMNS) + [f"contrast_{r:g}" for r in radii]]
+            for c in list(BASE_COLUMNS) + [f"contrast_{r:g}" for r in radii]
+            + [f"coherence_{r:g}" for r in radii]]
 
 
 class FaceDiffusion:
@@ -158,6 +172,23 @@ def descriptor_block(phi: np.ndarray, energies: np.ndarray, area: np.ndarray,
     return np.concatenate(cols, axis=1)
 
 
+def span_coherence(vectors: np.ndarray, diffusion: FaceDiffusion,
+                   radii: Sequence[float] = CONTRAST_RADII) -> np.ndarray:
+    """[F, len(radii)] the ``coherence`` columns (module docstring) of field vectors
+    [F, n, 3] (any orthogonal mix of the fields gives the same values)."""
+    x = np.asarray(vectors, dtype=np.float64)
+    nf, n, _ = x.shape
+    gram_x = np.linalg.norm(np.einsum("fni,fnj->fij", x, x).reshape(nf, 9), axis=1)
+    out = np.empty((nf, len(radii)))
+    for k, r in enumerate(radii):
+        y = diffusion.smooth(x.reshape(nf, 3 * n), r).reshape(nf, n, 3)
+        cross = np.einsum("fni,fnj->fij", x, y).reshape(nf, 9)
+        gram_y = np.linalg.norm(np.einsum("fni,fnj->fij", y, y).reshape(nf, 9), axis=1)
+        den = gram_x * gram_y
+        out[:, k] = np.where(den > 0, (cross ** 2).sum(axis=1) / np.where(den > 0, den, 1.0), 0.0)
+    return np.clip(out, 0.0, 1.0)
+
+
 def _counts(counts, available: int) -> list[int]:
     if isinstance(counts, numbers.Integral):
         counts = [counts]
@@ -191,13 +222,19 @@ def face_descriptors(fields: AKVFResult, counts: Sequence[int] | int = DEFAULT_C
     for b, mesh in enumerate(fields.batch.meshes):
         diffusion = FaceDiffusion(mesh.vertices, mesh.faces) if len(radii) else None
         area = face_areas(np.asarray(mesh.vertices, dtype=np.float64), mesh.faces)
-        blocks = [descriptor_block(untangled[n].mesh_features(b).detach().cpu().numpy()[:, :n],
-                                   untangled[n].energies[b, :n].detach().cpu().numpy(),
-                                   area, diffusion, radii) for n in counts]
+        f0, f1 = int(fields.batch.face_ptr[b]), int(fields.batch.face_ptr[b + 1])
+        vectors = fields.face_vectors[f0:f1].detach().cpu().to(torch.float64).numpy()
+        blocks = []
+        for n in counts:
+            blocks.append(descriptor_block(untangled[n].mesh_features(b).detach().cpu().numpy()[:, :n],
+                                           untangled[n].energies[b, :n].detach().cpu().numpy(),
+                                           area, diffusion, radii))
+            if len(radii):
+                blocks.append(span_coherence(vectors[:, :n], diffusion, radii))
         out.append(torch.as_tensor(np.concatenate(blocks, axis=1), dtype=fields.forms.dtype,
                                    device=fields.forms.device))
     return out
 
 
 __all__ = ["DEFAULT_COUNTS", "CONTRAST_RADII", "BASE_COLUMNS", "FaceDiffusion", "descriptor_block",
-           "descriptor_names", "face_descriptors"]
+           "descriptor_names", "face_descriptors", "span_coherence"]
