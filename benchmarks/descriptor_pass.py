@@ -111,7 +111,7 @@ def one_mesh(entry) -> dict:
     from torchakvf.fields import untangle
     from torchakvf.fields.akvf import akvf_falling_back
     from torchakvf.fields.descriptors import DEFAULT_COUNTS, descriptor_names, face_descriptors
-    from torchakvf.parts.segment import DEFAULT_REMEDY
+    from torchakvf.operators.killing import DEFAULT_REMEDY
 
     mesh = load_mesh(entry.mesh_path)
     t0 = time.perf_counter()

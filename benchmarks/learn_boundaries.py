@@ -57,12 +57,15 @@ ROWS = {
     "AKVF descriptors (33)": lambda d: d["akvf"],
     "classical + AKVF descriptors": lambda d: np.concatenate(
         [d["curvature"], d["hks"], d["wks"], d["sdf"], d["akvf"]], axis=1),
+    "curvature + AKVF descriptors": lambda d: np.concatenate([d["curvature"], d["akvf"]], axis=1),
     "raw untangled norms φ at 32 fields (column order as solved)": lambda d: d["phi32"],
 }
 SINGLE_CLASSICAL = ("curvature (k1, k2 at 3 radii)", "HKS (8 times)", "WKS (8 energies)", "SDF (2)")
 AKVF_ROW = "AKVF descriptors (33)"
 CLASSICAL_ROW = "classical (curvature + HKS + WKS + SDF)"
 BOTH_ROW = "classical + AKVF descriptors"
+#: (with AKVF, without): the gains reported per held-out category
+PAIRS = ((BOTH_ROW, CLASSICAL_ROW), ("curvature + AKVF descriptors", SINGLE_CLASSICAL[0]))
 
 
 def average_precision(score: np.ndarray, positive: np.ndarray) -> float:
@@ -142,6 +145,13 @@ def report(result: dict) -> list[str]:
         m = summary(r["per_category"], "majority")
         a = summary(r["per_category"], "any")
         lines.append(f"| {name} | {r['dims']} | {m[0]:.3f} ± {m[1]:.3f} | {a[0]:.3f} ± {a[1]:.3f} |")
+    lines += ["", "What adding the AKVF descriptors changes, per held-out category (paired, AP majority):", "",
+              "| rows | mean gain ± std over categories | categories improved |", "|---|---:|---:|"]
+    for with_, without in PAIRS:
+        if with_ in rows and without in rows:
+            g = np.array([rows[with_]["per_category"][c]["majority"] - rows[without]["per_category"][c]["majority"]
+                          for c in cats])
+            lines.append(f"| {with_} − {without} | {g.mean():+.3f} ± {g.std():.3f} | {(g > 0).sum()} of {len(g)} |")
     shown = [n for n in SINGLE_CLASSICAL + (CLASSICAL_ROW, AKVF_ROW, BOTH_ROW) if n in rows]
     lines += ["", "Per held-out category, AP majority:", "",
               "| category | chance | " + " | ".join(shown) + " |", "|---|" + "---:|" * (1 + len(shown))]
