@@ -41,7 +41,7 @@ import scipy.sparse as sp
 import torch
 
 from .._threads import single_threaded
-from ..errors import ParameterError, SolverError
+from ..errors import FieldCountError, ParameterError
 from ..operators.killing import KillingSystem
 from .factor import contiguous_transpose, mesh_factor
 from .lobpcg import EigenResult
@@ -108,7 +108,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
     sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
     for j, b in enumerate(meshes):
         if count > sizes[b]:
-            raise SolverError(f"{names[j]}: {count} fields asked for but the mesh has only "
+            raise FieldCountError(f"{names[j]}: {count} fields asked for but the mesh has only "
                               f"{sizes[b]} edges; ask for fewer fields")
     if grow and nb != 1:
         raise ParameterError(f"block_krylov(grow=True) solves one mesh at a time, got {nb}")

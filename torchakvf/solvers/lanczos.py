@@ -13,7 +13,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 import torch
 
-from ..errors import SolverError
+from ..errors import FieldCountError
 from ..operators.killing import KillingSystem
 from .factor import mesh_factor
 from .lobpcg import EigenResult, relative_residuals
@@ -32,7 +32,7 @@ def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed:
     sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
     for b, e in enumerate(sizes):
         if n >= e:
-            raise SolverError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges "
+            raise FieldCountError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges "
                               "(Lanczos needs fewer fields than edges); ask for fewer fields")
     values, vectors, shifts, solves = [], [], [], []
     for b in range(nb):

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 
 from .._threads import single_threaded
-from ..errors import ParameterError, SolverError
+from ..errors import FieldCountError, ParameterError
 from ..mesh.batch import owner_index
 from ..operators.killing import KillingSystem
 from .factor import BlockDiagonalFactor, mesh_factor
@@ -102,7 +102,7 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
     for b, e in enumerate(sizes):
         if n > e:
-            raise SolverError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges; "
+            raise FieldCountError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges; "
                               "ask for fewer fields")
     guard = max(8, n // 2) if guard is None else guard
     m = n + guard
