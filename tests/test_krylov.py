@@ -66,14 +66,14 @@ def test_krylov_matches_scipy_with_multiplicities(remedy):
 def test_krylov_crowding_guard():
     """A repeated eigenvalue with as many copies as the block is flagged (and solved again at
     the wide block); fewer copies or well separated values are not."""
-    from torchakvf.solvers.krylov import _crowded
+    from torchakvf.solvers.krylov import crowded
     lam = torch.tensor([0.0, 1.0, 5.0, 5.0, 5.0 + 1e-9, 5.0 + 2e-9, 9.0], dtype=torch.float64)
-    assert _crowded(lam, 4)
-    assert not _crowded(lam, 5)
-    assert not _crowded(torch.tensor([0.0, 1.0, 5.0, 5.0, 5.0, 9.0, 12.0], dtype=torch.float64), 4)
+    assert crowded(lam, 4)
+    assert not crowded(lam, 5)
+    assert not crowded(torch.tensor([0.0, 1.0, 5.0, 5.0, 5.0, 9.0, 12.0], dtype=torch.float64), 4)
     # Near zero the spread is absolute (1e-3), elsewhere relative to |λ|.
-    assert _crowded(torch.tensor([1e-4, 2e-4, 3e-4, 4e-4, 7.0], dtype=torch.float64), 4)
-    assert not _crowded(torch.tensor([100.0, 100.2, 100.4, 100.6], dtype=torch.float64), 4)
+    assert crowded(torch.tensor([1e-4, 2e-4, 3e-4, 4e-4, 7.0], dtype=torch.float64), 4)
+    assert not crowded(torch.tensor([100.0, 100.2, 100.4, 100.6], dtype=torch.float64), 4)
 
 
 def test_krylov_makes_room_for_spurious_modes():
@@ -115,19 +115,19 @@ def test_krylov_on_a_mesh_smaller_than_its_basis():
 def test_krylov_gram_schmidt_pass_equals_the_two_whole_products(rows):
     """The chunked Gram-Schmidt pass (basis read once, 8 rows at a time) gives the coefficients
     and the vector of the two whole-basis products, and leaves w S-orthogonal to the basis."""
-    from torchakvf.solvers.krylov import _orthonormal, _project_out
+    from torchakvf.solvers.krylov_kernels import orthonormal, project_out
 
     gen = torch.Generator().manual_seed(3)
     e = 500
     mass = torch.rand(e, generator=gen, dtype=torch.float64) + 0.5
     start = torch.randn(rows, e, generator=gen, dtype=torch.float64)
-    basis, _ = _orthonormal(start, start[:0], mass)
+    basis, _ = orthonormal(start, start[:0], mass)
     assert basis.shape == (rows, e)
     # S-orthonormal to round-off: the Gram matrix of rows orthonormalized once from random data
     assert torch.allclose((basis * mass) @ basis.T, torch.eye(rows, dtype=torch.float64), atol=1e-13)
     w = torch.randn(4, e, generator=gen, dtype=torch.float64)
     wm = w * mass
-    out, coef = _project_out(w, wm, basis)
+    out, coef = project_out(w, wm, basis)
     want_coef = wm @ basis.T
     assert coef.shape == (4, rows)
     # Each coefficient is one dot product of length 500 (entries ~1): round-off ~1e-14.

@@ -5,7 +5,7 @@ Role
 This module is the *baseline* that ``torchakvf`` is measured against, in two senses:
 
 * **Test oracle.**  It is written independently of ``torchakvf`` (no torch, no ``torchakvf`` imports) and
-  follows ``shared/design/akvf-math.md`` section 2 literally: DEC operators d0/d1/star0/star1/star2, angle-defect
+  follows ``docs/akvf_operator.md`` section 2 literally: DEC operators d0/d1/star0/star1/star2, angle-defect
   curvature, the weak-form Killing operator
 
       R = d1^T S2 d1 + 2 D^T S0^{-1} D - 2 S1 diag(K_e) - 2 R_b      (symmetrized)
@@ -21,7 +21,7 @@ This module is the *baseline* that ``torchakvf`` is measured against, in two sen
 Conventions
 -----------
 * The mesh is scaled to unit total area before anything is assembled, so eigenvalues are ``lambda * area``
-  (the ``delta d + 2 d delta - 2K`` scale of akvf-math.md; the paper's Killing energy is twice that) and the
+  (the ``delta d + 2 d delta - 2K`` scale of docs/akvf_operator.md; the paper's Killing energy is twice that) and the
   default shift ``sigma = -1`` is meaningful regardless of the input units.  The scaled vertices are returned in
   ``meta["V"]``.
 * The input must be a consistently oriented, edge-manifold triangle mesh without zero-area faces (checked).
@@ -130,13 +130,13 @@ SMOOTH_RINGS = 4
 
 
 def killing_operator_scipy(V, F, boundary_correction: bool = True, remedy: str = "none"):
-    """Discrete Killing operator of akvf-math.md section 2 on the unit-area-scaled mesh.
+    """Discrete Killing operator of docs/akvf_operator.md section 2 on the unit-area-scaled mesh.
 
     Parameters
     ----------
     V : [nV, 3] float vertex positions.   F : [nF, 3] int faces (consistently oriented).
     boundary_correction : if True (default), meshes with boundary get the divergence correction (a) and the
-        boundary term (b) of akvf-math.md; if False, the closed-surface formula
+        boundary term of docs/akvf_operator.md, Sec. 2.3; if False, the closed-surface formula
         ``d1^T S2 d1 + 2 S1 d0 S0^{-1} d0^T S1 - 2 S1 diag(K_e)`` is used as is (wrong on open meshes, kept for
         comparison).  On closed meshes both are identical.
     remedy : "none" (the paper's operator), "clamp" (star1 replaced by max(star1, 0.1 mean|star1|)
@@ -359,7 +359,7 @@ def untangle_numpy(Phi, s1, tol: float = 1e-5, max_iter: int = 500, restarts: in
     Maximizes ``sum((H Phi A)^4)`` over orthogonal A, H = sqrt(S1), which is equivalent to minimizing the
     tangling energy (row norms of H Phi A are rotation invariant).  Columns of Phi are first normalized to
     ``w^T S1 w = 1``.  Started from A = I the iteration cannot leave the raw eigenbasis of an exactly symmetric
-    shape (akvf-math.md pitfall 6), so it is run from the identity plus ``restarts`` Haar-random orthogonal
+    shape (docs/akvf_operator.md, Sec. 4), so it is run from the identity plus ``restarts`` Haar-random orthogonal
     starts and the result with the largest sum of 4th powers is kept.
 
     Returns ``(U, A)``: untangled forms ``U = Phi_normalized @ A`` [E, N] and the orthogonal A [N, N].

@@ -1,10 +1,10 @@
 """Alternative eigensolver: implicitly restarted Lanczos (ARPACK, via scipy ``eigsh``) in
 shift-invert mode on the same CHOLMOD factor the LOBPCG path uses. CPU only, one mesh at a time.
 
-Offered for comparison (``torchakvf.akvf(..., solver="lanczos")``; the CPU default before the
-block Krylov solver, and that solver's fallback): it needs fewer solves per eigenpair, but each
-is a single right-hand side, and with a loose tolerance Lanczos can drop copies of repeated
-eigenvalues, which a block method does not. See benchmarks/results/eigensolver_fullres.md.
+The CPU solver of small meshes (``solver="auto"``), the block Krylov solver's fallback, and
+offered by name (``torchakvf.akvf(..., solver="lanczos")``): it needs few solves per eigenpair,
+but each is a single right-hand side, and with a loose tolerance Lanczos can drop copies of
+repeated eigenvalues, which a block method does not (see docs/design.md).
 """
 from __future__ import annotations
 

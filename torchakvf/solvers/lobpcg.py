@@ -35,7 +35,7 @@ _INSIDE = 1e-16
 _BIG = 1e30
 #: Device types on which the batched LOBPCG is preconditioned by one block-diagonal factor of
 #: the batch by default (see :class:`~torchakvf.solvers.factor.BlockDiagonalFactor`): where a
-#: solve call costs its levels, not its rows. On the CPU the two measured the same.
+#: solve call costs its levels, not its rows. On the CPU the two take the same time.
 BLOCK_FACTOR_ON = ("cuda",)
 
 
@@ -131,8 +131,7 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     # Locking: a mesh whose n pairs have converged leaves the iteration. The working arrays hold
     # the live meshes only (``live``: their indices in the batch), and R is the live meshes'
     # block-diagonal part, rebuilt when one leaves (at most B times): the finished ones cost
-    # nothing more (measured on 8 PSB meshes at 4000 faces, converging in 10-17 iterations:
-    # without locking the batch took 1.53x the CPU time of the meshes solved one by one).
+    # nothing more (without locking a batch costs about 1.5x its meshes solved one by one).
     live = list(range(nb))
     stiff = system.stiffness.to(dt)
     mask_l, s_l, inv_l = mask, s, inv_sqrt_s
