@@ -254,7 +254,7 @@ def test_sphere_rotations_nearly_killing(meshes):
     mid = 0.5 * (p[e[:, 0]] + p[e[:, 1]])
     w = np.stack([np.einsum("ec,ec->e", np.cross(a, mid), vec) for a in np.eye(3)], axis=1)
     rq = _rayleigh(system, w)
-    # O(h^2): 0.0165 on icosphere(3) (akvf-math.md Sec. 3), far below the next mode (~25)
+    # O(h^2): 0.0165 on icosphere(3) (docs/akvf_operator.md, Sec. 3), far below the next mode (~25)
     assert np.all((rq > 0.005) & (rq < 0.03)), rq
     # a generic (non-Killing) gradient field costs much more
     g = (p[e[:, 1]] - p[e[:, 0]]) @ np.array([1.0, 2.0, 3.0])

@@ -42,6 +42,8 @@ __all__ = [
     "killing_operator_scipy",
     "whitney_face_vectors_scipy",
     "akvf_scipy",
+    "clamp_mass",
+    "solve_akvf",
     "untangle_numpy",
     "spherical_kmeans_numpy",
     "segment_scipy",
@@ -302,7 +304,7 @@ def whitney_face_vectors_scipy(V, F, edges, forms):
 # Eigenproblem
 # ----------------------------------------------------------------------------------------------------------------
 
-def _clamp_mass(S1: np.ndarray) -> np.ndarray:
+def clamp_mass(S1: np.ndarray) -> np.ndarray:
     """eigsh needs an SPD mass matrix: clamp S1 <= 0 (obtuse pairs, right-angle diagonals) to 1e-8 * mean|S1|."""
     bad = S1 <= 0
     if np.any(bad):
@@ -312,7 +314,7 @@ def _clamp_mass(S1: np.ndarray) -> np.ndarray:
     return S1
 
 
-def _solve_akvf(R, S1, n: int, sigma: float):
+def solve_akvf(R, S1, n: int, sigma: float):
     """Smallest-n generalized eigenpairs of R w = lambda diag(S1) w by ARPACK shift-invert around sigma."""
     M = sp.diags(S1).tocsc()
     nE = R.shape[0]
@@ -328,6 +330,10 @@ def _solve_akvf(R, S1, n: int, sigma: float):
     return lam, Phi @ C
 
 
+#: The names :mod:`torchakvf.evaluate.bench_runs` imports (until it uses the public ones).
+_clamp_mass, _solve_akvf = clamp_mass, solve_akvf
+
+
 def akvf_scipy(V, F, n: int = 32, sigma: float = -1.0, boundary_correction: bool = True):
     """Approximate Killing vector fields: the n smallest eigenpairs of R w = lambda S1 w.
 
@@ -340,7 +346,7 @@ def akvf_scipy(V, F, n: int = 32, sigma: float = -1.0, boundary_correction: bool
     clamping) and edges in the order of :func:`killing_operator_scipy`.
     """
     R, S1, _, _ = killing_operator_scipy(V, F, boundary_correction=boundary_correction)
-    return _solve_akvf(R, _clamp_mass(S1), n, sigma)
+    return solve_akvf(R, clamp_mass(S1), n, sigma)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -456,8 +462,8 @@ def _features_info(V, F, n: int, seed: int, sigma: float, remedy: str, boundary_
     (``untangle_kwargs``: :func:`untangle_numpy`'s). Returns a dict of eigenvalues, forms,
     untangled forms, rotation, features [F, n], edges and S1."""
     R, S1, edges, meta = killing_operator_scipy(V, F, boundary_correction=boundary_correction, remedy=remedy)
-    S1 = _clamp_mass(S1)
-    lam, forms = _solve_akvf(R, S1, n, sigma)
+    S1 = clamp_mass(S1)
+    lam, forms = solve_akvf(R, S1, n, sigma)
     U, A = untangle_numpy(forms, S1, seed=seed, **untangle_kwargs)
     X = whitney_face_vectors_scipy(meta["V"], F, edges, U)
     return dict(eigenvalues=lam, forms=forms, untangled=U, rotation=A,

@@ -24,10 +24,10 @@ import warnings
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import numpy as np
 import torch
 
 from ..errors import ConvergenceWarning, FieldCountError, ParameterError, SolverError
+from ..fields.akvf_result import AKVFResult
 from ..fields.whitney import whitney_face_vectors
 from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
@@ -35,6 +35,7 @@ from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
 from .factor import ShiftedFactor, interior_factor, mesh_factor
 from .krylov import block_krylov
+from . import lobpcg
 from .lanczos import shift_invert_lanczos
 from .lobpcg import EigenResult, segmented_lobpcg
 
@@ -81,67 +82,6 @@ def solver_for(device: torch.device, edges: int | None = None) -> str:
     if torch.device(device).type != "cpu":
         return "lobpcg"
     return "krylov" if edges is None or edges >= KRYLOV_MIN_EDGES else "lanczos"
-
-
-@dataclass
-class AKVFResult:
-    """The n smallest AKVFs of every mesh of a batch (unit-area frame).
-
-    Index spaces: "packed" rows are the batch's meshes one after another (``batch.edge_ptr``,
-    ``batch.face_ptr``), each mesh as packed, i.e. cleaned and, in a batch built with
-    ``coarse_faces``, decimated; :meth:`mesh_face_vectors` maps back to the input faces.
-
-    eigenvalues : [B, n] ascending, λ·area (a unit sphere's rotations: 0, then 8π, ...)
-    forms : packed [ΣE, n] 1-forms (edge values), S1-orthonormal per mesh
-    face_vectors : packed [ΣF, n, 3] Whitney vectors at face barycenters
-    residuals : [B, n] relative residual of each eigenpair (see :class:`EigenResult`)
-    converged : [B] bool, every one of the mesh's n residuals <= tol; a mesh where it is False
-        was returned with a :class:`~torchakvf.errors.ConvergenceWarning` and must not be used
-        as if solved
-    iterations, shifts : [B] eigensolver diagnostics: LOBPCG iterations or shift-invert solves
-        (Lanczos, Krylov: right-hand sides); the shift σ of the factor, λ·area (negative: below
-        the spectrum; positive: the Krylov solver's interior shift; see :class:`EigenResult`)
-    dropped : [B] spurious negative modes (λ·area < SPURIOUS_BELOW) skipped under a remedy
-    solved : [B] eigenpairs computed per mesh (n + room for spurious modes; decided per mesh)
-    batch : the :class:`MeshBatch`; ``system``: its :class:`KillingSystem`
-    """
-
-    eigenvalues: torch.Tensor
-    forms: torch.Tensor
-    face_vectors: torch.Tensor
-    residuals: torch.Tensor
-    iterations: torch.Tensor
-    shifts: torch.Tensor
-    converged: torch.Tensor
-    dropped: torch.Tensor
-    batch: MeshBatch
-    system: KillingSystem
-    solved: torch.Tensor | None = None
-
-    @property
-    def n(self) -> int:
-        return self.eigenvalues.shape[1]
-
-    def mesh_forms(self, b: int) -> torch.Tensor:
-        """[E_b, n] forms of mesh b on the edges of the packed mesh (``batch.meshes[b]``)."""
-        return self.forms[int(self.batch.edge_ptr[b]):int(self.batch.edge_ptr[b + 1])]
-
-    def mesh_face_vectors(self, b: int) -> np.ndarray:
-        """[F_input, n, 3] face vectors of mesh b on the faces of the mesh that was packed, in
-        its input order (0 on faces cleaning dropped). For a decimated mesh that is the
-        decimated mesh; :meth:`Segmentation.face_vectors` reports on the original's faces."""
-        fv = self.face_vectors[int(self.batch.face_ptr[b]):int(self.batch.face_ptr[b + 1])]
-        return self.batch.meshes[b].to_input_faces(fv.detach().cpu().numpy())
-
-    @classmethod
-    def concatenate(cls, parts: list["AKVFResult"], batch: MeshBatch, system: KillingSystem) -> "AKVFResult":
-        """One result on ``batch`` from the results of its meshes solved one at a time (in
-        batch order; ``system`` the batch's)."""
-        cat = lambda name: torch.cat([getattr(p, name) for p in parts])  # noqa: E731
-        return cls(eigenvalues=cat("eigenvalues"), forms=cat("forms"), face_vectors=cat("face_vectors"),
-                   residuals=cat("residuals"), iterations=cat("iterations"), shifts=cat("shifts"),
-                   converged=cat("converged"), dropped=cat("dropped"), batch=batch, system=system,
-                   solved=cat("solved"))
 
 
 def as_batch(meshes, device=None, coarse_faces: int | None = None) -> MeshBatch:
@@ -367,8 +307,7 @@ class AKVFSolver:
                 return self._lanczos(group, count, settings)
             if solver == "krylov":
                 return self._krylov(group, count, settings)
-            return segmented_lobpcg(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
-                                    names=self._names(group), max_iter=settings.max_iter)
+            return self._lobpcg(group, count, settings)
         except FieldCountError:
             raise
         except SolverError as exc:
@@ -381,6 +320,14 @@ class AKVFSolver:
         return shift_invert_lanczos(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
                                     names=self._names(group),
                                     factors=[self.factor(b) for b in group] if cpu else None)
+
+    def _lobpcg(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
+        # Where LOBPCG takes one factor per mesh, the solver's own are passed (and kept); where
+        # it takes one block-diagonal factor of the batch (lobpcg.BLOCK_FACTOR_ON), it makes it.
+        per_mesh = self.batch.device.type not in lobpcg.BLOCK_FACTOR_ON
+        return segmented_lobpcg(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
+                                names=self._names(group), max_iter=settings.max_iter,
+                                factors=[self.factor(b) for b in group] if per_mesh else None)
 
     def _krylov(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
         """Only the n kept pairs (and the spurious ones below them) must converge; the room for
