@@ -26,15 +26,6 @@ def meshes():
             for s in (shapes.dumbbell(), shapes.hemisphere(), shapes.three_blobs(n_around=16))]
 
 
-def test_mesh_of_a_batch_is_the_batch_of_that_mesh(meshes):
-    batch = ta.MeshBatch.from_meshes(meshes)
-    for b, m in enumerate(meshes):
-        one, ref = batch.mesh(b), ta.MeshBatch.from_meshes([m])
-        for name in ("verts", "faces", "edges", "face_edges", "face_edge_sign", "vert_ptr", "face_ptr", "edge_ptr"):
-            assert torch.equal(getattr(one, name), getattr(ref, name)), name
-        assert one.meshes[0] is batch.meshes[b]
-
-
 def test_concatenated_systems_are_the_batch_system(meshes):
     """R, S1 and the geometry of the meshes assembled one at a time, concatenated, against the
     whole batch assembled at once: the same sparsity, entries equal up to the round-off of
