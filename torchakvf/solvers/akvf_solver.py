@@ -34,11 +34,12 @@ from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
 from .factor import ShiftedFactor, interior_factor, mesh_factor
-from .krylov import block_krylov
 from . import lobpcg
+from .krylov import block_krylov
 from .lanczos import shift_invert_lanczos
 from .lobpcg import EigenResult, segmented_lobpcg
 
+#: The eigensolvers a caller may ask for ("auto": :func:`solver_for` decides per mesh).
 SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
 
 #: Device types on which a batch is solved one mesh at a time (each mesh as a batch of its own,
