@@ -75,6 +75,10 @@ def test_one_warning_names_every_unconverged_mesh(meshes):
     for m in meshes[:2]:
         assert m.name in str(conv[0].message)
     assert conv[0].filename == __file__       # reported at the caller of akvf
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        AKVFSolver(meshes[:1]).solve(8, tol=1e-30)
+    assert [w.filename for w in caught if issubclass(w.category, ConvergenceWarning)] == [__file__]
 
 
 def test_untangled_fields_made_per_mesh_add_up_to_the_packed_arrays(meshes):
