@@ -1,6 +1,6 @@
-"""A mesh segmented in a batch gets the bits it gets alone (issue 13: batching that never loses
-must not change answers either): meshes of one round at different field counts and cluster
-counts, so the round's arrays are padded past each mesh's own."""
+"""A mesh segmented in a batch gets the bits it gets alone (batching must not change answers):
+meshes of one round at different field counts and cluster counts, so the round's arrays are
+padded past each mesh's own."""
 import numpy as np
 import pytest
 import torch

@@ -1,79 +1,63 @@
-"""The block Krylov solver at an interior shift (torchakvf.solvers.factor.InteriorFactor).
-
-The factor: an LDLᵀ of an indefinite matrix counts its eigenvalues below the shift (inertia)
-and solves as accurately as the matrix's conditioning allows. The solver: the same eigenpairs
-as at a definite shift, and a fallback to the definite shift wherever its own check fails."""
+"""Shift-invert factors (torchakvf.solvers.factor): the block-diagonal factor of a batch, and
+the block Krylov solver's interior shift (InteriorFactor): the same eigenpairs as at a definite
+shift, and a fallback to the definite shift wherever its own check fails."""
 from __future__ import annotations
 
-import importlib
 import logging
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 import torch
 
 import torchakvf as ta
 from torchakvf import shapes
-from torchakvf.solvers import cholmod
+from torchakvf.solvers import akvf_solver, cholmod
 from torchakvf.solvers.factor import INTERIOR_SHIFT_PER_PAIR, InteriorFactor
 
+from eigen_checks import batch_with_a_low_mesh
 from threads import one_torch_thread  # noqa: F401 - autouse fixture
 
 needs_cholmod = pytest.mark.skipif(cholmod.library() is None,
                                    reason="cholespy's library has no CHOLMOD 3.0 layout here; "
                                           "interior shifts need CHOLMOD called directly")
-akvf_module = importlib.import_module("torchakvf.fields.akvf")
 
 
-def grid_laplacian(m: int) -> tuple[sp.csc_matrix, np.ndarray]:
-    """The 5-point Laplacian of an m x m grid and its eigenvalues (4 - 2cos(iπ/(m+1)) -
-    2cos(jπ/(m+1)), all in (0, 8))."""
-    one = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(m, m))
-    eye = sp.identity(m)
-    mu = 2.0 - 2.0 * np.cos(np.arange(1, m + 1) * np.pi / (m + 1))
-    return (sp.kron(one, eye) + sp.kron(eye, one)).tocsc(), np.add.outer(mu, mu).ravel()
+def test_block_diagonal_factor_is_each_mesh_own_factor():
+    """One factor of the block-diagonal batch: each mesh gets the shift its own ladder finds (a
+    trial at -1 fails because of one mesh, and the ladder runs per mesh), and the solve is each
+    block's exact solve: backward error at round-off level per mesh (a conditioning-free
+    check), and the same solution as the mesh's own factor within cond · eps."""
+    from torchakvf.solvers.factor import BlockDiagonalFactor, mesh_factor
+    system = batch_with_a_low_mesh()
+    block = BlockDiagonalFactor(system)
+    alone = [mesh_factor(system, b, f"mesh {b}") for b in range(system.n_meshes)]
+    assert block.sigma.tolist() == [f.sigma for f in alone] == [-1.0, -8.0, -1.0]
+    rhs = torch.randn(len(system.mass), 5, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    x = block.solve(rhs)
+    shifted = system.stiffness - torch.sparse_coo_tensor(
+        torch.arange(len(system.mass)).repeat(2, 1),
+        torch.repeat_interleave(block.sigma, system.edge_ptr[1:] - system.edge_ptr[:-1]) * system.mass,
+        system.stiffness.shape, check_invariants=False)
+    for b, f in enumerate(alone):
+        lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
+        a = shifted.to_dense()[lo:hi, lo:hi]          # small test meshes (< 1000 edges)
+        r = a @ x[lo:hi] - rhs[lo:hi]
+        backward = float(r.abs().max() / (a.abs().sum(1).max() * x[lo:hi].abs().max()))
+        assert backward < 1e-13, (b, backward)
+        cond = float(torch.linalg.cond(a))
+        gap = float((f.solve(rhs[lo:hi]) - x[lo:hi]).abs().max() / x[lo:hi].abs().max())
+        assert gap < 100 * cond * 2.2e-16, (b, gap, cond)
 
 
-def lower_csc(a: sp.csc_matrix):
-    low = sp.tril(a).tocsc()
-    low.sort_indices()
-    return low.indptr, low.indices, low.data.copy()
-
-
-@needs_cholmod
-def test_indefinite_factor_counts_the_eigenvalues_below_and_solves():
-    a, lam = grid_laplacian(24)
-    indptr, indices, values = lower_csc(a)
-    f = cholmod.CholmodFactor(a.shape[0], indptr, indices, values)
-    for shift in (3.1, 5.7):
-        v = values.copy()
-        v[indptr[:-1]] -= shift
-        assert not f.factorize(v)                        # indefinite: refused by default
-        assert not f.positive_definite
-        with pytest.raises(ta.SolverError, match="not positive definite"):
-            f.solve_rows(torch.ones(1, a.shape[0], dtype=torch.float64))
-        assert f.factorize(v, indefinite=True)
-        assert f.negative_pivots == int((lam < shift).sum())   # Sylvester's law of inertia
-        shifted = (a - shift * sp.identity(a.shape[0])).tocsc()
-        rhs = np.random.default_rng(0).standard_normal((3, a.shape[0]))
-        want = spla.splu(shifted).solve(rhs.T).T
-        cond = np.abs(lam - shift).max() / np.abs(lam - shift).min()
-        got = f.solve_rows(torch.from_numpy(rhs)).numpy()
-        np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * cond * np.abs(want).max())
-    # a definite matrix: no negative pivot, usable either way
-    assert f.factorize(values, indefinite=True) and f.positive_definite and f.negative_pivots == 0
-
-
-@needs_cholmod
-def test_indefinite_factor_with_a_zero_pivot_is_refused():
-    # [[0, 1], [1, 0]]: nonsingular, but LDLᵀ without pivoting breaks down at the first pivot.
-    indptr, indices = np.array([0, 2, 3]), np.array([0, 1, 1])
-    f = cholmod.CholmodFactor(2, indptr, indices, np.array([0.0, 1.0, 0.0]))
-    assert not f.factorize(np.array([0.0, 1.0, 0.0]), indefinite=True)
-    with pytest.raises(ta.SolverError):
-        f.solve_rows(torch.ones(1, 2, dtype=torch.float64))
+def test_block_diagonal_factor_shifts_given_and_unsolvable():
+    from torchakvf.solvers.factor import BlockDiagonalFactor
+    system = batch_with_a_low_mesh()
+    assert BlockDiagonalFactor(system, shifts=[-2.0, -8.0, -1.0]).sigma.tolist() == [-2.0, -8.0, -1.0]
+    with pytest.raises(ta.SolverError) as exc:
+        BlockDiagonalFactor(system, names=["a", "b", "c"], shifts=[-1.0, -1.0, -1.0])
+    assert "a, b, c" in str(exc.value)
+    with pytest.raises(ta.ParameterError):
+        BlockDiagonalFactor(system, shifts=[-1.0])
 
 
 def table_mesh() -> ta.Mesh:
@@ -82,7 +66,7 @@ def table_mesh() -> ta.Mesh:
 
 
 def definite_only(monkeypatch):
-    monkeypatch.setattr(akvf_module, "interior_factor", lambda system, b, need, definite: definite())
+    monkeypatch.setattr(akvf_solver, "interior_factor", lambda system, b, need, definite: definite())
 
 
 @needs_cholmod
@@ -90,7 +74,7 @@ def test_akvf_at_the_interior_shift_equals_the_definite_shift(monkeypatch):
     n = 16
     mesh = table_mesh()
     inner = ta.akvf(mesh, n=n)
-    assert akvf_module.solver_for(torch.device("cpu"), len(inner.batch.edges)) == "krylov"
+    assert akvf_solver.solver_for(torch.device("cpu"), len(inner.batch.edges)) == "krylov"
     assert float(inner.shifts[0]) == INTERIOR_SHIFT_PER_PAIR * n
     definite_only(monkeypatch)
     outer = ta.akvf(mesh, n=n)
@@ -116,7 +100,7 @@ def test_a_failed_check_solves_again_at_the_definite_shift(monkeypatch, caplog, 
     definite_only(monkeypatch)
     want = ta.akvf(mesh, n=n)
     monkeypatch.undo()
-    real = akvf_module.interior_factor
+    real = akvf_solver.interior_factor
 
     def spoiled(system, b, need, definite):
         f = real(system, b, need, definite)
@@ -127,7 +111,7 @@ def test_a_failed_check_solves_again_at_the_definite_shift(monkeypatch, caplog, 
             f.floor = 1e9
         return f
 
-    monkeypatch.setattr(akvf_module, "interior_factor", spoiled)
+    monkeypatch.setattr(akvf_solver, "interior_factor", spoiled)
     with caplog.at_level(logging.INFO, logger="torchakvf.solvers.krylov"):
         got = ta.akvf(mesh, n=n)
     assert "solving again at a definite shift" in caplog.text
@@ -141,7 +125,7 @@ def test_no_definite_shift_still_raises(monkeypatch):
     """A mesh with an eigenvalue below every definite shift raised a SolverError (so that a
     decimated one is solved at full resolution): at the interior shift it still does."""
     mesh = table_mesh()
-    real = akvf_module.interior_factor
+    real = akvf_solver.interior_factor
 
     def no_definite(system, b, need, definite):
         def raising():
@@ -150,7 +134,7 @@ def test_no_definite_shift_still_raises(monkeypatch):
         f.floor = 1e9                     # every eigenvalue counts as below the last shift
         return f
 
-    monkeypatch.setattr(akvf_module, "interior_factor", no_definite)
+    monkeypatch.setattr(akvf_solver, "interior_factor", no_definite)
     with pytest.raises(ta.SolverError, match="no shift made"):
         ta.akvf(mesh, n=16)
 
