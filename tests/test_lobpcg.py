@@ -43,9 +43,11 @@ def test_lobpcg_block_factor_equals_per_mesh_factors():
 def test_lobpcg_locking_each_mesh_stops_on_its_own():
     """Segmented LOBPCG on a batch whose meshes converge after different numbers of iterations:
     a converged mesh leaves the iteration (the live meshes' R is rebuilt), and every mesh ends
-    with the iterations and eigenpairs it gets alone. Alone and batched differ only in the
-    round-off of the padded products: eigenvalues to 1e-9 relative (their residuals are below
-    1e-8, squared over gaps of order 1), the same invariant subspaces."""
+    with the eigenpairs it gets alone, within one iteration of its count alone. Alone and batched
+    differ only in the round-off of the padded products: a residual that lands within round-off
+    of tol can cross it one iteration earlier or later (which one depends on the CPU's and BLAS's
+    summation order), eigenvalues agree to 1e-9 relative (their residuals are below 1e-8, squared
+    over gaps of order 1), and the invariant subspaces are the same."""
     from torchakvf.operators import killing_operator
     from torchakvf.solvers.lobpcg import segmented_lobpcg
     meshes = [mesh_of(shapes.icosphere(2)), mesh_of(shapes.dumbbell(n_around=24)),
@@ -58,7 +60,7 @@ def test_lobpcg_locking_each_mesh_stops_on_its_own():
     for b in range(len(meshes)):
         one = killing_operator(batch.mesh(b), remedy=PAPER)
         alone = segmented_lobpcg(one, 8, tol=1e-8)
-        assert int(both.iterations[b]) == int(alone.iterations[0])
+        assert abs(int(both.iterations[b]) - int(alone.iterations[0])) <= 1
         torch.testing.assert_close(both.eigenvalues[b], alone.eigenvalues[0], rtol=1e-9, atol=1e-9)
         e0, e1 = int(batch.edge_ptr[b]), int(batch.edge_ptr[b + 1])
         lam = alone.eigenvalues[0].numpy()
