@@ -51,10 +51,10 @@ def decode_off(raw: bytes, name: str) -> str:
 def parse_off(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     """Vertices [V, 3] float64 and triangles [F, 3] int64 of an ASCII OFF file's bytes, faces in
     file order. Strict: a polygon that is not a triangle is an error, not silently split."""
-    fast = _parse_plain_off(raw)
+    fast = parse_plain_off(raw)
     if fast is not None:
         return fast
-    return _parse_off_by_lines(raw, name)
+    return parse_off_by_lines(raw, name)
 
 
 #: Bytes the vectorized reader accepts: printable ASCII, tab, and the two line breaks.
@@ -64,8 +64,8 @@ _PLAIN[[9, 10, 13]] = True
 _HASH = ord("#")
 
 
-def _parse_plain_off(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
-    """The same arrays as :func:`_parse_off_by_lines`, read with numpy over the whole buffer
+def parse_plain_off(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
+    """The same arrays as :func:`parse_off_by_lines`, read with numpy over the whole buffer
     instead of a Python loop over lines (4-5x faster on PSB files); None for any file it does
     not take as is (a comment, another control byte, a header or a line that does not fit), which
     the line reader then parses or rejects with its message.
@@ -74,7 +74,7 @@ def _parse_plain_off(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
     starts binned by line), so every vertex line must hold >= 3 tokens (its first 3 are read)
     and every face line >= 4 with a leading ``3``, exactly as the line reader requires. numpy's
     bytes-to-number casts parse like Python's ``float``/``int``, so the values are identical;
-    so does its text reader (:func:`_read_sections`, correctly rounded), which takes the usual
+    so does its text reader (:func:`read_sections`, correctly rounded), which takes the usual
     file (3 numbers per vertex line, 4 per face line, plain decimals).
     """
     a = np.frombuffer(raw, dtype=np.uint8)
@@ -110,7 +110,7 @@ def _parse_plain_off(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
         starts = np.r_[0, np.flatnonzero(newline) + 1]
         v0, f0 = starts[lines[used]], starts[lines[used + nv]]
         f1 = starts[lines[used + nv + nf - 1] + 1] if lines[used + nv + nf - 1] + 1 < len(starts) else len(a)
-        plain = _read_sections(raw, a, (v0, f0, f1), nv, nf)
+        plain = read_sections(raw, a, (v0, f0, f1), nv, nf)
         if plain is not None:
             return plain
     tok = np.array(raw.split())
@@ -131,7 +131,7 @@ _INTEGER = np.zeros(256, dtype=bool)
 _INTEGER[[ord(c) for c in "0123456789+- \t\n"]] = True
 
 
-def _read_sections(raw: bytes, a: np.ndarray, cuts: tuple, nv: int, nf: int):
+def read_sections(raw: bytes, a: np.ndarray, cuts: tuple, nv: int, nf: int):
     """(vertices [nv, 3], faces [nf, 3]) from the vertex lines raw[v0:f0] (3 numbers each) and
     the face lines raw[f0:f1] ("3 i j k" each) with numpy's text reader, or None where the
     bytes are not plain decimals or a line does not parse (the token reader decides then)."""
@@ -148,7 +148,7 @@ def _read_sections(raw: bytes, a: np.ndarray, cuts: tuple, nv: int, nf: int):
     return vertices, np.ascontiguousarray(faces[:, 1:])
 
 
-def _parse_off_by_lines(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
+def parse_off_by_lines(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     """:func:`parse_off` line by line: the reference reader, and the one that words the errors."""
     lines = data_lines(decode_off(raw, name))
     nv, nf, used = off_counts(lines, name)

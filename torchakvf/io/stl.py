@@ -1,0 +1,133 @@
+"""The STL reader (binary and ASCII): one triangle per facet, in file order, three vertices per
+facet (a triangle soup; :func:`torchakvf.mesh.clean_mesh` merges the shared corners).
+
+A binary file is its 84-byte header (80 free bytes, then the triangle count) and 50 bytes per
+triangle: a file whose size disagrees with its count is refused ("truncated: header says N
+triangles, file has room for M", or the bytes past the last triangle). A file that starts
+with ``solid`` and is text is read as ASCII: ``facet [normal nx ny nz]``, ``outer loop``,
+three ``vertex x y z`` lines, ``endloop``, ``endfacet``, and ``endsolid`` to close each solid;
+any other line, a facet with another number of vertices, or a file that ends inside a solid
+is refused with the line it happened on.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import MeshError
+
+HEADER_BYTES = 84
+TRIANGLE_BYTES = 50
+_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+
+
+def is_binary(raw: bytes) -> bool:
+    """Whether the bytes are read as a binary STL: the size matches the header's count, or the
+    file does not start with ``solid`` followed by text."""
+    if len(raw) >= HEADER_BYTES:
+        n = int.from_bytes(raw[80:84], "little")
+        if HEADER_BYTES + TRIANGLE_BYTES * n == len(raw):
+            return True
+    if not raw.lstrip()[:5].lower() == b"solid":
+        return True
+    return b"\x00" in raw or not raw.isascii()
+
+
+def parse_stl(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices [3F, 3] float64 (three per facet) and faces [F, 3] int64 (``[3f, 3f+1, 3f+2]``)
+    of an STL file's bytes; see the module docstring for what is refused."""
+    corners = _binary(raw, name) if is_binary(raw) else _ascii(raw.decode("ascii"), name)
+    n = len(corners)
+    return corners.reshape(-1, 3), np.arange(3 * n, dtype=np.int64).reshape(n, 3)
+
+
+def binary_face_count(raw_head: bytes, size: int, name: str) -> int:
+    """The triangle count of a binary STL from its first 84 bytes and its size in bytes,
+    checked against the size."""
+    if size < HEADER_BYTES:
+        raise MeshError(name, f"truncated: a binary STL starts with an {HEADER_BYTES}-byte header, "
+                              f"the file has {size} bytes")
+    n = int.from_bytes(raw_head[80:84], "little")
+    room = (size - HEADER_BYTES) // TRIANGLE_BYTES
+    if n > room:
+        raise MeshError(name, f"truncated: header says {n} triangles, file has room for {room}")
+    extra = size - HEADER_BYTES - TRIANGLE_BYTES * n
+    if extra:
+        raise MeshError(name, f"{extra} bytes past the {n} triangles the header says (the file "
+                              f"has {size} bytes, {HEADER_BYTES + TRIANGLE_BYTES * n} expected)")
+    if n == 0:
+        raise MeshError(name, "empty mesh (the binary STL header says 0 triangles)")
+    return n
+
+
+def _binary(raw: bytes, name: str) -> np.ndarray:
+    n = binary_face_count(raw[:HEADER_BYTES], len(raw), name)
+    records = np.frombuffer(raw, dtype=_RECORD, count=n, offset=HEADER_BYTES)
+    return records["corners"].astype(np.float64)
+
+
+def _ascii(text: str, name: str) -> np.ndarray:
+    """[F, 3, 3] the corners of each facet of an ASCII STL."""
+    corners: list[list[str]] = []
+    state, facet_line, current = "file", 0, []
+    lines = [(i, ln.split()) for i, ln in enumerate(text.splitlines(), start=1)]
+    for number, words in lines:
+        if not words:
+            continue
+        key = words[0].lower()
+        expect = _NEXT[state]
+        if key not in expect:
+            raise MeshError(name, f"line {number}: {' '.join(words)[:60]!r} where the STL grammar "
+                                  f"expects {' or '.join(repr(k) for k in expect)}"
+                                  + (f" (facet {len(corners)})" if state not in ("file", "solid") else ""))
+        if key == "facet":
+            if len(words) not in (1, 5) or (len(words) == 5 and words[1].lower() != "normal"):
+                raise MeshError(name, f"line {number}: expected 'facet normal nx ny nz' (facet {len(corners)})")
+            facet_line, current = number, []
+        elif key == "outer" and [w.lower() for w in words] != ["outer", "loop"]:
+            raise MeshError(name, f"line {number}: expected 'outer loop' (facet {len(corners)})")
+        elif key == "vertex":
+            if len(words) != 4:
+                raise MeshError(name, f"line {number}: vertex of facet {len(corners)} does not hold 3 "
+                                      "coordinates")
+            current.append(words[1:])
+        elif key == "endloop" and len(current) != 3:
+            raise MeshError(name, f"facet {len(corners)} (line {facet_line}) has {len(current)} "
+                                  "vertices; only triangles are supported")
+        elif key == "endfacet":
+            corners.append(current)
+        state = _STATE_AFTER[key] if key != "vertex" else ("loop" if len(current) < 3 else "loop_full")
+    if state != "file":
+        raise MeshError(name, f"truncated: the file ends inside "
+                              + (f"facet {len(corners)} (line {facet_line})" if state not in ("solid",)
+                                 else f"a solid, after {len(corners)} facets, without 'endsolid'"))
+    if not corners:
+        raise MeshError(name, "no triangles found in this STL file (no facets)")
+    try:
+        return np.array(corners, dtype=np.float64)
+    except ValueError:
+        for f, facet in enumerate(corners):
+            for corner in facet:
+                for t in corner:
+                    try:
+                        float(t)
+                    except ValueError:
+                        raise MeshError(name, f"facet {f}: vertex coordinate {t!r} is not a number") from None
+        raise
+
+
+#: The keywords each state of the ASCII grammar takes, and the state each keyword leads to.
+_NEXT = {"file": ("solid",), "solid": ("facet", "endsolid"), "facet": ("outer",),
+         "loop": ("vertex", "endloop"), "loop_full": ("endloop", "vertex"), "endloop": ("endfacet",)}
+_STATE_AFTER = {"solid": "solid", "facet": "facet", "outer": "loop", "endloop": "endloop",
+                "endfacet": "solid", "endsolid": "file"}
+
+
+def face_count(raw: bytes, name: str) -> int:
+    """Facets an STL file's bytes declare: the binary header's count (checked against the
+    size), or the ``facet`` lines of an ASCII file."""
+    if is_binary(raw):
+        return binary_face_count(raw[:HEADER_BYTES], len(raw), name)
+    return len([1 for ln in raw.splitlines() if ln.split()[:1] and ln.split()[0].lower() == b"facet"])
+
+
+__all__ = ["parse_stl", "is_binary", "binary_face_count", "face_count", "HEADER_BYTES", "TRIANGLE_BYTES"]
