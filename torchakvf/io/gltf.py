@@ -142,7 +142,8 @@ def _item(doc: dict, key: str, index, where: str) -> dict:
     if not isinstance(items, list) or not isinstance(index, int) or not 0 <= index < len(items) \
             or not isinstance(items[index], dict):
         size = len(items) if isinstance(items, list) else 0
-        raise _Bad(f"{where} refers to {key[:-1]} {index!r}, the file has {size} {key}")
+        singular = {"meshes": "mesh", "accessors": "accessor"}.get(key, key[:-1])
+        raise _Bad(f"{where} refers to {singular} {index!r}, the file has {size} {key}")
     return items[index]
 
 

@@ -191,9 +191,10 @@ def _read_ascii(body: bytes, header: Header, name: str) -> dict:
         raise MeshError(name, f"truncated: header declares {declared} data lines ({have}), "
                               f"file has {len(lines)}")
     if len(lines) > declared:
-        raise MeshError(name, f"{len(lines) - declared} lines past the {declared} data lines the "
-                              f"header declares (first extra: line {header.lines + declared + 1}); "
-                              "the header's counts do not match the data")
+        extra = len(lines) - declared
+        raise MeshError(name, f"{extra} data line{'s' if extra > 1 else ''} past the {declared} the "
+                              f"header declares (first: line {header.lines + declared + 1}); the "
+                              "header's counts do not match the data")
     values, start = {}, 0
     for element in header.elements:
         chunk = lines[start:start + element.count]

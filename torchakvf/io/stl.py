@@ -70,11 +70,16 @@ def _ascii(text: str, name: str) -> np.ndarray:
     corners: list[list[str]] = []
     state, facet_line, current = "file", 0, []
     lines = [(i, ln.split()) for i, ln in enumerate(text.splitlines(), start=1)]
+    # a last line without its line break was cut: a fault on it is the truncation
+    cut_line = lines[-1][0] if lines and not text.endswith(("\n", "\r")) else -1
     for number, words in lines:
         if not words:
             continue
         key = words[0].lower()
         expect = _NEXT[state]
+        if number == cut_line and (key not in expect or (key == "vertex" and len(words) != 4)):
+            raise MeshError(name, f"truncated: the file ends inside line {number}"
+                                  + (f" (facet {len(corners)})" if state not in ("file", "solid") else ""))
         if key not in expect:
             raise MeshError(name, f"line {number}: {' '.join(words)[:60]!r} where the STL grammar "
                                   f"expects {' or '.join(repr(k) for k in expect)}"
