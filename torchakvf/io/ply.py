@@ -80,11 +80,17 @@ def parse_header(raw: bytes, name: str) -> Header:
         elif words[0] == "element":
             if len(words) != 3 or not words[2].isdigit():
                 raise MeshError(name, f"{where}: expected 'element <name> <count>'")
+            if any(e.name == words[1] for e in elements):
+                raise MeshError(name, f"{where}: a second element '{words[1]}'")
             elements.append(Element(words[1], int(words[2])))
         elif words[0] == "property":
             if not elements:
                 raise MeshError(name, f"{where}: a property before any element")
-            elements[-1].properties.append(_property(words, where, name))
+            prop = _property(words, where, name)
+            if any(p.name == prop.name for p in elements[-1].properties):
+                raise MeshError(name, f"{where}: a second property '{prop.name}' in element "
+                                      f"'{elements[-1].name}'")
+            elements[-1].properties.append(prop)
         else:
             raise MeshError(name, f"{where}: not a PLY header line")
     if encoding is None:
