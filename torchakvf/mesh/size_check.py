@@ -12,13 +12,13 @@ from .clean import undirected_edges
 
 def check_fields_fit(name: str, faces: np.ndarray, n_fields: int, *, k: int | None = None,
                      fields_for_k: Callable[[int], int] | None = None,
-                     subdivide_hint: str = "subdivide it (--subdivide)") -> None:
+                     subdivide_hint: str = "subdivide it (torchakvf.mesh.subdivide)") -> None:
     """Raise :class:`ParameterError` with what the user can do when ``faces`` [F, 3] (the
     cleaned mesh's) have fewer edges than ``n_fields``.
 
     k : the parts asked for, named in the message; fields_for_k : the field count each k
         needs, to name the largest k this mesh can take; subdivide_hint : how the user asks
-        for a subdivision (the CLI option; the library's ``torchakvf.mesh.subdivide``).
+        for a subdivision (the library's function by default; a command names its option).
     """
     n_edges = len(undirected_edges(np.asarray(faces)).unique)
     if n_fields <= n_edges:
