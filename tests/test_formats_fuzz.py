@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -153,3 +154,35 @@ def test_mutated_files_are_read_whole_or_refused_in_one_line(tmp_path, fmt):
         except ta.MeshError as err:
             assert "\n" not in str(err) and str(err).startswith(f"{path}: ")
     assert read > 10 and refused > 10, (read, refused)
+
+
+def test_a_folder_run_writes_one_label_per_declared_face(tmp_path):
+    """Mutated files of every format in one `segment` folder run: each mesh is `ok` with a .seg
+    of one line per face its file declares, or `failed` with a one-line error naming it."""
+    from torchakvf.io.manifest import read_manifest_records
+    from torchakvf.pipeline.inputs import discover_inputs
+    from torchakvf.pipeline.runner import run_corpus
+    from torchakvf.pipeline.segment_task import SegmentTask
+
+    rng = np.random.default_rng(11)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    declared = {}
+    for fmt, source in _sources().items():
+        for n in range(3):
+            data = source if n == 0 else (_mutate_text(source, rng) if _text_part(fmt, source)
+                                          else _mutate_binary(source, rng))
+            path = folder / f"{fmt.replace('.', '_')}{n}.{fmt.split('.')[-1]}"
+            path.write_bytes(data)
+            declared[str(path.resolve())] = _declared(fmt, data)
+    summary = run_corpus(discover_inputs([str(folder)]), tmp_path / "out", SegmentTask(3, formats=("seg",)),
+                         batch_faces=2000, progress=False)
+    records = {r["path"]: r for r in read_manifest_records(tmp_path / "out")}
+    assert len(records) == len(declared) == summary.ok + summary.failed
+    assert summary.ok >= 7 and summary.exit_code == (1 if summary.failed else 0)
+    for path, rec in records.items():
+        if rec["status"] == "ok":
+            lines = (tmp_path / "out" / f"{rec['stem']}.seg").read_text().splitlines()
+            assert len(lines) == declared[path], path
+        else:
+            assert "\n" not in rec["error"] and Path(path).name in rec["error"], rec["error"]
