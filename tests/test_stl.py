@@ -86,3 +86,16 @@ def test_truncated_binary_header_count_is_refused_by_peek_too(tmp_path, sphere_s
     path = write_file(tmp_path / "tb.stl", binary[:-30])
     with pytest.raises(ta.MeshError, match="header says 80 triangles, file has room for 79"):
         ta.io.peek_face_count(path)
+
+
+def test_the_plain_ascii_reader_equals_the_line_reader(sphere_stl):
+    from torchakvf.io.stl import read_ascii_lines, read_plain_ascii
+    _, _, text = sphere_stl
+    text = text.decode()
+    plain = read_plain_ascii(text)
+    assert plain is not None and plain.tobytes() == read_ascii_lines(text, "x").tobytes()
+    for other in (text.replace("vertex", "VERTEX", 1),                # keywords in capitals
+                  text.replace("endsolid", "endsolid a\nsolid b\n" + _FACET + "endsolid"),   # two solids
+                  text.replace("facet normal", "facet\nnormal", 1)):  # a line split
+        assert read_plain_ascii(other) is None
+    assert len(read_ascii_lines(text.replace("vertex", "VERTEX", 1), "x")) == 80

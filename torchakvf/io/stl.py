@@ -35,7 +35,12 @@ def is_binary(raw: bytes) -> bool:
 def parse_stl(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     """Vertices [3F, 3] float64 (three per facet) and faces [F, 3] int64 (``[3f, 3f+1, 3f+2]``)
     of an STL file's bytes; see the module docstring for what is refused."""
-    corners = _binary(raw, name) if is_binary(raw) else _ascii(raw.decode("ascii"), name)
+    if is_binary(raw):
+        corners = _binary(raw, name)
+    else:
+        text = raw.decode("ascii")
+        corners = read_plain_ascii(text)
+        corners = read_ascii_lines(text, name) if corners is None else corners
     n = len(corners)
     return corners.reshape(-1, 3), np.arange(3 * n, dtype=np.int64).reshape(n, 3)
 
@@ -65,7 +70,36 @@ def _binary(raw: bytes, name: str) -> np.ndarray:
     return records["corners"].astype(np.float64)
 
 
-def _ascii(text: str, name: str) -> np.ndarray:
+#: Token columns of a facet as most exporters write it (21 tokens on 7 lines), and its corners'.
+_FACET_WORDS = {0: "facet", 1: "normal", 5: "outer", 6: "loop", 7: "vertex", 11: "vertex",
+                15: "vertex", 19: "endloop", 20: "endfacet"}
+_CORNER_COLUMNS = [8, 9, 10, 12, 13, 14, 16, 17, 18]
+
+
+def read_plain_ascii(text: str) -> np.ndarray | None:
+    """:func:`read_ascii_lines`'s corners for the usual file (one solid, every facet in 7 lines
+    of the usual 21 tokens), read with numpy instead of line by line; None for any other file,
+    which the line reader then reads or refuses with its message."""
+    tokens = text.split()
+    if not tokens or tokens[0].lower() != "solid" or "facet" not in tokens or "endsolid" not in tokens:
+        return None
+    start = tokens.index("facet")
+    end = len(tokens) - 1 - tokens[::-1].index("endsolid")
+    n, rest = divmod(end - start, 21)
+    if rest or n == 0 or len(tokens) - end > 2:
+        return None
+    if sum(1 for line in text.splitlines() if line.strip()) != 2 + 7 * n:
+        return None
+    table = np.array(tokens[start:end], dtype=object).reshape(n, 21)
+    if any((table[:, col] != word).any() for col, word in _FACET_WORDS.items()):
+        return None
+    try:
+        return table[:, _CORNER_COLUMNS].astype(np.float64).reshape(n, 3, 3)
+    except (ValueError, OverflowError):
+        return None
+
+
+def read_ascii_lines(text: str, name: str) -> np.ndarray:
     """[F, 3, 3] the corners of each facet of an ASCII STL."""
     corners: list[list[str]] = []
     state, facet_line, current = "file", 0, []
