@@ -148,3 +148,12 @@ def test_header_is_read_with_its_counts():
     h = parse_header(_ascii(3, 1, _TRI + "3 0 1 2\n").encode(), "x")
     assert h.encoding == "ascii" and [(e.name, e.count) for e in h.elements] == [("vertex", 3), ("face", 1)]
     assert h.lines == 9 and h.elements[1].properties[0].is_list
+
+
+def test_a_wild_list_length_is_truncation_not_a_huge_read(tmp_path):
+    head = (b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+            b"property float z\nproperty list uint float foo\nelement face 1\n"
+            b"property list uchar int vertex_indices\nend_header\n")
+    body = struct.pack("<fffI", 0, 0, 0, 0xFFFFFFFF) + b"\0" * 40
+    assert_refused(write_file(tmp_path / "w.ply", head + body),
+                   r"truncated: .* inside vertex 0 of the 1 the header declares \(its list 'foo' says 4294967295 items\)")

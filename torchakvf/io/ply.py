@@ -363,6 +363,10 @@ def _first_lengths(body: bytes, offset: int, element: Element, order: str, heade
             raise MeshError(name, f"face 0 has {n} vertices; only triangle meshes are supported")
         lengths[p.name] = n
         pos += np.dtype(p.count_dtype).itemsize + n * np.dtype(p.dtype).itemsize
+        if pos > len(body):
+            raise MeshError(name, f"truncated: the data ends at byte {header.size + len(body)}, inside "
+                                  f"{element.name} 0 of the {element.count} the header declares "
+                                  f"(its list '{p.name}' says {n} items)")
     return lengths
 
 
