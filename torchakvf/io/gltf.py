@@ -61,9 +61,17 @@ def parse_gltf(raw: bytes, name: str, folder: Path | None = None) -> tuple[np.nd
     return np.concatenate(vertices), np.concatenate(faces)
 
 
+def glb_json_size(head: bytes) -> int | None:
+    """Bytes of a GLB's JSON chunk from the file's first 20 bytes (None: not a GLB), so a
+    caller can read the JSON without the binary chunk."""
+    if len(head) < 20 or head[:4] != _GLB_MAGIC:
+        return None
+    return struct.unpack_from("<I", head, 12)[0]
+
+
 def face_count(raw: bytes, name: str) -> int:
     """Triangles the scene of a glTF file's bytes declares (from the JSON: index or position
-    counts), without reading the buffers."""
+    counts), without reading the buffers. ``raw`` may also be a GLB's JSON chunk alone."""
     try:
         doc, _ = _document(raw, name)
         total = 0
@@ -337,4 +345,4 @@ def _corner_triangles(index: np.ndarray, mode: int) -> np.ndarray:
     return np.stack([index[a], index[b], index[i + 2]], axis=1)
 
 
-__all__ = ["parse_gltf", "face_count"]
+__all__ = ["parse_gltf", "face_count", "glb_json_size"]

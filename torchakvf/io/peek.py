@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import MeshError
 from . import stl
-from .gltf import face_count as gltf_face_count
+from .gltf import face_count as gltf_face_count, glb_json_size
 from .load import mesh_format
 from .obj import face_count as obj_face_count
 from .off import off_face_count
@@ -51,7 +51,9 @@ def peek_face_count(path: str | os.PathLike) -> int | None:
                         return n
                 return stl.face_count(head + fh.read(), name)
             if fmt in ("glb", "gltf"):
-                return gltf_face_count(fh.read(), name)
+                head = fh.read(20)
+                size = glb_json_size(head)
+                return gltf_face_count(head + fh.read() if size is None else fh.read(size), name)
             return obj_face_count(fh.read())
     except FileNotFoundError:
         raise MeshError(name, "file not found") from None
