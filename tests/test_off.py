@@ -135,3 +135,15 @@ def test_vectorized_off_reader_on_psb_files_equals_the_line_reader():
         assert fast is not None and all(np.array_equal(a, b) for a, b in zip(fast, ref))
 
 
+@pytest.mark.parametrize("text, problem", [
+    ("OFF\n3 1 0\n0 0 0\n1 0\n0 1 0\n3 0 1 2\n", r"vertex line does not hold 3 numbers \(vertex 1, line 4\)"),
+    ("# c\nOFF\n3 1 0\n\n0 0 0\n1 0 0\n0 x 0\n3 0 1 2\n", r"\(vertex 2, line 7\)"),
+    ("OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n4 0 1 2 0\n", r"face 1 has 4 vertices.*face 1, line 7\)"),
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n# c\nx 0 1 2\n", r"vertex count \(face 0, line 7\)"),
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2.5\n", r"non-integer vertex index \(face 0, line 6\)"),
+])
+def test_off_errors_name_the_vertex_or_face_and_its_line(text, problem):
+    from torchakvf.io.off import parse_off
+    with pytest.raises(ta.MeshError, match=problem):
+        parse_off(text.encode(), "x.off")
+

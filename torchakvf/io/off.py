@@ -149,8 +149,10 @@ def read_sections(raw: bytes, a: np.ndarray, cuts: tuple, nv: int, nf: int):
 
 
 def parse_off_by_lines(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`parse_off` line by line: the reference reader, and the one that words the errors."""
-    lines = data_lines(decode_off(raw, name))
+    """:func:`parse_off` line by line: the reference reader, and the one that words the errors
+    (naming the vertex or face and its line in the file)."""
+    text = decode_off(raw, name)
+    lines = data_lines(text)
     nv, nf, used = off_counts(lines, name)
     rest = lines[used:]
     if nv <= 0 or nf <= 0:
@@ -158,30 +160,69 @@ def parse_off_by_lines(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     if len(rest) < nv + nf:
         raise MeshError(name, f"truncated: header announces {nv} vertices and {nf} faces, "
                               f"file has {len(rest)} data lines")
+
+    def where(kind: str, i: int) -> str:
+        return f"{kind} {i}, line {_file_line(text, used + (i if kind == 'vertex' else nv + i))}"
+
+    rows = [ln.split()[:3] for ln in rest[:nv]]
     try:
-        vertices = np.array([ln.split()[:3] for ln in rest[:nv]], dtype=np.float64)
+        vertices = np.array(rows, dtype=np.float64)
     except ValueError:
-        raise MeshError(name, "a vertex line does not hold 3 numbers") from None
-    if vertices.shape != (nv, 3):
-        raise MeshError(name, "a vertex line does not hold 3 numbers")
+        vertices = None
+    if vertices is None or vertices.shape != (nv, 3):
+        bad = next((i for i, r in enumerate(rows) if len(r) < 3 or not _all_floats(r)), 0)
+        raise MeshError(name, f"a vertex line does not hold 3 numbers ({where('vertex', bad)})")
     face_tokens = [ln.split() for ln in rest[nv:nv + nf]]
     sizes = np.array([len(t) for t in face_tokens])
-    try:
-        counts = np.array([int(t[0]) for t in face_tokens])
-    except ValueError:
-        raise MeshError(name, "a face line does not start with its vertex count") from None
+    counts = []
+    for f, t in enumerate(face_tokens):
+        try:
+            counts.append(int(t[0]))
+        except ValueError:
+            raise MeshError(name, "a face line does not start with its vertex count "
+                                  f"({where('face', f)})") from None
+    counts = np.array(counts)
     not_tri = np.flatnonzero(counts != 3)
     if len(not_tri):
         f = int(not_tri[0])
         raise MeshError(name, f"face {f} has {counts[f]} vertices; only triangle meshes are "
-                              f"supported ({len(not_tri)} non-triangle faces)")
+                              f"supported ({len(not_tri)} non-triangle faces; {where('face', f)})")
     if np.any(sizes < 4):
-        raise MeshError(name, f"face {int(np.flatnonzero(sizes < 4)[0])} lists fewer than 3 indices")
+        f = int(np.flatnonzero(sizes < 4)[0])
+        raise MeshError(name, f"face {f} lists fewer than 3 indices ({where('face', f)})")
     try:
         faces = np.array([t[1:4] for t in face_tokens], dtype=np.int64)
     except ValueError:
-        raise MeshError(name, "a face line holds a non-integer vertex index") from None
+        f = next((i for i, t in enumerate(face_tokens) if not all(_is_int(x) for x in t[1:4])), 0)
+        raise MeshError(name, f"a face line holds a non-integer vertex index ({where('face', f)})") from None
     return vertices, faces
+
+
+def _all_floats(tokens) -> bool:
+    try:
+        [float(t) for t in tokens]
+        return True
+    except ValueError:
+        return False
+
+
+def _is_int(token: str) -> bool:
+    try:
+        int(token)
+        return True
+    except ValueError:
+        return False
+
+
+def _file_line(text: str, index: int) -> int:
+    """The line number in the file (from 1) of data line ``index`` (:func:`data_lines`)."""
+    seen = -1
+    for number, line in enumerate(text.splitlines(), start=1):
+        if line.split("#", 1)[0].strip():
+            seen += 1
+            if seen == index:
+                return number
+    return number
 
 
 def off_face_count(head: bytes, name: str) -> int:
