@@ -128,7 +128,7 @@ def test_binary_ply_faults_refused_with_where(tmp_path, sphere):
     V, F = sphere
     good = _binary_ply(V, F)
     assert_refused(write_file(tmp_path / "cut.ply", good[:-7]),
-                   r"truncated: header declares 320 face elements, the file has room for 319")
+                   r"truncated: header declares 320 face elements, the data ends inside face 319 \(at byte")
     assert_refused(write_file(tmp_path / "tail.ply", good + b"\0\0\0"),
                    r"3 bytes past the last element the header declares")
     quad = bytearray(good)
@@ -156,4 +156,20 @@ def test_a_wild_list_length_is_truncation_not_a_huge_read(tmp_path):
             b"property list uchar int vertex_indices\nend_header\n")
     body = struct.pack("<fffI", 0, 0, 0, 0xFFFFFFFF) + b"\0" * 40
     assert_refused(write_file(tmp_path / "w.ply", head + body),
-                   r"truncated: .* inside vertex 0 of the 1 the header declares \(its list 'foo' says 4294967295 items\)")
+                   r"truncated: header declares 1 vertex elements, the data ends inside vertex 0 .*\(its list 'foo' says 4294967295 items\)")
+
+
+def test_faces_with_lists_of_varying_length_are_walked(tmp_path, sphere):
+    V, F = sphere
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(V)}\nproperty double x\n"
+            f"property double y\nproperty double z\nelement face {len(F)}\n"
+            "property list uchar int vertex_indices\nproperty list uchar float texcoord\nend_header\n")
+    body = b"".join(struct.pack("<ddd", *v) for v in V)
+    for i, f in enumerate(F):
+        n = 6 if i % 2 == 0 else 0                                   # every other face has none
+        body += struct.pack("<Biii", 3, *f) + struct.pack(f"<B{n}f", n, *range(n))
+    np.testing.assert_array_equal(ta.load_mesh(write_file(tmp_path / "v.ply", head.encode() + body)).faces, F)
+    bad = bytearray(head.encode() + body)
+    at = len(head) + 24 * len(V) + (13 + 25) + (13 + 1)              # face 2: after a 6-item and a 0-item face
+    bad[at] = 4
+    assert_refused(write_file(tmp_path / "q.ply", bytes(bad)), r"face 2 has 4 vertices")

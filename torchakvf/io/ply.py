@@ -313,11 +313,14 @@ def _read_binary(body: bytes, header: Header, name: str) -> dict:
 
 def _binary_element(body: bytes, offset: int, element: Element, order: str, header: Header, name: str):
     """(values, offset after the element): one structured read when each list has the length
-    of the element's first instance (a triangle mesh's faces), a walk through it otherwise."""
+    of the element's first instance (a triangle mesh's faces), a walk through it otherwise
+    (:func:`_walk_element`)."""
     lengths = _first_lengths(body, offset, element, order, header, name)
     dtype = _fixed_dtype(element, lengths, order)
     need = dtype.itemsize * element.count
     if offset + need > len(body):
+        if any(p.is_list for p in element.properties):
+            return _walk_element(body, offset, element, order, header, name)   # says where it ends
         room = (len(body) - offset) // dtype.itemsize if dtype.itemsize else 0
         raise MeshError(name, f"truncated: header declares {element.count} {element.name} "
                               f"elements, the file has room for {room} (data ends at byte "
@@ -335,7 +338,7 @@ def _binary_element(body: bytes, offset: int, element: Element, order: str, head
                     raise MeshError(name, f"vertex {i}'s list '{p.name}' differs in length from "
                                           "vertex 0's; this reader takes vertex lists of one length")
                 return _walk_element(body, offset, element, order, header, name)
-    return _element_values(table, element, lengths), offset + need
+    return _element_values(table, element), offset + need
 
 
 def _fixed_dtype(element: Element, lengths: dict, order: str) -> np.dtype:
@@ -364,17 +367,15 @@ def _first_lengths(body: bytes, offset: int, element: Element, order: str, heade
         lengths[p.name] = n
         pos += np.dtype(p.count_dtype).itemsize + n * np.dtype(p.dtype).itemsize
         if pos > len(body):
-            raise MeshError(name, f"truncated: the data ends at byte {header.size + len(body)}, inside "
-                                  f"{element.name} 0 of the {element.count} the header declares "
-                                  f"(its list '{p.name}' says {n} items)")
+            raise MeshError(name, _ends_inside(element, 0, header, body)
+                                  + f" (its list '{p.name}' says {n} items)")
     return lengths
 
 
 def _read_scalar(body, pos, dtype, element: Element, index: int, header: Header, name: str) -> int:
     size = np.dtype(dtype).itemsize
     if pos + size > len(body):
-        raise MeshError(name, f"truncated: the data ends at byte {header.size + len(body)}, inside "
-                              f"{element.name} {index} of the {element.count} the header declares")
+        raise MeshError(name, _ends_inside(element, index, header, body))
     n = int(np.frombuffer(body, dtype=dtype, count=1, offset=pos)[0])
     if n < 0:
         raise MeshError(name, f"{element.name} {index} has a negative list length ({n})")
@@ -382,23 +383,36 @@ def _read_scalar(body, pos, dtype, element: Element, index: int, header: Header,
 
 
 def _walk_element(body: bytes, offset: int, element: Element, order: str, header: Header, name: str):
-    """An element whose lists vary in length, one instance at a time (no face list does, in a
-    file this reader accepts: every face is a triangle)."""
+    """An element whose lists vary in length, one instance at a time: (the faces' triangles
+    [F, 3] for the face element, else None; offset after the element)."""
     pos = offset
+    triangles = [] if element.name == "face" else None
     for i in range(element.count):
         for p in element.properties:
-            if p.is_list:
-                n = _read_scalar(body, pos, order + p.count_dtype, element, i, header, name)
-                pos += np.dtype(p.count_dtype).itemsize + n * np.dtype(p.dtype).itemsize
-            else:
+            if not p.is_list:
                 pos += np.dtype(p.dtype).itemsize
+                continue
+            n = _read_scalar(body, pos, order + p.count_dtype, element, i, header, name)
+            pos += np.dtype(p.count_dtype).itemsize
+            if triangles is not None and p.name in FACE_LIST_NAMES:
+                if n != 3:
+                    raise MeshError(name, f"face {i} has {n} vertices; only triangle meshes are supported")
+                if pos + 3 * np.dtype(p.dtype).itemsize <= len(body):
+                    triangles.append(np.frombuffer(body, dtype=order + p.dtype, count=3, offset=pos))
+            pos += n * np.dtype(p.dtype).itemsize
         if pos > len(body):
-            raise MeshError(name, f"truncated: the data ends at byte {header.size + len(body)}, "
-                                  f"inside {element.name} {i} of the {element.count} the header declares")
-    return None, pos
+            raise MeshError(name, _ends_inside(element, i, header, body))
+    if triangles is not None:
+        triangles = np.array(triangles, dtype=np.int64).reshape(-1, 3)
+    return triangles, pos
 
 
-def _element_values(table: np.ndarray, element: Element, lengths: dict):
+def _ends_inside(element: Element, index: int, header: Header, body: bytes) -> str:
+    return (f"truncated: header declares {element.count} {element.name} elements, the data ends "
+            f"inside {element.name} {index} (at byte {header.size + len(body)})")
+
+
+def _element_values(table: np.ndarray, element: Element):
     if element.name == "vertex":
         return {c: table[c] for c in "xyz"}
     if element.name == "face":
