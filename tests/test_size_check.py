@@ -1,0 +1,26 @@
+"""A mesh with fewer edges than the fields asked of it: one line saying what to do."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from torchakvf.errors import ParameterError
+from torchakvf.mesh.size_check import check_fields_fit
+
+
+def test_a_cube_asked_for_too_many_fields():
+    box = trimesh.creation.box()
+    check_fields_fit("cube.off", box.faces, 18)                          # 18 edges: fits
+    with pytest.raises(ParameterError) as info:
+        check_fields_fit("cube.off", box.faces, 28, k=5)
+    text = str(info.value)
+    assert text == ("cube.off: mesh has 12 faces (18 edges), too few for k=5 (needs 28 fields): a mesh "
+                    "has at most one field per edge; use a smaller k or subdivide it (torchakvf.mesh.subdivide)")
+    with pytest.raises(ParameterError, match=r"use k <= 2 or subdivide it"):
+        check_fields_fit("cube.off", box.faces, 28, k=5, fields_for_k=lambda k: 8 * k)
+    with pytest.raises(ParameterError, match=r"\(needs 28 fields\): .* edge; use --subdivide$"):
+        check_fields_fit("cube.off", box.faces, 28, k=5, fields_for_k=lambda k: 20 + k,
+                         subdivide_hint="use --subdivide")
+    with pytest.raises(ParameterError, match=r"too few for 30 fields"):
+        check_fields_fit("cube.off", np.asarray(box.faces), 30)
