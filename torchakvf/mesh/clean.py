@@ -367,7 +367,3 @@ def orient_consistently(faces: np.ndarray, name: str, table: EdgeTable | None = 
     out = faces.copy()
     out[flip == 1] = out[flip == 1][:, ::-1]
     return out, int((flip == 1).sum())
-
-
-# The names mesh/coarse.py imports until it takes the public ones above.
-_half_edges, _undirected_edges, _vertex_adjacency = half_edges, undirected_edges, vertex_adjacency

@@ -22,9 +22,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import MeshError, ParameterError
-from .clean import _half_edges as half_edges
-from .clean import _undirected_edges as undirected_edges
-from .clean import _vertex_adjacency as vertex_adjacency
+from .clean import half_edges, undirected_edges, vertex_adjacency
 from .clean import CleanMesh, clean_mesh, face_areas, face_cross_products, unique_rows
 from .mesh import Mesh
 from .surface_map import BarycenterSearch, SurfaceIndex, SurfacePoints, locate_on_surface
