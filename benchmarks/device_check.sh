@@ -20,8 +20,8 @@
 # Before: bash benchmarks/device_prepare.sh here (wheels + PSB subset, git-ignored), then call the
 # device tool with carry [".whl", ".psb_subset"], timeout_s 540 and the command
 #   bash benchmarks/device_check.sh
-# Commit what comes back as benchmarks/results/device_check_<date>.md (git add -f: results/ is
-# in .gitignore). On a machine without CUDA (a dry run) the CUDA tests skip and the CUDA bench
+# Commit what comes back (device_check.md) as benchmarks/results/device_check.md, the one current
+# GPU figure (benchmarks/README.md cites it). On a machine without CUDA (a dry run) the CUDA tests skip and the CUDA bench
 # reports "no CUDA"; BENCH_LIMIT=4 keeps such a run short.
 set -uo pipefail
 cd "$(dirname "$0")/.."

@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     if args.psb is None or not args.psb.is_dir():
-        print(f"bench_features_fullres: PSB folder {args.psb} not found (set TORCHAKVF_PSB or pass --psb)",
+        print(f"features_fullres: PSB folder {args.psb} not found (set TORCHAKVF_PSB or pass --psb)",
               file=sys.stderr)
         return 2
     meshes = {i: ta.load_mesh(args.psb / "meshes" / f"{i}.off.gz") for i in args.ids}
