@@ -278,7 +278,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     root = Path(args.psb) if args.psb else default_psb_root()
     if root is None:
-        raise SystemExit("probe_coarse_to_fine: no PSB found; pass --psb or set TORCHAKVF_PSB")
+        raise SystemExit("coarse_to_fine_solver: no PSB found; pass --psb or set TORCHAKVF_PSB")
     rows = []
     for i in args.ids:
         rows.append(probe_mesh(root / "meshes" / f"{i}.off.gz", args.n, args.coarse, args.sweeps, args.max_iter))

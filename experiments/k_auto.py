@@ -6,7 +6,7 @@ k in k_range the paper-mode k-means labels at k' = ceil(r k) (r in RATIOS) with 
 on the input faces, and the k-means cost of the plain k-means at k (the "elbow" rule's curve).
 
 sweep: rules that read the merge costs, each with one threshold chosen by 3-fold CV across
-categories (as quality_sweep.py):
+categories (as merge_method_cv.py):
 
 * "next": at each k the merged parts' cheapest remaining merge c_next(k) (from the round at k);
   descending from k_max, stop at the first k whose next merge costs more than τ.
