@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from pathlib import Path
 
 
 def best_of(fn, repeat: int, clock=time.perf_counter):

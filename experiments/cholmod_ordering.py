@@ -39,7 +39,6 @@ from torchakvf.solvers.factor import _CpuFactor, _cholesky, _lower_pattern
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
 from timing import best_of, write_report  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 def shifted_pattern(mesh_id: int, psb: Path, sigma: float = -1.0):
@@ -55,7 +54,7 @@ def main(argv=None) -> int:
     p.add_argument("--psb", type=Path, default=default_psb_root())
     p.add_argument("--ids", type=int, nargs="+", default=[1, 21, 121, 181, 301])
     p.add_argument("--repeat", type=int, default=3)
-    p.add_argument("--out", type=Path, default=REPO / "experiments" / "results" / "cholmod_ordering.md")
+    p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
     if args.psb is None or not (args.psb / "meshes").is_dir():
         p.error(f"no PSB meshes at {args.psb}: pass --psb or set TORCHAKVF_PSB")

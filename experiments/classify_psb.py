@@ -239,7 +239,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--psb", default="/work/shared/psb")
     ap.add_argument("--cache", default=str(Path.home() / ".cache" / "torchakvf" / "classify_psb"))
-    ap.add_argument("--out", default="experiments/results/classify_psb",
+    ap.add_argument("--out", default="/tmp/classify_psb",
                     help="writes <out>.md and <out>.json")
     ap.add_argument("--limit", type=int, default=None, help="first N meshes only (smoke test)")
     ap.add_argument("--threads", type=int, default=1)

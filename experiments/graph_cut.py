@@ -82,7 +82,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cache", default="/tmp/qcache")
     ap.add_argument("--weights", default="ratio=3,concavity=16")
-    ap.add_argument("--out", default="experiments/results/graph_cut.md")
+    ap.add_argument("--out", default="/tmp/graph_cut.md")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cuts", default="0.3:10,1:10,3:10,1:0", help="smoothness:beta,...")
     a = ap.parse_args()

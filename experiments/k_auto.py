@@ -201,7 +201,7 @@ def main():
         build(a)
     else:
         if a.out == "/tmp/qkauto":
-            a.out = "experiments/results/k_auto.md"
+            a.out = "/tmp/k_auto.md"
         sweep(a)
 
 

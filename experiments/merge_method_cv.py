@@ -84,7 +84,7 @@ def overall(table: dict, cats) -> float:
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--cache", default="/tmp/quality_cache")
-    ap.add_argument("--out", default="experiments/results/merge_method_cv.md")
+    ap.add_argument("--out", default="/tmp/merge_method_cv.md")
     ap.add_argument("--ratios", default=",".join(f"{r:g}" for r in RATIOS),
                     help="over-segmentation ratios allowed in the choice (e.g. those within the time budget)")
     a = ap.parse_args()
