@@ -332,15 +332,16 @@ def test_segment_rounds_with_caches_kept_across_k_equal_one_k_at_a_time(monkeypa
     that k alone (fresh caches)."""
     pytest.importorskip("gco")
     import torchakvf as ta
-    from torchakvf.parts import engine
-    from torchakvf.parts.engine import SegmentOptions, segment_rounds
+    from torchakvf.options import SegmentOptions
+    from torchakvf.parts import cut, rounds
+    from torchakvf.parts.rounds import segment_rounds
 
     s = shapes.three_blobs(n_around=20)
     batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="blobs")])
     fields = ta.akvf(batch, n=24, remedy="smooth")
     opts = SegmentOptions(refine=False)
-    made, real = [], engine._over_segmentation
-    monkeypatch.setattr(engine, "_over_segmentation", lambda *a, **kw: made.append(a[3]) or real(*a, **kw))
+    made, real = [], cut.over_segmentation
+    monkeypatch.setattr(cut, "over_segmentation", lambda *a, **kw: made.append(a[3]) or real(*a, **kw))
     together = {r.ks[0]: r.meshes[0] for r in segment_rounds(fields, [[2, 3, 4]], opts)}
     assert len(made) == 1                       # the three k's shared one over-segmentation
     assert len({seg.params["k_oversegment"] for seg in together.values()}) == 1
@@ -386,14 +387,15 @@ def test_cached_over_segmentation_serves_only_an_identical_clustering():
     """The over-segmentation cut_parts keeps is reused only for equal features, centers and
     labels and the same boundary options: one label changed, or another boundary rule, makes
     a new one."""
-    from torchakvf.parts.engine import SegmentOptions, _OverSegmentation, _over_settings, part_floor
+    from torchakvf.options import SegmentOptions
+    from torchakvf.parts.cut import OverSegmentation, over_settings, part_floor
 
     rng = np.random.default_rng(3)
     feats, centers, labels = rng.random((50, 4)), rng.random((3, 4)), rng.integers(0, 3, 50)
     opts = SegmentOptions()
     floor = part_floor(3, opts)
-    entry = _OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy()),
-                              settings=_over_settings(opts, floor),
+    entry = OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy()),
+                              settings=over_settings(opts, floor),
                               mesh=None, vdist=None, feats=None, labels=None, area=None, unit=None)
     assert entry.made_from((feats, centers, labels), opts, floor)
     moved = labels.copy()
@@ -408,7 +410,8 @@ def test_cached_over_segmentation_serves_only_an_identical_clustering():
 
 def test_part_floor_is_the_fraction_up_to_a_quarter_of_the_mean_part():
     """min_part_fraction up to k = 25 at the default; beyond, a quarter of 1/k."""
-    from torchakvf.parts.engine import SegmentOptions, part_floor
+    from torchakvf.options import SegmentOptions
+    from torchakvf.parts.cut import part_floor
 
     opts = SegmentOptions()
     assert [part_floor(k, opts) for k in (1, 8, 25)] == [0.01, 0.01, 0.01]
@@ -423,26 +426,27 @@ def test_segment_rounds_drops_an_over_segmentation_no_later_k_shares(monkeypatch
     fields and clusters) and after a mesh's last k it goes."""
     pytest.importorskip("gco")
     import torchakvf as ta
-    from torchakvf.parts import engine
-    from torchakvf.parts.engine import SegmentOptions, segment_rounds
+    from torchakvf.options import SegmentOptions
+    from torchakvf.parts import cut, rounds
+    from torchakvf.parts.rounds import segment_rounds
 
     s = shapes.three_blobs(n_around=20)
     batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="a"), ta.Mesh(s.vertices, s.faces, name="b")])
     fields = ta.akvf(batch, n=36, remedy="smooth")
     opts = SegmentOptions(refine=False)
-    seen, real = [], engine.cut_parts
+    seen, real = [], rounds.cut_parts
 
     def spy(*a):
         out = real(*a)
         seen.append((a[4], a[5], a[7]))          # mesh, k, its cache (as cut_parts leaves it)
         return out
 
-    monkeypatch.setattr(engine, "cut_parts", spy)
+    monkeypatch.setattr(rounds, "cut_parts", spy)
     kept = []
     for rnd in segment_rounds(fields, [[2, 3, 9], [5]], opts):
-        kept.append({(b, k): "over" in cache for b, k, cache in seen})
+        kept.append({(b, k): cache.over is not None for b, k, cache in seen})
         seen.clear()
     assert kept == [{(0, 2): True, (1, 5): False}, {(0, 3): False}, {(0, 9): False}]
-    round_ks, active, _, km_ks = engine._round_plan(fields, [[2, 3, 9], [5]], 1, None, opts)
-    assert round_ks == [3, engine.PAD_K] and active == [0]
-    assert km_ks[0] == engine.cluster_count(2, len(s.faces), opts)      # k = 3 clusters as k = 2
+    round_ks, active, _, km_ks = rounds.round_plan(fields, [[2, 3, 9], [5]], 1, None, opts)
+    assert round_ks == [3, rounds.PAD_K] and active == [0]
+    assert km_ks[0] == rounds.cluster_count(2, len(s.faces), opts)      # k = 3 clusters as k = 2

@@ -143,7 +143,7 @@ def test_segment_graphcut_switch():
     wrong value is a ParameterError."""
     from torchakvf.errors import ParameterError
     import torchakvf as ta
-    from torchakvf.parts.engine import graphcut_option
+    from torchakvf.options import graphcut_option
 
     shape = shapes.mug(h=0.12)
     mesh = ta.Mesh(shape.vertices, shape.faces, "mug")

@@ -12,7 +12,7 @@ from torchakvf import shapes
 from torchakvf.errors import ParameterError
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
-from torchakvf.parts.engine import akvf_count
+from torchakvf.parts.field_counts import akvf_count
 from torchakvf.parts.concavity import crease_weights, dual_edges
 from torchakvf.evaluate.k_auto import pick_k
 from torchakvf.parts.merge import (MergeWeights, RegionGraph, greedy_merge, merge_costs, merge_parts,

@@ -11,7 +11,7 @@ import pytest
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.mesh.batch import mesh_edges
-from torchakvf.parts import engine
+from torchakvf.parts import cut
 from torchakvf.parts.boundaries import RefinedMesh, barycenter_values, isoline_face_labels, refine_along_isolines
 
 
@@ -91,7 +91,7 @@ def recorded(monkeypatch):
         calls.append(check(vertices, faces, vdist))
         return calls[-1]
 
-    monkeypatch.setattr(engine, "refine_along_isolines", both)
+    monkeypatch.setattr(cut, "refine_along_isolines", both)
     return calls
 
 

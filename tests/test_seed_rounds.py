@@ -13,10 +13,11 @@ from torchakvf._restarts import ROUND_OFF_TIE, best_restart
 from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.errors import ParameterError
-from torchakvf.parts.engine import SegmentOptions, previous_centroids, segment_rounds
+from torchakvf.options import SegmentOptions
+from torchakvf.parts.rounds import previous_centroids, segment_rounds
 from torchakvf.parts.merge import MergeWeights
 
-engine_mod = importlib.import_module("torchakvf.parts.engine")
+rounds_mod = importlib.import_module("torchakvf.parts.rounds")
 
 
 def _features(n: int, d: int, groups: int, seed: int) -> torch.Tensor:
@@ -105,14 +106,14 @@ def blob_fields():
 
 def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
     calls = []
-    inner = engine_mod.spherical_kmeans
+    inner = rounds_mod.spherical_kmeans
 
     def recording(*args, **kwargs):
         km = inner(*args, **kwargs)
         calls.append((kwargs.get("restarts"), kwargs.get("init"), km))
         return km
 
-    monkeypatch.setattr(engine_mod, "spherical_kmeans", recording)
+    monkeypatch.setattr(rounds_mod, "spherical_kmeans", recording)
     # every k its own over-segmentation (min_k 1), so that every round clusters
     opts = SegmentOptions(refine=False, kmeans_seeded_restarts=3, graphcut=None, merge=MergeWeights(min_k=1))
     first = [r.meshes[0].labels.copy() for r in segment_rounds(blob_fields, [[2, 3, 4]], opts)]
@@ -127,4 +128,4 @@ def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
     list(segment_rounds(blob_fields, [[2, 3]], SegmentOptions(refine=False, graphcut=None, kmeans_seeded_restarts=0,
                                                               merge=MergeWeights(min_k=1))))
     assert [(c[0], c[1]) for c in calls] == [(SegmentOptions().kmeans_restarts, None)] * 2
-    assert SegmentOptions().kmeans_seeded_restarts == engine_mod.KMEANS_SEEDED_RESTARTS == 0   # off by default
+    assert SegmentOptions().kmeans_seeded_restarts == 0   # off by default

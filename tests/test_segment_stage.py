@@ -14,7 +14,8 @@ from torchakvf import shapes
 from torchakvf._restarts import best_restart
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh.batch import pad_packed
-from torchakvf.parts import engine
+from torchakvf import options
+from torchakvf.parts import cut, field_counts, rounds
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
 
@@ -85,35 +86,35 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
     """Rounds in which one mesh's field count changes untangle that mesh alone, each (mesh, n)
     once, and give the labels of untangling the whole batch at every round's counts."""
     calls = []
-    real = engine.orthomax_rotations
+    real = rounds.orthomax_rotations
 
     def spy(f, ns, **kw):
         calls.append(dict(ns))
         return real(f, ns, **kw)
 
-    monkeypatch.setattr(engine, "orthomax_rotations", spy)
+    monkeypatch.setattr(rounds, "orthomax_rotations", spy)
     # every k its own field count (no floor, no rounding): mesh 0: n = 16, 16, 18, 21 (3k); mesh 1
     # sits out rounds 3, 4
-    monkeypatch.setitem(engine.FIELDS_STEP, "merge", 1)
+    monkeypatch.setitem(options.FIELDS_STEP, "merge", 1)
     ks = [[2, 3, 6, 7], [2, 3]]
-    opts = engine.SegmentOptions(seed=0, refine=False, kmeans_restarts=4, untangle_restarts=2,
+    opts = options.SegmentOptions(seed=0, refine=False, kmeans_restarts=4, untangle_restarts=2,
                                  merge=MergeWeights(min_k=1))
-    rounds = list(engine.segment_rounds(fields, ks, opts))
+    made = list(rounds.segment_rounds(fields, ks, opts))
     pairs = [(b, n) for c in calls for b, n in c.items()]
     assert len(pairs) == len(set(pairs))                       # no (mesh, n) twice
     assert {b for b, _ in pairs} == {0, 1} and sum(b == 1 for b, _ in pairs) == 1
-    assert len({id(r.untangled) for r in rounds[:2]}) == 1     # equal counts share one object
-    monkeypatch.setattr(engine, "orthomax_rotations", real)
-    for rnd in rounds:
-        ns = engine.field_counts(fields, rnd.ks, min_k=1)
+    assert len({id(r.untangled) for r in made[:2]}) == 1     # equal counts share one object
+    monkeypatch.setattr(rounds, "orthomax_rotations", real)
+    for rnd in made:
+        ns = field_counts.field_counts(fields, rnd.ks, min_k=1)
         unt = ta.untangle(fields, n=ns, seed=0, restarts=2)
         x, mask = pad_packed(unt.features.double(), fields.batch.face_ptr)
         n_faces = (fields.batch.face_ptr[1:] - fields.batch.face_ptr[:-1]).tolist()
-        km_ks = [engine.cluster_count(rnd.ks[b], n_faces[b], opts) if b in rnd.active else 1 for b in range(2)]
-        km = spherical_kmeans(x, mask, km_ks, restarts=4, seed=0, max_iter=engine.KMEANS_MAX_ITER)
+        km_ks = [field_counts.cluster_count(rnd.ks[b], n_faces[b], opts) if b in rnd.active else 1 for b in range(2)]
+        km = spherical_kmeans(x, mask, km_ks, restarts=4, seed=0, max_iter=options.KMEANS_MAX_ITER)
         for b in rnd.active:
             assert rnd.untangled.n_fields[b] == ns[b]
-            ref = engine.cut_parts(fields.batch, fields, unt, km, b, rnd.ks[b], opts)
+            ref = cut.cut_parts(fields.batch, fields, unt, km, b, rnd.ks[b], opts)
             np.testing.assert_array_equal(rnd.meshes[b].labels, ref.labels)
             assert rnd.meshes[b].cost == ref.cost
 
@@ -121,21 +122,21 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
 def test_default_field_counts_by_method(fields):
     """The paper's N = 2k; the merge method's 3 max(k, min_k) (it clusters into about 3k) rounded
     up to a multiple of 8; clamped to [16, 32]."""
-    assert [engine.default_n_fields(k) for k in (2, 8, 11, 20)] == [16, 16, 22, 32]
-    assert [engine.default_n_fields(k, "merge", 1) for k in (2, 5, 6, 7, 9, 20)] == [16, 16, 24, 24, 32, 32]
+    assert [field_counts.default_n_fields(k) for k in (2, 8, 11, 20)] == [16, 16, 22, 32]
+    assert [field_counts.default_n_fields(k, "merge", 1) for k in (2, 5, 6, 7, 9, 20)] == [16, 16, 24, 24, 32, 32]
     assert MergeWeights().min_k == 8    # the default floor: every k <= 8 takes the 24 fields of k = 8
-    assert [engine.default_n_fields(k, "merge") for k in (2, 5, 8, 9, 20)] == [24, 24, 24, 32, 32]
+    assert [field_counts.default_n_fields(k, "merge") for k in (2, 5, 8, 9, 20)] == [24, 24, 24, 32, 32]
     with pytest.raises(ta.errors.ParameterError, match="method"):
-        engine.default_n_fields(3, "nope")
-    assert engine.akvf_count([[7]], method="paper") == 16 + engine.SPARE_FIELDS
-    assert engine.akvf_count([[7]]) == 24 + engine.SPARE_FIELDS            # the default method: merge
+        field_counts.default_n_fields(3, "nope")
+    assert field_counts.akvf_count([[7]], method="paper") == 16 + options.SPARE_FIELDS
+    assert field_counts.akvf_count([[7]]) == 24 + options.SPARE_FIELDS            # the default method: merge
     lam = fields.eigenvalues.detach().cpu()
     for method in ("paper", "merge"):
-        n = engine.default_n_fields(7, method)
-        want = [engine.cluster_safe_n(lam[b], n, floor=max(8 if method == "merge" else 7, n // 2)) for b in range(2)]
-        assert engine.field_counts(fields, 7, method=method) == want
-    rnd = next(engine.segment_rounds(fields, 7, engine.SegmentOptions(refine=False, kmeans_restarts=1)))
-    assert [int(n) for n in rnd.untangled.n_fields] == engine.field_counts(fields, 7)
+        n = field_counts.default_n_fields(7, method)
+        want = [field_counts.cluster_safe_n(lam[b], n, floor=max(8 if method == "merge" else 7, n // 2)) for b in range(2)]
+        assert field_counts.field_counts(fields, 7, method=method) == want
+    rnd = next(rounds.segment_rounds(fields, 7, options.SegmentOptions(refine=False, kmeans_restarts=1)))
+    assert [int(n) for n in rnd.untangled.n_fields] == field_counts.field_counts(fields, 7)
 
 
 def test_iteration_caps_are_recorded_options(fields):
@@ -143,38 +144,38 @@ def test_iteration_caps_are_recorded_options(fields):
     are options (validated) and land in each segmentation's params (resume compares them)."""
     from torchakvf.parts.graphcut import GraphCut
     with pytest.raises(ta.errors.ParameterError, match="kmeans_max_iter"):
-        engine.SegmentOptions(kmeans_max_iter=0)
+        options.SegmentOptions(kmeans_max_iter=0)
     with pytest.raises(ta.errors.ParameterError, match="cycles"):
         GraphCut(cycles=0)
-    opts = engine.SegmentOptions(seed=0, refine=False, kmeans_max_iter=7, graphcut=GraphCut(cycles=3),
+    opts = options.SegmentOptions(seed=0, refine=False, kmeans_max_iter=7, graphcut=GraphCut(cycles=3),
                                  kmeans_seeded_restarts=1)
-    rnd = next(engine.segment_rounds(fields, [[3], [3]], opts))
+    rnd = next(rounds.segment_rounds(fields, [[3], [3]], opts))
     params = rnd.meshes[0].params
     assert params["kmeans_max_iter"] == 7 and params["graphcut_cycles"] == 3.0
     assert params["kmeans_seeded_restarts"] == 1
-    assert "kmeans_max_iter" in engine.SegmentOptions.names()
+    assert "kmeans_max_iter" in options.SegmentOptions.names()
 
 
 def test_kmeans_restarts_default_by_method(fields, monkeypatch):
     """kmeans_restarts None resolves to the method's default (merge 3, paper 5), an explicit
     count is kept, bad ones are refused, and the int used is what each segmentation records."""
-    assert engine.KMEANS_RESTARTS_BY_METHOD == {"paper": 5, "merge": 3}
-    assert engine.SegmentOptions().kmeans_restarts == 3                   # default method: merge
-    assert engine.SegmentOptions(method="paper").kmeans_restarts == 5
-    assert engine.SegmentOptions(method="paper", kmeans_restarts=np.int64(2)).kmeans_restarts == 2
+    assert options.KMEANS_RESTARTS_BY_METHOD == {"paper": 5, "merge": 3}
+    assert options.SegmentOptions().kmeans_restarts == 3                   # default method: merge
+    assert options.SegmentOptions(method="paper").kmeans_restarts == 5
+    assert options.SegmentOptions(method="paper", kmeans_restarts=np.int64(2)).kmeans_restarts == 2
     for bad in (0, 2.5, True):
         with pytest.raises(ta.errors.ParameterError, match="kmeans_restarts"):
-            engine.SegmentOptions(kmeans_restarts=bad)
+            options.SegmentOptions(kmeans_restarts=bad)
     used = []
-    real = engine.spherical_kmeans
+    real = rounds.spherical_kmeans
 
     def spy(*args, restarts, **kw):
         used.append(restarts)
         return real(*args, restarts=restarts, **kw)
 
-    monkeypatch.setattr(engine, "spherical_kmeans", spy)
+    monkeypatch.setattr(rounds, "spherical_kmeans", spy)
     for method, want in (("merge", 3), ("paper", 5)):
-        rnd = next(engine.segment_rounds(fields, [[3], [3]], engine.SegmentOptions(method=method, refine=False)))
+        rnd = next(rounds.segment_rounds(fields, [[3], [3]], options.SegmentOptions(method=method, refine=False)))
         assert used[-1] == want
         rec = rnd.meshes[0].params["kmeans_restarts"]
         assert rec == want and type(rec) is int

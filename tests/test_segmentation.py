@@ -11,7 +11,7 @@ import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh import face_areas
-from torchakvf.parts.segment import cluster_safe_n
+from torchakvf.parts.field_counts import cluster_safe_n
 
 COMPOSITES = ["dumbbell", "three_blobs", "sphere_two_ellipsoids", "torus_chain"]
 
@@ -213,9 +213,9 @@ def test_segment_each_k_equals_segment_per_k():
     """Every k in rounds over one solve gives the labels ``segment`` gives for that k alone (with
     its own untangling), with numpy integers for k; rounds whose field counts agree share one
     untangling."""
-    from torchakvf.parts.engine import segment_each_k
+    from torchakvf.parts import segment_each_k
 
-    from torchakvf.parts.engine import akvf_count
+    from torchakvf.parts.field_counts import akvf_count
     from torchakvf.parts.merge import MergeWeights
 
     s = shapes.three_blobs(n_around=20)
@@ -237,7 +237,7 @@ def test_segmentation_reports_convergence(built, batch_seg):
     for seg in batch_seg.meshes:
         assert seg.converged is True
         assert 0.0 <= seg.max_residual <= 1e-6
-    from torchakvf.parts.engine import AKVF_TOL
+    from torchakvf.parts.solve import AKVF_TOL
     assert AKVF_TOL == 1e-6
 
 

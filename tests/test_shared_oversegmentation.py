@@ -8,7 +8,8 @@ import torch
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.errors import ParameterError
-from torchakvf.parts import engine as E
+from torchakvf import options
+from torchakvf.parts import cut, field_counts, rounds, segment_each_k
 from torchakvf.parts.merge import MergeWeights, oversegment_k
 
 
@@ -22,16 +23,16 @@ def test_oversegment_k_floor_by_hand():
 
 def test_field_counts_follow_the_floor(monkeypatch):
     # merge: 3 max(k, min_k), rounded up to a multiple of FIELDS_STEP (8), in [16, 32]
-    assert E.FIELDS_STEP == {"paper": 1, "merge": 8}
-    assert [E.default_n_fields(k, "merge", 1) for k in (1, 5, 6, 8, 9, 12)] == [16, 16, 24, 24, 32, 32]
-    assert E.default_n_fields(2, "merge", 7) == 24 == E.default_n_fields(7, "merge", 1)
-    assert E.default_n_fields(12, "merge", 7) == 32
+    assert options.FIELDS_STEP == {"paper": 1, "merge": 8}
+    assert [field_counts.default_n_fields(k, "merge", 1) for k in (1, 5, 6, 8, 9, 12)] == [16, 16, 24, 24, 32, 32]
+    assert field_counts.default_n_fields(2, "merge", 7) == 24 == field_counts.default_n_fields(7, "merge", 1)
+    assert field_counts.default_n_fields(12, "merge", 7) == 32
     # min_k None: the default MergeWeights' (8) with method merge, 1 with the paper's 2k
-    assert E.default_n_fields(2, "merge") == 24 and E.akvf_count([[2]]) == 24 + E.SPARE_FIELDS
-    assert [E.default_n_fields(k, "paper") for k in (2, 8, 9, 11, 17)] == [16, 16, 18, 22, 32]
-    assert E.akvf_count([[2, 3]], None, "merge", 1) == 16 + E.SPARE_FIELDS
-    monkeypatch.setitem(E.FIELDS_STEP, "merge", 1)
-    assert E.default_n_fields(2, "merge", 7) == 21 == E.default_n_fields(7, "merge", 1)
+    assert field_counts.default_n_fields(2, "merge") == 24 and field_counts.akvf_count([[2]]) == 24 + options.SPARE_FIELDS
+    assert [field_counts.default_n_fields(k, "paper") for k in (2, 8, 9, 11, 17)] == [16, 16, 18, 22, 32]
+    assert field_counts.akvf_count([[2, 3]], None, "merge", 1) == 16 + options.SPARE_FIELDS
+    monkeypatch.setitem(options.FIELDS_STEP, "merge", 1)
+    assert field_counts.default_n_fields(2, "merge", 7) == 21 == field_counts.default_n_fields(7, "merge", 1)
 
 
 @pytest.mark.parametrize("bad", [0, -1, True, 2.5, None])
@@ -41,10 +42,10 @@ def test_min_k_is_checked(bad):
 
 
 def test_floor_only_when_parts_are_merged():
-    assert E.merge_min_k(E.SegmentOptions(merge=MergeWeights(min_k=5))) == 5
-    assert E.merge_min_k(E.SegmentOptions(method="paper", merge=MergeWeights(min_k=5))) == 1
-    assert E.merge_min_k(E.SegmentOptions(eps=0.1, merge=MergeWeights(min_k=5))) == 1
-    assert E.cluster_count(2, 1000, E.SegmentOptions(method="paper", merge=MergeWeights(min_k=5))) == 2
+    assert options.SegmentOptions(merge=MergeWeights(min_k=5)).merge_min_k == 5
+    assert options.SegmentOptions(method="paper", merge=MergeWeights(min_k=5)).merge_min_k == 1
+    assert options.SegmentOptions(eps=0.1, merge=MergeWeights(min_k=5)).merge_min_k == 1
+    assert field_counts.cluster_count(2, 1000, options.SegmentOptions(method="paper", merge=MergeWeights(min_k=5))) == 2
 
 
 @pytest.fixture(scope="module")
@@ -58,19 +59,19 @@ FAST = dict(seed=0, refine=False, kmeans_restarts=3, untangle_restarts=1)
 
 def _count_kmeans(monkeypatch):
     calls = []
-    real = E.spherical_kmeans
+    real = rounds.spherical_kmeans
 
     def counted(x, mask, k, **kw):
         calls.append(list(k) if not isinstance(k, int) else [k])
         return real(x, mask, k, **kw)
-    monkeypatch.setattr(E, "spherical_kmeans", counted)
+    monkeypatch.setattr(rounds, "spherical_kmeans", counted)
     return calls
 
 
 def test_ks_below_the_floor_share_one_kmeans_and_equal_each_k_alone(blobs, monkeypatch):
     merge = MergeWeights(min_k=4)
     calls = _count_kmeans(monkeypatch)
-    res = E.segment_each_k(blobs, [[2, 3, 4, 5]], merge=merge, **FAST)
+    res = segment_each_k(blobs, [[2, 3, 4, 5]], merge=merge, **FAST)
     # k = 2, 3, 4 share (n 16, k' 12); k = 5 has its own k' = 15
     assert calls == [[12], [15]]
     assert {m.params["k_oversegment"] for m in res.meshes[0].values()} == {12, 15}
@@ -93,7 +94,7 @@ def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
     merge = MergeWeights(min_k=3)
     calls = _count_kmeans(monkeypatch)
     ks = [[2, 3, 4], [3, 2]]
-    res = E.segment_each_k(fields, ks, merge=merge, **FAST)
+    res = segment_each_k(fields, ks, merge=merge, **FAST)
     # round 0: both new (one call per distinct field count); round 1: both reuse round 0's
     # (k' 9 for k <= 3); round 2: mesh 0's k = 4 only
     assert sorted(k for c in calls for k in c) == [9, 9, 12] and calls[-1] == [12]
@@ -107,24 +108,24 @@ def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
 
 def test_reused_clustering_is_the_recomputed_one(blobs):
     """A round served from the kept clustering equals k-means run again on its features."""
-    opts = E.SegmentOptions(merge=MergeWeights(min_k=4), **{k: v for k, v in FAST.items() if k != "untangle_restarts"})
-    rounds = list(E.segment_rounds(blobs, [[3, 2]], opts))
-    unt = rounds[1].untangled
+    opts = options.SegmentOptions(merge=MergeWeights(min_k=4), **{k: v for k, v in FAST.items() if k != "untangle_restarts"})
+    made = list(rounds.segment_rounds(blobs, [[3, 2]], opts))
+    unt = made[1].untangled
     from torchakvf.mesh.batch import pad_packed
     xpad, mask = pad_packed(unt.features.double(), blobs.batch.face_ptr)
-    again = E.spherical_kmeans(xpad, mask, [12], restarts=3, seed=0, max_iter=opts.kmeans_max_iter)
-    clean = E.cut_parts(blobs.batch, blobs, unt, again, 0, 2, opts)
-    np.testing.assert_array_equal(rounds[1].meshes[0].labels, clean.labels)
-    assert rounds[1].meshes[0].cost == clean.cost
-    assert torch.equal(torch.as_tensor(rounds[0].meshes[0].features), torch.as_tensor(clean.features))
+    again = rounds.spherical_kmeans(xpad, mask, [12], restarts=3, seed=0, max_iter=opts.kmeans_max_iter)
+    clean = cut.cut_parts(blobs.batch, blobs, unt, again, 0, 2, opts)
+    np.testing.assert_array_equal(made[1].meshes[0].labels, clean.labels)
+    assert made[1].meshes[0].cost == clean.cost
+    assert torch.equal(torch.as_tensor(made[0].meshes[0].features), torch.as_tensor(clean.features))
 
 
 def test_segment_options_take_the_api_graphcut_values():
     """evaluate_psb(graphcut=False) and friends pass the API's values into SegmentOptions."""
     from torchakvf.parts.graphcut import GraphCut
-    assert E.SegmentOptions(graphcut=False).graphcut is None
-    assert E.SegmentOptions(graphcut=None).graphcut is None
-    assert E.SegmentOptions(graphcut=True).graphcut == GraphCut()
-    assert E.SegmentOptions(graphcut=GraphCut(band=3)).graphcut == GraphCut(band=3)
+    assert options.SegmentOptions(graphcut=False).graphcut is None
+    assert options.SegmentOptions(graphcut=None).graphcut is None
+    assert options.SegmentOptions(graphcut=True).graphcut == GraphCut()
+    assert options.SegmentOptions(graphcut=GraphCut(band=3)).graphcut == GraphCut(band=3)
     with pytest.raises(ParameterError, match="graphcut"):
-        E.SegmentOptions(graphcut="yes")
+        options.SegmentOptions(graphcut="yes")

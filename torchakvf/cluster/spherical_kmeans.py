@@ -53,7 +53,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         (normalized here) for mesh b: its LAST restart starts from them, the other k_b - j_b
         centers chosen k-means++-style (given the seeds) with that restart's own draws; the
         other restarts, and meshes with None, are seeded as without ``init``. E.g. the previous
-        k's clustering of the same mesh (:func:`~torchakvf.parts.engine.segment_rounds`).
+        k's clustering of the same mesh (:func:`~torchakvf.parts.rounds.segment_rounds`).
     """
     nb, n_max, d = x.shape
     ks = [int(k)] * nb if isinstance(k, numbers.Integral) else [int(v) for v in k]
