@@ -453,7 +453,7 @@ def test_eval_on_cuda_matches_cpu(good_psb, tmp_path, cuda):
 def test_batches_go_to_the_workers_heaviest_first():
     from types import SimpleNamespace as NS
 
-    from torchakvf.evaluate.plan import heaviest_first
+    from torchakvf.pipeline.batches import heaviest_first
     p = {i: NS(mesh_id=i) for i in range(5)}
     faces = {0: 100, 1: 5000, 2: 300, 3: 300, 4: 1000}
     ks = {0: 1, 1: 0, 2: 9, 3: 9, 4: 2}
@@ -467,7 +467,7 @@ def test_batches_go_to_the_workers_heaviest_first():
 def test_batches_of_several_workers_balance_the_work_under_the_budget():
     from types import SimpleNamespace as NS
 
-    from torchakvf.evaluate.plan import balanced_batches, make_batches, mesh_work
+    from torchakvf.pipeline.batches import balanced_batches, make_batches, mesh_work
     p = [NS(mesh_id=i) for i in range(6)]
     faces = {i: 100 for i in range(6)}
     ks = {0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 5: 9}
@@ -502,6 +502,6 @@ def test_batches_of_several_workers_balance_the_work_under_the_budget():
 def test_cpu_batches_are_one_mesh_each_with_several_workers():
     import torch
 
-    from torchakvf.evaluate.plan import batches_per_worker
+    from torchakvf.pipeline.batches import batches_per_worker
     assert batches_per_worker("cpu") is batches_per_worker(torch.device("cpu")) is None
     assert batches_per_worker("cuda") == batches_per_worker("cuda:1") == 1
