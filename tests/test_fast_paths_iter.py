@@ -13,6 +13,7 @@ from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+horst_mod = importlib.import_module("torchakvf.fields.horst")
 kmeans_mod = importlib.import_module("torchakvf.cluster.spherical_kmeans")
 
 
@@ -31,16 +32,16 @@ def _horst_problem(n: int, e: int, r: int, seed: int):
 @pytest.mark.parametrize("n,e,r", [(6, 300, 4), (12, 900, 2), (4, 120, 1)])
 def test_horst_one_mesh_equals_the_batched_path(n, e, r, dtype, tol):
     y, a = _horst_problem(n, e, r, seed=n + r)
-    fast_a, fast_iters = untangle_mod._horst_one_mesh(y, a, tol, 500, dtype)
-    ref_a, ref_iters = untangle_mod._horst_batched(y, a, tol, 500, dtype)
+    fast_a, fast_iters = horst_mod.horst_one_mesh(y, a, tol, 500, dtype)
+    ref_a, ref_iters = horst_mod.horst_batched(y, a, tol, 500, dtype)
     assert torch.equal(fast_a, ref_a)
     assert torch.equal(fast_iters, ref_iters)
     assert fast_iters.dtype == ref_iters.dtype and fast_a.shape == ref_a.shape
     if r > 1:
         assert len(set(ref_iters[0].tolist())) > 1    # restarts stopped at different steps
     # the iteration cap, and the dispatch of _horst for one CPU mesh
-    capped = untangle_mod._horst(y, a, tol, 3, dtype)
-    for got, ref in zip(capped, untangle_mod._horst_batched(y, a, tol, 3, dtype)):
+    capped = horst_mod.horst(y, a, tol, 3, dtype)
+    for got, ref in zip(capped, horst_mod.horst_batched(y, a, tol, 3, dtype)):
         assert torch.equal(got, ref)
     assert (capped[1] == 3).all()
 
@@ -53,7 +54,7 @@ def blob_fields():
 
 def test_orthomax_rotations_equal_the_batched_path(blob_fields, monkeypatch):
     fast = untangle_mod.orthomax_rotations(blob_fields, {0: 10}, restarts=2, seed=1)
-    monkeypatch.setattr(untangle_mod, "_horst", untangle_mod._horst_batched)
+    monkeypatch.setattr(untangle_mod, "horst", horst_mod.horst_batched)
     ref = untangle_mod.orthomax_rotations(blob_fields, {0: 10}, restarts=2, seed=1)
     assert torch.equal(fast[0].rotation, ref[0].rotation)
     assert torch.equal(fast[0].restart_scores, ref[0].restart_scores)

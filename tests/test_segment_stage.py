@@ -43,7 +43,7 @@ def test_rotations_of_a_subset_are_the_batch_untangling_bits(fields):
         # the mesh's own edges alone (no padding rows of the batch): the same bits
         e0, e1 = int(fields.batch.edge_ptr[b]), int(fields.batch.edge_ptr[b + 1])
         y = fields.forms[e0:e1, :ns[b]].double() * fields.system.mass[e0:e1].double().sqrt()[:, None]
-        own = untangle_mod._orthomax(y[None], 3, 3, 1e-6, 500, torch.float32)
+        own = untangle_mod.orthomax(y[None], 3, 3, 1e-6, 500, torch.float32)
         assert torch.equal(own[0][0], rots[b].rotation)
     again = untangle_mod.untangled_from_rotations(fields, [rots[0], rots[1]])
     for name in ("rotation", "forms", "face_vectors", "features", "energies", "score", "iterations"):

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+horst_mod = importlib.import_module("torchakvf.fields.horst")
 
 
 def _problem(n: int, e: int, seed: int):
@@ -47,7 +48,7 @@ def _objective(y: torch.Tensor, a: torch.Tensor) -> float:
 def test_accelerated_horst_reaches_plain_horsts_optimum_in_fewer_steps(n, e, seed):
     y, a = _problem(n, e, seed)
     tol = 1e-8
-    got, steps = untangle_mod._horst(y, a, tol, 2000, torch.float64)
+    got, steps = horst_mod.horst(y, a, tol, 2000, torch.float64)
     for r in range(a.shape[1]):
         plain, plain_steps = _plain_horst(y[0], a[0, r], tol, 2000)
         ours = got[0, r]
@@ -69,7 +70,7 @@ def test_accelerated_horst_reaches_plain_horsts_optimum_in_fewer_steps(n, e, see
 
 def test_one_step_is_a_plain_horst_step():
     y, a = _problem(8, 800, 3)
-    stepped, steps = untangle_mod._horst(y, a, 0.0, 1, torch.float64)
+    stepped, steps = horst_mod.horst(y, a, 0.0, 1, torch.float64)
     assert (steps == 1).all()
     for r in range(a.shape[1]):
         plain, _ = _plain_horst(y[0], a[0, r], 0.0, 1)
@@ -80,8 +81,8 @@ def test_extrapolated_point_by_hand():
     gen = torch.Generator().manual_seed(5)
     a0, a1, a2 = untangle_mod.random_rotations(3, 5, gen)
     r, v = a1 - a0, a2 - 2 * a1 + a0
-    alpha = max(min(-float(r.norm() / v.norm()), -1.0), -untangle_mod.SQUAREM_MAX_STEP)
+    alpha = max(min(-float(r.norm() / v.norm()), -1.0), -horst_mod.SQUAREM_MAX_STEP)
     u, _, vh = torch.linalg.svd(a0 - 2 * alpha * r + alpha ** 2 * v)
-    assert torch.allclose(untangle_mod._extrapolated(a0, a1, a2), u @ vh, atol=1e-12)
+    assert torch.allclose(horst_mod.extrapolated(a0, a1, a2), u @ vh, atol=1e-12)
     # |r| <= |v| gives α = -1: the point a0 + 2r + v = a2 itself
-    assert torch.allclose(untangle_mod._extrapolated(a0, a0 + 0.1 * (a2 - a0), a2), a2, atol=1e-12)
+    assert torch.allclose(horst_mod.extrapolated(a0, a0 + 0.1 * (a2 - a0), a2), a2, atol=1e-12)
