@@ -10,8 +10,6 @@ import pytest
 import torch
 
 from torchakvf import shapes
-from torchakvf.errors import MeshError
-from torchakvf.mesh import MeshBatch
 
 
 class _FakeMeshes:
