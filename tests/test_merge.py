@@ -236,7 +236,7 @@ def test_first_near_min_breaks_round_off_ties_towards_the_first():
     """The merge's pick among candidate costs: the first entry (row-major) within round-off of
     the smallest; a genuinely smaller later entry still wins; NaN never wins; nothing finite
     gives the first smallest (an inf the merge loop stops at)."""
-    from torchakvf._restarts import first_near_min
+    from torchakvf.restarts import first_near_min
 
     inf, nan = float("inf"), float("nan")
     assert first_near_min(np.array([[inf, 0.3 * (1 + 1e-15)], [0.3, inf]])) == 1     # tie: first
@@ -270,7 +270,7 @@ def test_first_near_min_is_best_restarts_pick():
     matrices with infinities, NaN, exact and round-off ties."""
     import torch
 
-    from torchakvf._restarts import best_restart, first_near_min
+    from torchakvf.restarts import best_restart, first_near_min
 
     rng = np.random.default_rng(7)
     for trial in range(200):

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import torchakvf as ta
-from torchakvf._restarts import ROUND_OFF_TIE, best_restart
+from torchakvf.restarts import ROUND_OFF_TIE, best_restart
 from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.errors import ParameterError

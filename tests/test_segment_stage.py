@@ -11,7 +11,7 @@ import torch
 import torchakvf as ta
 from torchakvf.parts.merge import MergeWeights
 from torchakvf import shapes
-from torchakvf._restarts import best_restart
+from torchakvf.restarts import best_restart
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh.batch import pad_packed
 from torchakvf import options

@@ -11,10 +11,18 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .._restarts import best_restart
+from ..restarts import best_restart
 from ..errors import ParameterError
 
 _NEG = -4.0   # below any cosine: marks centers that do not exist for a mesh
+
+#: k-means++ restarts of :func:`spherical_kmeans` called by itself (a segmentation uses
+#: :data:`~torchakvf.options.KMEANS_RESTARTS_BY_METHOD`): many, since k-means has many
+#: near-equal local optima and a caller with no other knowledge wants the best.
+DEFAULT_RESTARTS = 20
+#: Lloyd iterations per precision phase of :func:`spherical_kmeans` called by itself (a
+#: segmentation uses :data:`~torchakvf.options.KMEANS_MAX_ITER`).
+DEFAULT_MAX_ITER = 100
 
 
 @dataclass
@@ -23,7 +31,7 @@ class KMeansResult:
     padding); centers : [B, k_max, d] unit vectors (0 when unused); cost : [B] Σ w (1 - cos) of
     the restart kept; iterations : [B] Lloyd iterations (float32 and float64 phases together);
     restart_costs : [B, R] the cost every restart ended at (the kept one is the lowest; of
-    costs equal to round-off, the first: :func:`~torchakvf._restarts.best_restart`)."""
+    costs equal to round-off, the first: :func:`~torchakvf.restarts.best_restart`)."""
 
     labels: torch.Tensor
     centers: torch.Tensor
@@ -32,8 +40,8 @@ class KMeansResult:
     restart_costs: torch.Tensor | None = None
 
 
-def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 20,
-                     max_iter: int = 100, seed: int = 0, weights: torch.Tensor | None = None,
+def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = DEFAULT_RESTARTS,
+                     max_iter: int = DEFAULT_MAX_ITER, seed: int = 0, weights: torch.Tensor | None = None,
                      iteration_dtype: torch.dtype = torch.float32, init=None) -> KMeansResult:
     """Cluster the rows of each mesh by cosine similarity.
 
@@ -55,7 +63,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         other restarts, and meshes with None, are seeded as without ``init``. E.g. the previous
         k's clustering of the same mesh (:func:`~torchakvf.parts.rounds.segment_rounds`).
     """
-    nb, n_max, d = x.shape
+    nb = x.shape[0]
     ks = [int(k)] * nb if isinstance(k, numbers.Integral) else [int(v) for v in k]
     counts = mask.sum(1).tolist()
     if len(ks) != nb:
@@ -70,6 +78,22 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     kvec = torch.tensor(ks, device=dev)
     center_ok = torch.arange(k_max, device=dev)[None, :] < kvec[:, None]          # [B, k_max]
 
+    centers = _seeded_centers(x, w, mask, ks, r, seed, center_ok, init)             # [B, R, k_max, d]
+    labels, cost, iters, centers = _lloyd_each(x, w, mask, ks, centers, max_iter, iteration_dtype, center_ok)
+    pick = best_restart(cost, largest=False)
+    ar = torch.arange(nb, device=dev)
+    labels = labels[ar, :, pick].masked_fill(~mask, -1)
+    return KMeansResult(labels=labels, centers=centers[ar, pick] * center_ok[..., None],
+                        cost=cost[ar, pick], iterations=iters[ar, pick], restart_costs=cost)
+
+
+def _seeded_centers(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, r: int, seed: int,
+                    center_ok: torch.Tensor, init) -> torch.Tensor:
+    """[B, R, k_max, d] k-means++ centers of every restart of every mesh (x [B, N_max, d] unit
+    rows, w [B, N_max] weights, ks [B], center_ok [B, k_max]); with ``init``, each listed mesh's
+    last restart grown from its given seeds (see :func:`spherical_kmeans`)."""
+    nb, _, d = x.shape
+    k_max, dev, dt = max(ks), x.device, x.dtype
     # Uniform draws for seeding, per mesh from its own generator and of its own k (padded), so a
     # mesh's clustering does not depend on the k's of the meshes beside it in the batch.
     draws = torch.zeros(nb, r, k_max, dtype=dt)
@@ -95,6 +119,15 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
                 centers[b, r - 1, :ks[b]] = _kmeanspp_from(x[b, :end], w[b, :end], seeds,
                                                            draws[b, r - 1, :ks[b]], b)
 
+    return centers
+
+
+def _lloyd_each(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, centers: torch.Tensor,
+                max_iter: int, iteration_dtype: torch.dtype, center_ok: torch.Tensor):
+    """:func:`_lloyd` of every restart of every mesh: (labels [B, N_max, R], cost [B, R],
+    iterations [B, R], centers [B, R, k_max, d])."""
+    nb, n_max, d = x.shape
+    r, k_max, dev, dt = centers.shape[1], max(ks), x.device, x.dtype
     if dev.type == "cpu":
         # On CPU each mesh iterates alone with its own k: no padded centers (computed, masked and
         # searched by max on every iteration when the k's differ), and no mesh computes as many
@@ -113,11 +146,7 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
             centers[b, :, :ks[b]] = p[3]
     else:
         labels, cost, iters, centers = _lloyd(x, w, centers, max_iter, iteration_dtype, center_ok)
-    pick = best_restart(cost, largest=False)
-    ar = torch.arange(nb, device=dev)
-    labels = labels[ar, :, pick].masked_fill(~mask, -1)
-    return KMeansResult(labels=labels, centers=centers[ar, pick] * center_ok[..., None],
-                        cost=cost[ar, pick], iterations=iters[ar, pick], restart_costs=cost)
+    return labels, cost, iters, centers
 
 
 def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,

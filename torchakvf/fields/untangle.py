@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .._restarts import best_restart
+from ..restarts import best_restart
 from .._threads import single_threaded
 from ..errors import ParameterError
 from ..mesh.batch import pad_packed

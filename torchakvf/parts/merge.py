@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._restarts import first_near_min
+from ..restarts import first_near_min
 from ..options import MergeWeights
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
@@ -154,7 +154,7 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
 
     Returns (part [K] -> new id in 0..k_out-1, in the order of the parts' smallest old id; the
     cost of each merge done). Ties, round-off ones included (within
-    :data:`~torchakvf._restarts.ROUND_OFF_TIE`, relative), go to the first pair in row-major
+    :data:`~torchakvf.restarts.ROUND_OFF_TIE`, relative), go to the first pair in row-major
     order, so the result is the same on any machine. The merged part keeps the smaller id;
     only its row of costs changes (the size term's total area does not change either).
     """
