@@ -25,9 +25,9 @@ class FourthMoments:
     quadruples, for Q [E, P] the products of column pairs, P = n(n+1)/2), each step then costs
     a product of n x C by C x q·n per mesh (C = n(n+1)(n+2)/6 sorted triples k <= l <= m),
     whatever E is. Where E is large against n (:func:`fourth_moments_pay`) that is far cheaper than
-    two float64 GEMMs over E per step: on PSB 21 (45,594 edges, n = 32) the float64 steps took
-    3.1 of the untangling's 4.5 s. Both ways sum the same products in another order: they agree
-    to round-off. Zero rows (padding) add nothing.
+    two float64 GEMMs over E per step, which dominate the untangling of a large mesh. Both ways
+    sum the same products in another order: they agree to round-off. Zero rows (padding) add
+    nothing.
     """
 
     def __init__(self, y: torch.Tensor, gather: bool | None = None):
@@ -113,8 +113,8 @@ def fourth_moments_pay(e: int, n: int, steps: int) -> bool:
     mesh with e edges (rows) and n fields are faster from :class:`FourthMoments` than by the
     products.
 
-    A time model in flops weighted by the rates measured here (one thread,
-    benchmarks/results/untangle_moments.md): the moments' one-time Qᵀ Q (2 P² E flops) runs at
+    A time model in flops weighted by measured rates (one thread; see docs/design.md): the
+    moments' one-time Qᵀ Q (2 P² E flops) runs at
     about twice the products' rate per flop, their steps (a gather and an n x C by C x n
     product per rotation) at about half; the products cost 4 E n² flops per rotation and step."""
     pairs, triples = n * (n + 1) // 2, n * (n + 1) * (n + 2) // 6

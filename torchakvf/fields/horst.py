@@ -184,9 +184,8 @@ def horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int
     Yᵀ (Y A)^3), then a third from the extrapolated point X = :func:`extrapolated` (A0, A1,
     A2); F(X) is the next cycle's base point where the objective at X is at least that at A1
     (else A2 is: the iteration never loses ground against plain Horst). Horst's iteration
-    converges linearly, slowly on the plateaus of near-equal optima; measured on 19 PSB meshes
-    (coarse 4000, n = 16, 24, 32, two starts): 0.42x the steps of plain Horst, the kept
-    restart's objective never lower by more than 1e-6 (relative), higher by up to 2e-3.
+    converges linearly, slowly on the plateaus of near-equal optima; the extrapolation takes
+    well under half its steps to the same or a better objective (see docs/design.md).
 
     All restarts of all meshes step in lockstep (every cycle has three steps; a restart stops
     only after a plain step). Each step the live meshes' active restarts are gathered into

@@ -48,9 +48,7 @@ class UntangledFields:
     :meth:`mesh_face_vectors`, :meth:`mesh_features`, each one GEMM on the mesh's own rows),
     or packed for the whole batch (:attr:`forms`, :attr:`face_vectors`, :attr:`features`);
     each is made once and kept. The engine reads one mesh at a time: on CPU, whole-batch
-    arrays of every round cost more in fresh memory than their products (measured on 16 PSB
-    meshes at 4000 faces: 1.8 s of 11 s for the segment stage, against 0.13 s one mesh at a
-    time).
+    arrays of every round cost more in fresh memory than their products.
 
     forms : packed [ΣE, n] untangled 1-forms (S1-orthonormal per mesh)
     face_vectors : packed [ΣF, n, 3] untangled Whitney vectors at barycenters
@@ -150,17 +148,14 @@ def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: 
     seed : each mesh's starts come from ``torch.Generator().manual_seed(seed)``, so a mesh
         gets the same result in any batch.
     tol : stop when the relative change of trace(D) is below tol (per restart); at most max_iter
-        iterations per phase. (1e-5 stopped on slow plateaus: the bent dumbbell's objective
-        still rose by 1e-4 after it, enough for float32 round-off to pick another end point.)
+        iterations per phase (a looser tol stops on slow plateaus, where float32 round-off
+        then picks the end point).
     iteration_dtype : float type of the two large products of each iteration (Y A and
         Yᵀ (Y A)^3); the rotations, SVDs and the final choice of restart stay float64.
         torch.float32 iterations stop at ``tol * FLOAT32_PHASE_TOL`` and float64 iterations
         then run from there to ``tol``, so every restart ends on a float64 stopping test and
-        the best restart is chosen by float64 objectives. Measured on 4 built-in shapes and
-        PSB meshes 1, 21, 121, 181 (coarse_faces=4000), one thread: float32 1.3-2.5x faster
-        than float64 iterations, the same end point (features within 2e-7 of their max) on 7
-        of 8; on sphere_with_two_ellipsoids another optimum 5e-6 better in objective.
-        tests/test_precision.py checks it against float64.
+        the best restart is chosen by float64 objectives: float32 iterations are faster and
+        reach the float64 end points (see docs/design.md; tests/test_precision.py checks it).
     """
     nb = len(fields.batch)
     ns = [fields.n] * nb if n is None else ([int(n)] * nb if isinstance(n, numbers.Integral) else [int(v) for v in n])
@@ -190,7 +185,7 @@ def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = DEFAULT_
     A mesh's rotation depends on its own fields, n_b and the seed alone, so a caller can keep
     them per (mesh, n) and untangle only the meshes whose n is new (the engine's rounds do).
     On CPU each mesh iterates alone on its own edges: batched, every live mesh computes as many
-    restarts as the slowest one still has (measured 1.4x slower for 5 PSB meshes at n = 16), and
+    restarts as the slowest one still has, and
     without the batch's padding rows the bits are those of the mesh untangled by itself. On other
     devices the meshes sharing n_b run as one batch, padded to the batch's largest edge count.
     """
@@ -279,8 +274,7 @@ def orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter:
         # float64 polish from the float32 end points: the optimum each restart settles on, and
         # so the restart kept, is decided by float64 iterations (float32 round-off, which
         # depends on the BLAS kernel, thread count and padding, only chooses the start). It
-        # takes about as many steps as the float32 phase did (PSB 1 and 21 at full resolution,
-        # n = 32: 0.96x and 1.08x of them, summed over the restarts).
+        # takes about as many steps as the float32 phase did: the moments' size rule reads that.
         steps = int(iters.sum(dim=1).max())
         a, polish = horst(ypad, a, tol, max_iter, torch.float64, fourth_moments_pay(e_max, n, steps))
         iters = iters + polish

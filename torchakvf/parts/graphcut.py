@@ -138,8 +138,8 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
         energy is a sum over components, and a component's moves on its own labels are those
         of the whole problem restricted to it): an expansion builds a graph of every site, so
         k labels over all sites cost k times the sites per cycle, a band's boundary two or three.
-        Every site starts at its component's first label (gco starts at label 0); on 13 PSB
-        meshes (60 (mesh, k)) the labels are those of the whole problem solved at once.
+        Every site starts at its component's first label (gco starts at label 0), which gives
+        the labels of the whole problem solved at once (see docs/design.md).
     """
     unary = np.asarray(unary, dtype=np.float64)
     n, k = unary.shape
@@ -258,6 +258,15 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     new = own.copy()
     if len(idx):
         new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w, opts.cycles, allowed=allowed_cand[free_cand])
+    new = _restore_parts(own, new, area, k, min_fraction)
+    out = labels.copy()
+    out[sites] = new
+    return out
+
+
+def _restore_parts(own: np.ndarray, new: np.ndarray, area: np.ndarray, k: int, min_fraction: float) -> np.ndarray:
+    """The cut's labels new [S] of the sites (own [S] before it, area [S]), with the faces of
+    every part the cut emptied or left under ``min_fraction`` of the area given back."""
     # A part the cut emptied (a small part inside the band of its boundary, outweighed by its
     # cut length), or left below ``min_fraction`` of the area when it had that much, gets its
     # faces back: the cut moves boundaries, it does not change k (a dumbbell's handle, 8% of its
@@ -278,9 +287,7 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
         restored |= gone
         back = gone[own]
         new[back] = own[back]
-    out = labels.copy()
-    out[sites] = new
-    return out
+    return new
 
 
 __all__ = ["GraphCut", "CornerMeans", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]
