@@ -161,7 +161,7 @@ def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys, one_t
 
 def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_thread):
     """--budgets: the same meshes once one per batch and once per budget, in one run; per
-    budget the ratio one-at-a-time seconds / batched seconds (what issue 13 asks >= 1 of)."""
+    budget the ratio one-at-a-time seconds / batched seconds (>= 1: batching at least as fast)."""
     root, n_faces = fake_psb
     out = tmp_path / "b"
     assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "0",
@@ -240,17 +240,3 @@ def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeyp
     assert sorted(p.name for p in out.iterdir()) == ["report.json", "report.md"]   # scratch gone
 
 
-def test_budget_report_says_when_every_budget_ran_one_mesh_per_batch():
-    """The CPU planner never groups meshes with several workers: a sweep whose every budget
-    ran as many batches as meshes says that its ratios compare one plan with itself."""
-    from torchakvf.bench.report import budget_lines
-
-    def sweep(batches):
-        rows = [dict(budget=b, batches=n, seconds=1.0, one_at_a_time_seconds=1.0, ratio=1.0, comparable=True,
-                     cpu_ratio=1.0, stage_ratios={"akvf": 1.0, "segment": 1.0}, seconds_each=[1.0])
-                for b, n in zip((4000, 80000), batches)]
-        return dict(meshes=3, faces=30, mesh_ids=[1, 2, 3], baseline_run="one_at_a_time", rows=rows)
-
-    note = "Every budget ran one mesh per batch"
-    assert note in "\n".join(budget_lines(sweep([3, 3])))
-    assert note not in "\n".join(budget_lines(sweep([3, 1])))

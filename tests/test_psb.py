@@ -76,9 +76,9 @@ def test_write_seg_text_is_one_decimal_per_line(tmp_path, lo, hi):
 def test_seg_digit_parser_equals_the_token_parser(data, vectorized, tmp_path):
     """The all-digits fast path of read_seg gives int() of every token; other files go to the
     general parsers, with the same values."""
-    from torchakvf.evaluate.psb import _parse_digit_tokens, _read_seg_slow
-    fast = _parse_digit_tokens(data)
-    ref = _read_seg_slow(tmp_path / "x.seg", data)
+    from torchakvf.evaluate.psb import parse_digit_tokens, parse_seg_tokens
+    fast = parse_digit_tokens(data)
+    ref = parse_seg_tokens(tmp_path / "x.seg", data)
     assert (fast is not None) == vectorized
     if fast is not None:
         assert fast.dtype == np.int64 and fast.tolist() == ref.tolist()

@@ -9,8 +9,10 @@ Submodules (import them directly; this package imports nothing on its own so tha
 * :mod:`torchakvf.evaluate.psb_archive` - preparing the PSB from its official archive (file or URL):
   conversion of the benchmark's layout into ours
 * :mod:`torchakvf.evaluate.harness`     - ``evaluate_psb``: plan, predict, score, report
-  (:mod:`~torchakvf.evaluate.plan`, :mod:`~torchakvf.evaluate.predict`,
-  :mod:`~torchakvf.evaluate.score`, :mod:`~torchakvf.evaluate.report`)
+  (:mod:`~torchakvf.evaluate.settings` (EvalSettings, the settings.json guard),
+  :mod:`~torchakvf.evaluate.plan` (meshes and their k's), :mod:`~torchakvf.evaluate.predict`,
+  :mod:`~torchakvf.evaluate.score`, :mod:`~torchakvf.evaluate.report`,
+  :mod:`~torchakvf.evaluate.gallery`)
 * :mod:`torchakvf.evaluate.k_auto`      - choosing k per mesh
 * :mod:`torchakvf.evaluate.commands`    - the ``eval`` command
 
