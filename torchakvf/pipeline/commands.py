@@ -165,6 +165,6 @@ def run_features(args) -> int:
 
 def add_corpus_commands(subparsers) -> None:
     """Register ``segment`` and ``features`` on the CLI's subparsers (``bench`` is
-    :func:`torchakvf.evaluate.commands.add_bench_command`)."""
+    :func:`torchakvf.bench.command.add_bench_command`)."""
     _add_segment(subparsers)
     _add_features(subparsers)
