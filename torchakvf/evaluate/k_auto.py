@@ -215,7 +215,7 @@ def choose_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, **kwa
 
 
 def segment_auto(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, **kwargs) -> Segmentation:
-    """``segment(meshes, k="auto")``: each mesh segmented with its automatically chosen k.
+    """Each mesh segmented with its automatically chosen k.
 
     The returned :class:`MeshSegmentation` s carry ``params["k_auto"]`` (the rule, the k's
     tried and their costs).
