@@ -1,6 +1,6 @@
-"""The untangling's float64 Horst steps from Y's fourth moments (issue 13): the gradient
-Yᵀ (Y A)^3 equals the two products' to round-off (padding rows and mesh subsets included), the
-iteration reaches the same rotations, and the size rule picks each way where it is faster."""
+"""Horst's gradient from Y's fourth moments (:mod:`torchakvf.fields.fourth_moments`): equal to
+the two products' to round-off (padding rows, mesh subsets and several row passes included),
+the same rotations, and the size rule."""
 from __future__ import annotations
 
 import importlib
@@ -8,11 +8,13 @@ import importlib
 import pytest
 import torch
 
-import torchakvf as ta
-from torchakvf import shapes
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+
+
 horst_mod = importlib.import_module("torchakvf.fields.horst")
+
+
 fourth_moments_mod = importlib.import_module("torchakvf.fields.fourth_moments")
 
 
@@ -79,22 +81,6 @@ def test_moment_steps_reach_the_products_rotations():
     assert torch.equal(batched, got) and torch.equal(batched_iters, got_iters)
 
 
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_untangle_is_the_same_with_either_gradient(monkeypatch, dtype):
-    """The moments only replace the float64 steps' products (after the float32 phase, or all
-    of them with iteration_dtype=float64): the same iterations, rotations and objective to
-    round-off."""
-    s = shapes.three_blobs()
-    fields = ta.akvf(ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces)]), n=12)
-    monkeypatch.setattr(untangle_mod, "fourth_moments_pay", lambda e, n, steps: True)
-    got = untangle_mod.untangle(fields, restarts=3, seed=2, iteration_dtype=dtype)
-    monkeypatch.setattr(untangle_mod, "fourth_moments_pay", lambda e, n, steps: False)
-    want = untangle_mod.untangle(fields, restarts=3, seed=2, iteration_dtype=dtype)
-    assert torch.equal(got.iterations, want.iterations)
-    assert float((got.rotation - want.rotation).abs().max()) < 1e-8
-    assert float((got.score - want.score).abs().max()) <= 1e-10 * float(want.score.abs().max())
-
-
 @pytest.mark.parametrize("e,n,steps,moments", [(45594, 32, 237, True), (14112, 32, 191, True),
                                                (6000, 32, 400, False), (6000, 24, 200, True),
                                                (6000, 16, 100, True), (45594, 32, 40, False),
@@ -104,11 +90,3 @@ def test_the_size_rule(e, n, steps, moments):
     for long meshes, few fields and many steps (their one-time cost must be earned back), the
     products for short meshes with many fields."""
     assert fourth_moments_mod.fourth_moments_pay(e, n, steps) is moments
-
-
-def test_the_moments_are_float64_steps():
-    y = _forms(1, 200, 4, seed=1)
-    assert isinstance(horst_mod.horst_gradient(y, 9, torch.float64, True), fourth_moments_mod.FourthMoments)
-    assert isinstance(horst_mod.horst_gradient(y, 9, torch.float64, False), horst_mod.Products)
-    with pytest.raises(ta.TorchAKVFError):
-        horst_mod.horst_gradient(y, 9, torch.float32, True)
