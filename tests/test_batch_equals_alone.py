@@ -49,7 +49,7 @@ def test_batched_rounds_equal_each_mesh_alone(solved):
 def test_kmeans_seeding_per_mesh_equals_the_batched_seeding():
     """On CPU each mesh of a batch seeds its own k centers; the centers, and so the clustering,
     are those of the batched seeding (which the other devices keep)."""
-    from torchakvf.cluster.spherical_kmeans import _kmeanspp
+    from torchakvf.cluster.spherical_kmeans import kmeanspp
     g = torch.Generator().manual_seed(3)
     x = torch.nn.functional.normalize(torch.randn(3, 50, 4, generator=g, dtype=torch.float64), dim=-1)
     w = torch.ones(3, 50, dtype=torch.float64)
@@ -58,9 +58,9 @@ def test_kmeans_seeding_per_mesh_equals_the_batched_seeding():
     ks = [5, 2, 9]
     u = torch.rand(3, 4, 9, generator=g, dtype=torch.float64)
     ok = torch.arange(9)[None, :] < torch.tensor(ks)[:, None]
-    batched = _kmeanspp(x, w, u, ok)
+    batched = kmeanspp(x, w, u, ok)
     for b, k in enumerate(ks):
-        own = _kmeanspp(x[b:b + 1], w[b:b + 1], u[b:b + 1, :, :k], ok[b:b + 1, :k])
+        own = kmeanspp(x[b:b + 1], w[b:b + 1], u[b:b + 1, :, :k], ok[b:b + 1, :k])
         assert torch.equal(own[0], batched[b, :, :k])
     mask = w > 0
     km = spherical_kmeans(x, mask, ks, restarts=4, seed=0)

@@ -11,7 +11,7 @@ import torch
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
-from torchakvf.cluster.spherical_kmeans import _lloyd
+from torchakvf.cluster.spherical_kmeans import lloyd
 from torchakvf.errors import ParameterError
 from torchakvf.mesh.batch import pad_packed
 from torchakvf.options import SegmentOptions
@@ -45,9 +45,9 @@ def test_kmeans_one_mesh_lloyd_equals_the_gathered_batch_path():
     x = torch.nn.functional.normalize(x, dim=-1)
     w = torch.rand(2, 300, generator=gen, dtype=torch.float64)
     seeds = x[:, torch.randperm(300, generator=gen)[:5 * 7]].reshape(2, 5, 7, 6)
-    both = _lloyd(x, w, seeds, 100, torch.float32)
+    both = lloyd(x, w, seeds, 100, torch.float32)
     for b in range(2):
-        alone = _lloyd(x[b:b + 1], w[b:b + 1], seeds[b:b + 1], 100, torch.float32)
+        alone = lloyd(x[b:b + 1], w[b:b + 1], seeds[b:b + 1], 100, torch.float32)
         for got, ref in zip(alone, both):
             assert torch.equal(got[0], ref[b])
     # restart 0 of five is the single-restart run (the same first draws)
@@ -78,12 +78,12 @@ def _kmeans_problem(n_rows: int, d: int, k: int, r: int, seed: int, duplicate: b
                                                     (200, 5, 3, 1, False), (150, 4, 1, 2, False)])
 def test_lloyd_one_mesh_equals_the_batched_path(n_rows, d, k, r, duplicate, dtype, max_iter):
     x, w, seeds = _kmeans_problem(n_rows, d, k, r, seed=k + r, duplicate=duplicate)
-    fast = kmeans_mod._lloyd_one_mesh(x, w, seeds, max_iter, dtype)
-    ref = kmeans_mod._lloyd_batched(x, w, seeds, max_iter, dtype)
+    fast = kmeans_mod.lloyd_one_mesh(x, w, seeds, max_iter, dtype)
+    ref = kmeans_mod.lloyd_batched(x, w, seeds, max_iter, dtype)
     for got, want in zip(fast, ref):
         assert got.dtype == want.dtype and torch.equal(got, want)
     # the dispatch: one CPU mesh with every center present
-    for got, want in zip(kmeans_mod._lloyd(x, w, seeds, max_iter, dtype, torch.ones(1, k, dtype=torch.bool)), ref):
+    for got, want in zip(kmeans_mod.lloyd(x, w, seeds, max_iter, dtype, torch.ones(1, k, dtype=torch.bool)), ref):
         assert torch.equal(got, want)
 
 
@@ -93,8 +93,8 @@ def test_lloyd_one_mesh_keeps_seed_layout_out_of_the_answer():
     x, w, seeds = _kmeans_problem(300, 6, 5, 3, seed=7)
     wide = torch.zeros(1, 3, 9, 6, dtype=torch.float64)
     wide[:, :, :5] = seeds
-    fast = kmeans_mod._lloyd_one_mesh(x, w, wide[:, :, :5], 100, torch.float32)
-    ref = kmeans_mod._lloyd_batched(x, w, seeds, 100, torch.float32)
+    fast = kmeans_mod.lloyd_one_mesh(x, w, wide[:, :, :5], 100, torch.float32)
+    ref = kmeans_mod.lloyd_batched(x, w, seeds, 100, torch.float32)
     for got, want in zip(fast, ref):
         assert torch.equal(got, want)
 
@@ -108,7 +108,7 @@ def test_spherical_kmeans_equals_the_batched_path(monkeypatch):
     mask[1, 200:] = False
     w = torch.rand(2, 250, generator=gen, dtype=torch.float64)
     fast = spherical_kmeans(x, mask, [4, 9], restarts=5, seed=2, weights=w, max_iter=15)
-    monkeypatch.setattr(kmeans_mod, "_lloyd", kmeans_mod._lloyd_batched)
+    monkeypatch.setattr(kmeans_mod, "lloyd", kmeans_mod.lloyd_batched)
     ref = spherical_kmeans(x, mask, [4, 9], restarts=5, seed=2, weights=w, max_iter=15)
     for name in ("labels", "centers", "cost", "iterations", "restart_costs"):
         assert torch.equal(getattr(fast, name), getattr(ref, name)), name
@@ -142,8 +142,8 @@ def test_kmeans_of_a_mesh_does_not_depend_on_its_batch(fields):
     draws = torch.zeros(2, 6, 7, dtype=torch.float64)
     for b, k in enumerate((3, 7)):
         draws[b, :, :k] = torch.rand(6, k, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
-    seeds = km._kmeanspp(xn, w, draws, ok)
-    labels, cost, _, _ = km._lloyd(xn, w, seeds, 100, torch.float32, ok)
+    seeds = km.kmeanspp(xn, w, draws, ok)
+    labels, cost, _, _ = km.lloyd(xn, w, seeds, 100, torch.float32, ok)
     # (padded centers and rows change the float32 GEMM's rounding, not the fixed points reached)
     torch.testing.assert_close(cost, both.restart_costs, rtol=1e-9, atol=0)
     pick = best_restart(cost, largest=False)

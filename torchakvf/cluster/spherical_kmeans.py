@@ -106,17 +106,17 @@ def _seeded_centers(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: li
         # per mesh, so the same centers.
         centers = x.new_zeros(nb, r, k_max, d)
         for b in range(nb):
-            centers[b:b + 1, :, :ks[b]] = _kmeanspp(x[b:b + 1], w[b:b + 1], draws[b:b + 1, :, :ks[b]],
+            centers[b:b + 1, :, :ks[b]] = kmeanspp(x[b:b + 1], w[b:b + 1], draws[b:b + 1, :, :ks[b]],
                                                     center_ok[b:b + 1, :ks[b]])
     else:
-        centers = _kmeanspp(x, w, draws, center_ok)                                # [B, R, k_max, d]
+        centers = kmeanspp(x, w, draws, center_ok)                                # [B, R, k_max, d]
     if init is not None:
         if len(init) != nb:
             raise ParameterError(f"init has {len(init)} entries for {nb} meshes")
         for b, seeds in enumerate(init):
             if seeds is not None:
                 end = int(torch.nonzero(mask[b]).max()) + 1   # the same rows in any batch
-                centers[b, r - 1, :ks[b]] = _kmeanspp_from(x[b, :end], w[b, :end], seeds,
+                centers[b, r - 1, :ks[b]] = kmeanspp_from(x[b, :end], w[b, :end], seeds,
                                                            draws[b, r - 1, :ks[b]], b)
 
     return centers
@@ -124,7 +124,7 @@ def _seeded_centers(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: li
 
 def _lloyd_each(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, centers: torch.Tensor,
                 max_iter: int, iteration_dtype: torch.dtype, center_ok: torch.Tensor):
-    """:func:`_lloyd` of every restart of every mesh: (labels [B, N_max, R], cost [B, R],
+    """:func:`lloyd` of every restart of every mesh: (labels [B, N_max, R], cost [B, R],
     iterations [B, R], centers [B, R, k_max, d])."""
     nb, n_max, d = x.shape
     r, k_max, dev, dt = centers.shape[1], max(ks), x.device, x.dtype
@@ -135,7 +135,7 @@ def _lloyd_each(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, 
         # those of the batched run.
         # Rows past a mesh's last one are padding (weight 0; the same label on every iteration).
         ends = [int(torch.nonzero(mask[b]).max()) + 1 for b in range(nb)]
-        parts = [_lloyd(x[b:b + 1, :ends[b]], w[b:b + 1, :ends[b]], centers[b:b + 1, :, :ks[b]], max_iter,
+        parts = [lloyd(x[b:b + 1, :ends[b]], w[b:b + 1, :ends[b]], centers[b:b + 1, :, :ks[b]], max_iter,
                         iteration_dtype) for b in range(nb)]
         labels = torch.full((nb, n_max, r), -1, dtype=torch.long, device=dev)
         cost = torch.cat([p[1] for p in parts])
@@ -145,11 +145,11 @@ def _lloyd_each(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, 
             labels[b, :ends[b]] = p[0][0]
             centers[b, :, :ks[b]] = p[3]
     else:
-        labels, cost, iters, centers = _lloyd(x, w, centers, max_iter, iteration_dtype, center_ok)
+        labels, cost, iters, centers = lloyd(x, w, centers, max_iter, iteration_dtype, center_ok)
     return labels, cost, iters, centers
 
 
-def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+def lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
            iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
     """Lloyd iterations of every restart from seeded centers, then the final float64 assignment.
 
@@ -158,17 +158,17 @@ def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: in
     Returns labels [B, N, R], cost [B, R] = Σ w (1 - cos), iterations [B, R], centers [B, R, k, d].
 
     One mesh on CPU with all its centers (every call of :func:`spherical_kmeans` there) takes
-    :func:`_lloyd_one_mesh`, the same arithmetic without the batch's bookkeeping; any other
-    call :func:`_lloyd_batched`.
+    :func:`lloyd_one_mesh`, the same arithmetic without the batch's bookkeeping; any other
+    call :func:`lloyd_batched`.
     """
     if len(x) == 1 and x.device.type == "cpu" and (center_ok is None or bool(center_ok.all())):
-        return _lloyd_one_mesh(x, w, centers, max_iter, iteration_dtype)
-    return _lloyd_batched(x, w, centers, max_iter, iteration_dtype, center_ok)
+        return lloyd_one_mesh(x, w, centers, max_iter, iteration_dtype)
+    return lloyd_batched(x, w, centers, max_iter, iteration_dtype, center_ok)
 
 
-def _lloyd_one_mesh(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+def lloyd_one_mesh(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
                     iteration_dtype: torch.dtype):
-    """:func:`_lloyd_batched` for one mesh (x [1, N, d], w [1, N], centers [1, R, k, d]) with
+    """:func:`lloyd_batched` for one mesh (x [1, N, d], w [1, N], centers [1, R, k, d]) with
     every center present, on CPU, bitwise.
 
     The same products of the same shapes and layouts, the same cluster sums in the same order:
@@ -281,9 +281,9 @@ def _final_assignment(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, a
     return labels, cost
 
 
-def _lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+def lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
                    iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
-    """:func:`_lloyd` for any batch on any device: each iteration the live meshes' active
+    """:func:`lloyd` for any batch on any device: each iteration the live meshes' active
     restarts are gathered into slots, the results scattered back."""
     nb, n_max, d = x.shape
     r, k_max = centers.shape[1], centers.shape[2]
@@ -369,7 +369,7 @@ def _lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_
     return labels, cost, iters, centers
 
 
-def _kmeanspp_from(x: torch.Tensor, w: torch.Tensor, seeds: torch.Tensor, u: torch.Tensor,
+def kmeanspp_from(x: torch.Tensor, w: torch.Tensor, seeds: torch.Tensor, u: torch.Tensor,
                    b: int) -> torch.Tensor:
     """One mesh's k centers: the given seeds, then k-means++ draws for the rest.
 
@@ -399,7 +399,7 @@ def _kmeanspp_from(x: torch.Tensor, w: torch.Tensor, seeds: torch.Tensor, u: tor
     return out
 
 
-def _kmeanspp(x: torch.Tensor, w: torch.Tensor, u: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
+def kmeanspp(x: torch.Tensor, w: torch.Tensor, u: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
     """k-means++ seeding of every restart by inverse-CDF sampling with pre-drawn uniforms.
 
     x : [B, N, d] unit rows; w : [B, N] weights; u : [B, R, k_max] uniforms; ok : [B, k_max].
