@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import ParameterError, TorchAKVFError
 from ..io import atomic_write_bytes, remove_stale_temp_files, write_npz
+from ..fields.untangle import DEFAULT_RESTARTS
 from ..operators.killing import DEFAULT_REMEDY
 
 log = logging.getLogger("torchakvf.pipeline")
@@ -68,7 +69,7 @@ class FeaturesTask:
     stages = ("akvf", "untangle")
 
     def __init__(self, n: int = 32, *, seed: int = 0, remedy: str = DEFAULT_REMEDY,
-                 untangle_restarts: int = 8, tol: float = 1e-6, face_vectors: bool = False,
+                 untangle_restarts: int = DEFAULT_RESTARTS, tol: float = 1e-6, face_vectors: bool = False,
                  cache_dir=None, coarse_faces: int | None = None, max_faces: int | None = None,
                  memory_bytes: int | None = None):
         """coarse_faces : solve meshes above 1.25x this many faces decimated to about this many
