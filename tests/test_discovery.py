@@ -92,7 +92,7 @@ def test_remove_small_parts_leaves_no_small_piece_beside_a_large_one():
     n, piece = labelled_pieces(out, adjacency)
     assert np.bincount(piece).min() >= 2
     # one pass alone (part discovery's rule) swaps them and stops
-    first, _ = discovery._small_pieces_pass(labels, adjacency, area, 1.5, False, False)
+    first, _ = discovery.small_pieces_pass(labels, adjacency, area, 1.5, False, False)
     np.testing.assert_array_equal(first[4:6], [8, 7])
 
 

@@ -54,7 +54,7 @@ def test_moments_over_several_row_passes(n):
     quadruple blocks: each moment M_iklm (i any, k <= l <= m) equals the direct sum over rows."""
     y = _forms(1, 4100, n, seed=20 + n)
     got = fourth_moments_mod.FourthMoments(y)
-    k, l, m = got._k, got._l, got._m
+    k, l, m = got.triple_k, got.triple_l, got.triple_m
     want = torch.einsum("ei,ec->ic", y[0], y[0, :, k] * y[0, :, l] * y[0, :, m])
     mult = torch.where((k == l) & (l == m), 1.0, torch.where((k == l) | (l == m), 3.0, 6.0))
     scale = float((y[0].abs() ** 4).sum(0).max())

@@ -28,6 +28,9 @@ class FourthMoments:
     two float64 GEMMs over E per step, which dominate the untangling of a large mesh. Both ways
     sum the same products in another order: they agree to round-off. Zero rows (padding) add
     nothing.
+
+    moments : [m, n, C] M_iklm of every mesh, i and sorted triple (k, l, m), times the triple's
+    count of distinct orderings; triple_k, triple_l, triple_m : [C] the triples' indices.
     """
 
     def __init__(self, y: torch.Tensor, gather: bool | None = None):
@@ -80,7 +83,7 @@ class FourthMoments:
                 r0, r1, c0 = row_start[b0], row_start[b1], col_start[b0]
                 gram[:, r0:r1, c0:].baddbmm_(qr[:, r0:r1], qc[:, :, c0:])
         k, l, m = torch.combinations(torch.arange(n, device=dev), 3, with_replacement=True).T
-        self._k, self._l, self._m = k.contiguous(), l.contiguous(), m.contiguous()
+        self.triple_k, self.triple_l, self.triple_m = k.contiguous(), l.contiguous(), m.contiguous()
         # A sorted triple stands for its distinct orderings: 1, 3 or 6 of the n³ terms.
         mult = torch.where((k == l) & (l == m), 1.0,
                            torch.where((k == l) | (l == m), 3.0, 6.0)).to(y.dtype)
@@ -95,7 +98,7 @@ class FourthMoments:
     def select(self, meshes: torch.Tensor) -> "FourthMoments":
         """The same for a subset of the meshes (indices into this one's)."""
         out = object.__new__(FourthMoments)
-        out.n, out._k, out._l, out._m = self.n, self._k, self._l, self._m
+        out.n, out.triple_k, out.triple_l, out.triple_m = self.n, self.triple_k, self.triple_l, self.triple_m
         out.moments = self.moments[meshes]
         return out
 
@@ -103,8 +106,8 @@ class FourthMoments:
         """G [m, q, n, n] (float64) of rotations al [m, q, n, n]."""
         nb, q, n = al.shape[0], al.shape[1], self.n
         a = side_by_side(al)                                                       # [m, n, q·n]
-        cubes = a[:, self._k] * a[:, self._l]
-        cubes.mul_(a[:, self._m])                                           # [m, C, q·n]
+        cubes = a[:, self.triple_k] * a[:, self.triple_l]
+        cubes.mul_(a[:, self.triple_m])                                           # [m, C, q·n]
         return torch.bmm(self.moments, cubes).reshape(nb, n, q, n).permute(0, 2, 1, 3)
 
 
