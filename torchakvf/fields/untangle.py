@@ -47,7 +47,7 @@ class UntangledFields:
     The rotated fields themselves are made on demand, per mesh (:meth:`mesh_forms`,
     :meth:`mesh_face_vectors`, :meth:`mesh_features`, each one GEMM on the mesh's own rows),
     or packed for the whole batch (:attr:`forms`, :attr:`face_vectors`, :attr:`features`);
-    each is made once and kept. The engine reads one mesh at a time: on CPU, whole-batch
+    each is made once and kept. A segmentation reads one mesh at a time: on CPU, whole-batch
     arrays of every round cost more in fresh memory than their products.
 
     forms : packed [ΣE, n] untangled 1-forms (S1-orthonormal per mesh)
@@ -183,7 +183,8 @@ def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = DEFAULT_
     """Algorithm 1 for some meshes of the batch: ns {mesh index b: n_b} -> {b: :class:`MeshRotation`}.
 
     A mesh's rotation depends on its own fields, n_b and the seed alone, so a caller can keep
-    them per (mesh, n) and untangle only the meshes whose n is new (the engine's rounds do).
+    them per (mesh, n) and untangle only the meshes whose n is new (a segmentation's rounds do:
+    :mod:`torchakvf.parts.rounds`).
     On CPU each mesh iterates alone on its own edges: batched, every live mesh computes as many
     restarts as the slowest one still has, and
     without the batch's padding rows the bits are those of the mesh untangled by itself. On other
