@@ -107,7 +107,7 @@ def _seeded_centers(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: li
         centers = x.new_zeros(nb, r, k_max, d)
         for b in range(nb):
             centers[b:b + 1, :, :ks[b]] = kmeanspp(x[b:b + 1], w[b:b + 1], draws[b:b + 1, :, :ks[b]],
-                                                    center_ok[b:b + 1, :ks[b]])
+                                                   center_ok[b:b + 1, :ks[b]])
     else:
         centers = kmeanspp(x, w, draws, center_ok)                                # [B, R, k_max, d]
     if init is not None:
@@ -117,8 +117,7 @@ def _seeded_centers(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: li
             if seeds is not None:
                 end = int(torch.nonzero(mask[b]).max()) + 1   # the same rows in any batch
                 centers[b, r - 1, :ks[b]] = kmeanspp_from(x[b, :end], w[b, :end], seeds,
-                                                           draws[b, r - 1, :ks[b]], b)
-
+                                                          draws[b, r - 1, :ks[b]], b)
     return centers
 
 
@@ -136,7 +135,7 @@ def _lloyd_each(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, 
         # Rows past a mesh's last one are padding (weight 0; the same label on every iteration).
         ends = [int(torch.nonzero(mask[b]).max()) + 1 for b in range(nb)]
         parts = [lloyd(x[b:b + 1, :ends[b]], w[b:b + 1, :ends[b]], centers[b:b + 1, :, :ks[b]], max_iter,
-                        iteration_dtype) for b in range(nb)]
+                       iteration_dtype) for b in range(nb)]
         labels = torch.full((nb, n_max, r), -1, dtype=torch.long, device=dev)
         cost = torch.cat([p[1] for p in parts])
         iters = torch.cat([p[2] for p in parts])
@@ -150,7 +149,7 @@ def _lloyd_each(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, 
 
 
 def lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
-           iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
+          iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
     """Lloyd iterations of every restart from seeded centers, then the final float64 assignment.
 
     x : [B, N, d] unit rows (0 on padding); w : [B, N] weights (0 on padding)
@@ -167,7 +166,7 @@ def lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int
 
 
 def lloyd_one_mesh(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
-                    iteration_dtype: torch.dtype):
+                   iteration_dtype: torch.dtype):
     """:func:`lloyd_batched` for one mesh (x [1, N, d], w [1, N], centers [1, R, k, d]) with
     every center present, on CPU, bitwise.
 
@@ -282,7 +281,7 @@ def _final_assignment(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, a
 
 
 def lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
-                   iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
+                  iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
     """:func:`lloyd` for any batch on any device: each iteration the live meshes' active
     restarts are gathered into slots, the results scattered back."""
     nb, n_max, d = x.shape
@@ -370,7 +369,7 @@ def lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_i
 
 
 def kmeanspp_from(x: torch.Tensor, w: torch.Tensor, seeds: torch.Tensor, u: torch.Tensor,
-                   b: int) -> torch.Tensor:
+                  b: int) -> torch.Tensor:
     """One mesh's k centers: the given seeds, then k-means++ draws for the rest.
 
     x : [N, d] unit rows (0 on padding); w : [N] weights; seeds : [j, d] (normalized here,

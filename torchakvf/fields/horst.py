@@ -21,7 +21,7 @@ SQUAREM_MAX_STEP = 4.0
 
 
 def horst(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
-           iteration_dtype: torch.dtype, moments: bool = False):
+          iteration_dtype: torch.dtype, moments: bool = False):
     """Horst's iteration, accelerated (:func:`horst_batched`), from rotations a [b, R, n, n]
     (float64) for scaled forms [b, Emax, n]; the products Y A and Yᵀ (Y A)^3 in
     ``iteration_dtype``, or with ``moments`` (float64 only) Yᵀ (Y A)^3 from Y's fourth moments
@@ -141,7 +141,7 @@ def squarem_step(phase: int, state: dict, pick, put, gradient, tol: float) -> to
 
 
 def horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
-                    iteration_dtype: torch.dtype, moments: bool = False):
+                   iteration_dtype: torch.dtype, moments: bool = False):
     """:func:`horst_batched` for one mesh (ypad [1, E, n], a [1, R, n, n]) on CPU, bitwise.
 
     The same products of the same shapes and layouts on the same operands: each step's active
@@ -178,7 +178,7 @@ def horst_one_mesh(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: in
 
 
 def horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int,
-                   iteration_dtype: torch.dtype, moments: bool = False):
+                  iteration_dtype: torch.dtype, moments: bool = False):
     """Horst's iteration for any batch on any device (see :func:`horst`), accelerated by
     SQUAREM: each cycle makes two plain steps A1 = F(A0), A2 = F(A1) (F(A) = polar factor of
     Yᵀ (Y A)^3), then a third from the extrapolated point X = :func:`extrapolated` (A0, A1,

@@ -249,7 +249,7 @@ def untangled_from_rotations(fields: AKVFResult, rotations: list) -> UntangledFi
 
 
 def orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter: int,
-              iteration_dtype: torch.dtype = torch.float64):
+             iteration_dtype: torch.dtype = torch.float64):
     """Horst's iteration for [b, Emax, n] scaled forms, all restarts at once.
 
     The R rotations of a mesh sit side by side, A = [A_1 | ... | A_R] [n, R·n], so each step is

@@ -57,8 +57,8 @@ def remove_small_parts(labels: np.ndarray, adjacency: np.ndarray, face_area: np.
 
 
 def small_pieces_pass(labels: np.ndarray, adjacency: np.ndarray, face_area: np.ndarray,
-                       threshold: float, into_connecting: bool, large_only: bool
-                       ) -> tuple[np.ndarray, bool]:
+                      threshold: float, into_connecting: bool, large_only: bool
+                      ) -> tuple[np.ndarray, bool]:
     """One pass of :func:`remove_small_parts` over the pieces of area below ``threshold``:
     (new labels, whether any piece moved). large_only: a small piece joins only labels of
     neighbouring pieces that are not small (edges between two small pieces are not counted)."""
