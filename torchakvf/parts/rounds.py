@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import torch
 
@@ -66,7 +67,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         state.assembled[tuple(int(v) for v in untangled.n_fields)] = untangled
     plans = {}          # round -> its round_plan, made once: read by the round and the one before
 
-    def plan(r: int) -> tuple:
+    def plan(r: int) -> RoundPlan:
         if r not in plans:
             plans[r] = round_plan(fields, ks, r, n_fields, opts)
         return plans[r]
@@ -93,8 +94,8 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         meshes = [None] * nb
         for b in active:
             meshes[b] = cut_parts(batch, fields, unt, km, b, round_ks[b], opts, state.mesh_caches[b])
-            if following is None or b not in following[1] or \
-                    (following[2][b], following[3][b]) != (ns[b], km_ks[b]):
+            if following is None or b not in following.active or \
+                    (following.n_fields[b], following.clusters[b]) != (ns[b], km_ks[b]):
                 # the mesh's next k clusters otherwise (or it has none): its over-segmentation
                 # (fine-mesh arrays, ~10 MB at 20k faces) goes, not kept for the batch's life
                 state.mesh_caches[b].over = None
@@ -142,10 +143,20 @@ def _round_kmeans(unt: UntangledFields, r: int, km_ks: list, ns: list, active: l
     return km
 
 
-def round_plan(fields: AKVFResult, ks: list, r: int, n_fields, opts: SegmentOptions) -> tuple:
-    """Round r of :func:`segment_rounds`: ([B] each mesh's k, :data:`PAD_K` for a mesh with no
-    k left; the meshes whose own k it is; [B] fields untangled per mesh, :func:`field_counts`;
-    [B] clusters per mesh, :func:`cluster_count`). Raises as field_counts does."""
+class RoundPlan(NamedTuple):
+    """Round r of :func:`segment_rounds`: ks [B] each mesh's k (:data:`PAD_K` for a mesh with no k
+    left), active the meshes whose own k it is, n_fields [B] fields untangled per mesh
+    (:func:`~torchakvf.parts.field_counts.field_counts`), clusters [B] k-means clusters per mesh
+    (:func:`~torchakvf.parts.field_counts.cluster_count`)."""
+
+    ks: list
+    active: list
+    n_fields: list
+    clusters: list
+
+
+def round_plan(fields: AKVFResult, ks: list, r: int, n_fields, opts: SegmentOptions) -> RoundPlan:
+    """The :class:`RoundPlan` of round r of :func:`segment_rounds`; raises as field_counts does."""
     batch = fields.batch
     nb = len(ks)
     active = [b for b in range(nb) if r < len(ks[b])]
@@ -153,7 +164,7 @@ def round_plan(fields: AKVFResult, ks: list, r: int, n_fields, opts: SegmentOpti
     ns = field_counts(fields, round_ks, n_fields, opts.method, opts.merge_min_k)
     n_faces = (batch.face_ptr[1:] - batch.face_ptr[:-1]).tolist()
     km_ks = [cluster_count(round_ks[b], n_faces[b], opts) if b in active else PAD_K for b in range(nb)]
-    return round_ks, active, ns, km_ks
+    return RoundPlan(round_ks, active, ns, km_ks)
 
 
 def previous_centroids(x: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor, k: int) -> torch.Tensor | None:
@@ -267,4 +278,4 @@ def _round_untangled(fields: AKVFResult, ns: list, active: list, rotations: dict
     return assembled[key]
 
 
-__all__ = ["segment_rounds", "KRound", "MeshClustering", "previous_centroids", "PAD_K"]
+__all__ = ["segment_rounds", "round_plan", "RoundPlan", "KRound", "MeshClustering", "previous_centroids", "PAD_K"]
