@@ -8,14 +8,16 @@ import torch
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
-from torchakvf.parts import engine as E
+from torchakvf.options import SegmentOptions
+from torchakvf.parts.field_counts import akvf_count
+from torchakvf.parts.rounds import segment_rounds
 
 
 @pytest.fixture(scope="module")
 def solved():
     ms = [ta.Mesh(s.vertices, s.faces, name=s.name)
           for s in (shapes.three_blobs(n_around=20), shapes.dumbbell(), shapes.sphere_with_two_ellipsoids())]
-    n = E.akvf_count([[9]])                       # 32 fields + spare: every k below fits
+    n = akvf_count([[9]])                       # 32 fields + spare: every k below fits
     batch = ta.akvf(ta.MeshBatch.from_meshes(ms), n=n, remedy="smooth")
     alone = [ta.akvf(m, n=n, remedy="smooth") for m in ms]
     return ms, batch, alone
@@ -28,14 +30,14 @@ def test_batched_rounds_equal_each_mesh_alone(solved):
         assert torch.equal(batch.forms[e0:e1], f.forms)
     # round 0: n 32 / 24 / 24 and k' 27 / 24 / 24; round 1: mesh 1 sits out; round 2: mesh 0 alone
     ks = [[9, 3, 10], [2], [5, 12]]
-    opts = E.SegmentOptions(seed=0, refine=False)
+    opts = SegmentOptions(seed=0, refine=False)
     together = {}
-    for rnd in E.segment_rounds(batch, ks, opts):
+    for rnd in segment_rounds(batch, ks, opts):
         assert rnd.untangled.n == max(int(v) for v in rnd.untangled.n_fields)
         for b in rnd.active:
             together[(b, rnd.ks[b])] = rnd.meshes[b]
     for b, f in enumerate(alone):
-        for rnd in E.segment_rounds(f, [ks[b]], opts):
+        for rnd in segment_rounds(f, [ks[b]], opts):
             one, many = rnd.meshes[0], together[(b, rnd.ks[0])]
             np.testing.assert_array_equal(many.labels, one.labels)
             assert many.cost == one.cost
@@ -47,7 +49,7 @@ def test_batched_rounds_equal_each_mesh_alone(solved):
 def test_kmeans_seeding_per_mesh_equals_the_batched_seeding():
     """On CPU each mesh of a batch seeds its own k centers; the centers, and so the clustering,
     are those of the batched seeding (which the other devices keep)."""
-    from torchakvf.cluster.spherical_kmeans import _kmeanspp
+    from torchakvf.cluster.spherical_kmeans import kmeanspp
     g = torch.Generator().manual_seed(3)
     x = torch.nn.functional.normalize(torch.randn(3, 50, 4, generator=g, dtype=torch.float64), dim=-1)
     w = torch.ones(3, 50, dtype=torch.float64)
@@ -56,9 +58,9 @@ def test_kmeans_seeding_per_mesh_equals_the_batched_seeding():
     ks = [5, 2, 9]
     u = torch.rand(3, 4, 9, generator=g, dtype=torch.float64)
     ok = torch.arange(9)[None, :] < torch.tensor(ks)[:, None]
-    batched = _kmeanspp(x, w, u, ok)
+    batched = kmeanspp(x, w, u, ok)
     for b, k in enumerate(ks):
-        own = _kmeanspp(x[b:b + 1], w[b:b + 1], u[b:b + 1, :, :k], ok[b:b + 1, :k])
+        own = kmeanspp(x[b:b + 1], w[b:b + 1], u[b:b + 1, :, :k], ok[b:b + 1, :k])
         assert torch.equal(own[0], batched[b, :, :k])
     mask = w > 0
     km = spherical_kmeans(x, mask, ks, restarts=4, seed=0)

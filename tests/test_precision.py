@@ -24,6 +24,7 @@ from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh.batch import pad_packed
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+horst_mod = importlib.import_module("torchakvf.fields.horst")
 
 N = 16
 TOL = 1e-6   # untangle's default stopping tolerance (relative change per iteration)
@@ -63,9 +64,9 @@ def _one_float64_step_gain(unt) -> torch.Tensor:
     y = fields.forms[:, :N].double() * fields.system.mass.double().sqrt()[:, None]
     ypad, _ = pad_packed(y, fields.batch.edge_ptr)
     a = unt.rotation.double()[:, None]                                     # [B, 1, n, n]
-    before = untangle_mod._orthomax_objective(ypad, a)[:, 0]
-    stepped, _ = untangle_mod._horst(ypad, a, tol=0.0, max_iter=1, iteration_dtype=torch.float64)
-    after = untangle_mod._orthomax_objective(ypad, stepped)[:, 0]
+    before = untangle_mod.orthomax_objective(ypad, a)[:, 0]
+    stepped, _ = horst_mod.horst(ypad, a, tol=0.0, max_iter=1, iteration_dtype=torch.float64)
+    after = untangle_mod.orthomax_objective(ypad, stepped)[:, 0]
     return (after - before) / before
 
 

@@ -8,6 +8,7 @@ from .errors import ConvergenceWarning, MeshError, ParameterError, SolverError, 
 from .io import load_mesh
 from .mesh import CleanMesh, Mesh, MeshBatch, clean_mesh
 from .fields import AKVFResult, UntangledFields, akvf, untangle
+from .options import SegmentOptions
 from .parts import MeshSegmentation, Segmentation, segment
 from . import data
 
@@ -15,4 +16,4 @@ __version__ = "0.1.0"
 
 __all__ = ["TorchAKVFError", "MeshError", "SolverError", "ParameterError", "ConvergenceWarning", "load_mesh", "Mesh",
            "CleanMesh", "clean_mesh", "MeshBatch", "AKVFResult", "akvf", "UntangledFields", "untangle",
-           "Segmentation", "MeshSegmentation", "segment", "__version__"]
+           "SegmentOptions", "Segmentation", "MeshSegmentation", "segment", "__version__"]

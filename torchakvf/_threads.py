@@ -16,9 +16,8 @@ def single_threaded():
     """Context manager: run small dense factorizations (n×n eigh/svd with n ~ 10-150) on one
     CPU thread, then give the process back the thread count it had.
 
-    Measured here: a 144×144 float64 ``eigh`` took 3.7 ms on one thread and up to 3 s with
-    two OpenMP threads when the cores were busy (spin-waiting threads); such matrices are too
-    small to gain from threads anyway.
+    Such matrices are too small to gain from threads, and OpenMP threads spin-waiting on busy
+    cores made them up to a thousand times slower (see docs/design.md).
 
     torch's intra-op thread count is process-wide, so the blocks are counted across threads
     and nesting: the first to enter saves the count, the last to leave restores it (two

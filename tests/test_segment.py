@@ -1,4 +1,6 @@
-"""Segmentation end to end on built-in composite shapes with known parts (issue 3 criteria)."""
+"""Segmentation end to end (:mod:`torchakvf.parts.segment`) on built-in composite shapes with
+known parts: the right parts, batch independence, invariances, connecting regions, refined
+meshes, generators, parameter checks, and segment_each_k against segment per k."""
 from __future__ import annotations
 
 from itertools import permutations
@@ -9,9 +11,9 @@ import torch
 
 import torchakvf as ta
 from torchakvf import shapes
-from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh import face_areas
-from torchakvf.parts.segment import cluster_safe_n
+from torchakvf.parts.field_counts import cluster_safe_n
+
 
 COMPOSITES = ["dumbbell", "three_blobs", "sphere_two_ellipsoids", "torus_chain"]
 
@@ -173,29 +175,6 @@ def test_generators_report_share_and_energy(batch_seg):
         assert all(0.5 <= g.share <= 1.0 + 1e-9 for g in gens)
 
 
-def test_spherical_kmeans_hand_case():
-    # Two tight bundles of directions, one mesh with k=2 and another with k=1, padded together.
-    x = torch.tensor([[[1.0, 0.0], [0.9, 0.1], [0.0, 1.0], [0.1, 0.9]],
-                      [[1.0, 1.0], [1.0, 0.9], [0.0, 0.0], [0.0, 0.0]]], dtype=torch.float64)
-    mask = torch.tensor([[True] * 4, [True, True, False, False]])
-    res = spherical_kmeans(x, mask, [2, 1], restarts=5, seed=0)
-    lab = res.labels
-    assert lab[0, 0] == lab[0, 1] and lab[0, 2] == lab[0, 3] and lab[0, 0] != lab[0, 2]
-    assert lab[1, 0] == lab[1, 1] == 0 and (lab[1, 2:] == -1).all()
-    # Cost by hand: cos between (1,0) and the normalized mean of (1,0),(0.9,0.1).
-    u = torch.nn.functional.normalize(x[0, :2], dim=1)
-    c = torch.nn.functional.normalize(u.sum(0), dim=0)
-    expected = 2 * (2 - (u @ c).sum())
-    assert float(res.cost[0]) == pytest.approx(float(expected), rel=1e-9)
-
-
-def test_cluster_safe_n():
-    lam = [0.0, 1.0, 2.0, 2.0, 2.0, 3.0]
-    assert cluster_safe_n(lam, 4) == 2       # 4 would split the triple 2.0 -> step down
-    assert cluster_safe_n(lam, 4, floor=4) == 5  # not allowed below 4 -> complete the cluster
-    assert cluster_safe_n(lam, 5) == 5
-
-
 def test_parameter_errors(built):
     s = built["dumbbell"]
     m = ta.Mesh(s.vertices, s.faces)
@@ -207,15 +186,13 @@ def test_parameter_errors(built):
         ta.segment(m, k=2, boundary="wiggly")
 
 
-# ---- the engine: one solve for every k ------------------------------------------------------
-
 def test_segment_each_k_equals_segment_per_k():
     """Every k in rounds over one solve gives the labels ``segment`` gives for that k alone (with
     its own untangling), with numpy integers for k; rounds whose field counts agree share one
     untangling."""
-    from torchakvf.parts.engine import segment_each_k
+    from torchakvf.parts import segment_each_k
 
-    from torchakvf.parts.engine import akvf_count
+    from torchakvf.parts.field_counts import akvf_count
     from torchakvf.parts.merge import MergeWeights
 
     s = shapes.three_blobs(n_around=20)
@@ -237,7 +214,7 @@ def test_segmentation_reports_convergence(built, batch_seg):
     for seg in batch_seg.meshes:
         assert seg.converged is True
         assert 0.0 <= seg.max_residual <= 1e-6
-    from torchakvf.parts.engine import AKVF_TOL
+    from torchakvf.parts.solve import AKVF_TOL
     assert AKVF_TOL == 1e-6
 
 

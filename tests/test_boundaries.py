@@ -1,8 +1,6 @@
-"""``refine_along_isolines`` (numpy, no per-face loop) gives the per-face loop's RefinedMesh
-bitwise: same vertices, faces, labels and parents, in the same row order (issue 12/13).
-
-The loop below is the implementation the vectorized one replaced, kept as the reference.
-Also: ``barycenter_values`` by blocks of faces against the whole-mesh gather mean."""
+"""Boundaries (:mod:`torchakvf.parts.boundaries`): ``refine_along_isolines`` against the per-face
+loop written out here, bitwise (same vertices, faces, labels and parents, in the same row order);
+barycenter values by blocks, vertex distances and surface interpolation against their gathers."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,8 +9,12 @@ import pytest
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.mesh.batch import mesh_edges
-from torchakvf.parts import engine
-from torchakvf.parts.boundaries import RefinedMesh, barycenter_values, isoline_face_labels, refine_along_isolines
+from torchakvf.mesh.clean import face_areas
+from torchakvf.mesh.coarse import SurfacePoints
+from torchakvf.parts import cut
+from torchakvf.parts.boundaries import (RefinedMesh, barycenter_values, isoline_face_labels,
+                                        refine_along_isolines, vertex_distances)
+from torchakvf.parts.merge import merged_distances
 
 
 def reference_refine(vertices: np.ndarray, faces: np.ndarray, vdist: np.ndarray) -> RefinedMesh:
@@ -84,14 +86,14 @@ def corner_label_counts(faces, vdist) -> np.ndarray:
 
 @pytest.fixture
 def recorded(monkeypatch):
-    """Every call of refine_along_isolines made by the engine, checked against the loop."""
+    """Every call of refine_along_isolines a segmentation makes, checked against the loop."""
     calls = []
 
     def both(vertices, faces, vdist):
         calls.append(check(vertices, faces, vdist))
         return calls[-1]
 
-    monkeypatch.setattr(engine, "refine_along_isolines", both)
+    monkeypatch.setattr(cut, "refine_along_isolines", both)
     return calls
 
 
@@ -166,3 +168,38 @@ def test_barycenter_values_by_blocks_are_the_gather_mean(k):
     got = barycenter_values(faces, vdist)
     assert got.dtype == vdist.dtype and got.tobytes() == vdist[faces].mean(axis=1).tobytes()
     assert isoline_face_labels(faces, vdist).tobytes() == vdist[faces].mean(axis=1).argmin(axis=1).tobytes()
+
+
+def test_merged_distances_and_vertex_distances_equal_their_loops():
+    rng = np.random.default_rng(2)
+    s = shapes.icosphere(2)
+    before = rng.integers(0, 8, len(s.faces))
+    after = np.array([0, 1, 0, 2, 1, 2, 0, 1])[before]
+    before[:3] = -1
+    dist = rng.random((len(s.vertices), 8))
+    ref = np.full((len(s.vertices), 3), np.inf)
+    for old, new in zip(before, after):
+        if old >= 0:
+            ref[:, new] = np.minimum(ref[:, new], dist[:, old])
+    np.testing.assert_array_equal(merged_distances(dist, before, after), ref)
+    feats, area = rng.normal(size=(len(s.faces), 5)), face_areas(s.vertices, s.faces)
+    centers = rng.normal(size=(4, 5))
+    centers /= np.linalg.norm(centers, axis=1, keepdims=True)
+    unit = feats / np.linalg.norm(feats, axis=1, keepdims=True)
+    acc = np.zeros((len(s.vertices), 5))
+    np.add.at(acc, s.faces.reshape(-1), np.repeat(unit * area[:, None], 3, axis=0))
+    acc /= np.linalg.norm(acc, axis=1, keepdims=True)
+    np.testing.assert_array_equal(vertex_distances(s.vertices, s.faces, feats, area, centers), 1.0 - acc @ centers.T)
+
+
+def test_barycenter_values_and_interpolation_equal_the_gathers():
+    rng = np.random.default_rng(3)
+    faces = rng.integers(0, 40, (70, 3))
+    for v in (rng.random((40, 6)), rng.random(40)):
+        np.testing.assert_array_equal(barycenter_values(faces, v), v[faces].mean(axis=1))
+        bary = rng.random((90, 3))
+        bary /= bary.sum(1, keepdims=True)
+        pts = SurfacePoints(rng.integers(0, 70, 90), bary, np.zeros(90))
+        corners = v[faces[pts.face]]
+        ref = (corners * bary.reshape(bary.shape + (1,) * (corners.ndim - 2))).sum(axis=1)
+        np.testing.assert_array_equal(pts.interpolate(faces, v), ref)

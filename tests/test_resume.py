@@ -1,5 +1,5 @@
-"""The corpus runner's promises under faults (issue 11): nothing stale, nothing lost, one-line
-errors, exit codes that say whether anything failed."""
+"""torchakvf.pipeline.resume: what a re-run skips and what it computes again; the manifest under
+faults (nothing stale, nothing lost, one-line errors)."""
 from __future__ import annotations
 
 import errno
@@ -15,7 +15,6 @@ import torchakvf as ta
 from torchakvf import cli, shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest, read_manifest_records
-from torchakvf.pipeline import outdir
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.runner import run_corpus
 from torchakvf.pipeline.segment_task import SegmentTask
@@ -25,8 +24,6 @@ from threads import one_torch_thread  # noqa: F401 - autouse fixture
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1", PYTHONPATH=str(REPO))
-
-
 
 
 def by_stem(out: Path) -> dict:
@@ -47,8 +44,8 @@ def cli_run(argv, capsys):
 # ---- stale results ------------------------------------------------------------------------
 
 def test_kill_and_resume_with_changed_parameters_recomputes_the_rewritten_mesh(tmp_path, capsys):
-    """The issue's scenario: finish -k 4; a -k 5 run rewrites one mesh's files and is killed
-    before its manifest line; -k 4 again must compute that mesh again, not skip it."""
+    """Finish -k 4; a -k 5 run rewrites one mesh's files and is killed before its manifest
+    line; -k 4 again must compute that mesh again, not skip it."""
     d, e = shapes.dumbbell(n_around=12), shapes.ellipsoid(level=1)
     src = tmp_path / "in"
     write_off(src / "dumb.off", d.vertices, d.faces)
@@ -271,107 +268,11 @@ def test_torn_tail_then_next_run(tmp_path):
 
 # ---- a mesh too big for full resolution ---------------------------------------------------
 
-def test_features_refuses_a_big_mesh_up_front(tmp_path, capsys):
-    big = small_meshes(tmp_path / "in", names=("big",), level=2)[0]     # 320 faces
-    out = tmp_path / "out"
-    rc, stdout, err = cli_run(["features", big, "--out", out, "--n", "4", "--max-faces", "100"], capsys)
-    assert rc == 1
-    rec = by_stem(out)["big"]
-    assert rec["status"] == "failed" and "seconds" in rec
-    for part in (str(big), "320 faces", "--max-faces 100", "GB", "--coarse-faces"):
-        assert part in rec["error"], rec["error"]
-    assert "failed: " in stdout and "--coarse-faces" in stdout
-    # Memory: the estimate against what the machine has (here a pretend 1 MB).
-    task = FeaturesTask(4, memory_bytes=2**20)
-    summary = run_corpus([big], tmp_path / "o2", task, progress=False)
-    assert summary.failed == 1 and "more than the 0.0 GB of memory" in summary.failures[0][1]
-
-
-def test_features_coarse_to_fine(tmp_path):
-    s = shapes.ellipsoid(level=3)                                 # 1280 faces
-    src = write_off(tmp_path / "in" / "e.off", s.vertices, s.faces)
-    out = tmp_path / "out"
-    summary = run_corpus([src], out, FeaturesTask(4, coarse_faces=300, max_faces=400), progress=False)
-    assert summary.ok == 1, summary.failures                     # 300 solved faces: admitted
-    z = ta.data.load_feature_file(out / "e.npz")
-    assert z["features"].shape == (len(s.faces), 4) and np.all(z["features"].sum(1) > 0)
-    rec = by_stem(out)["e"]
-    assert rec["params"]["coarse_faces"] == 300 and isinstance(rec["converged"], bool)
-    assert rec["converged"] == bool(np.all(z["residuals"] <= 1e-6)) == bool(z["converged"])
-    assert rec["max_residual"] == pytest.approx(float(z["residuals"].max()))
-
-
-def test_progress_lines_on_long_work(tmp_path, caplog, capsys, monkeypatch):
-    from torchakvf.pipeline import runner
-
-    paths = small_meshes(tmp_path / "in", names=("a", "b"))
-    monkeypatch.setattr(runner, "ANNOUNCE_FACES", 50)             # "big" batches: 80 faces
-    with caplog.at_level("INFO", logger="torchakvf.progress"):
-        run_corpus(paths, tmp_path / "out", FakeTask(), batch_faces=80)
-    err = capsys.readouterr().err
-    assert "batch 1/2: 1 mesh(es), 80 faces" in err and "this can take minutes" in err
-    lines = [r.getMessage() for r in caplog.records if r.name == "torchakvf.progress"]
-    assert any("160/160 faces" in line for line in lines), lines
-
 
 # ---- corrupt feature files ----------------------------------------------------------------
 
-def _good_features(tmp_path) -> Path:
-    paths = small_meshes(tmp_path / "in", names=("a",), level=2)
-    out = tmp_path / "feats"
-    run_corpus(paths, out, FeaturesTask(4), progress=False)
-    return out
-
-
-def test_feature_dataset_names_the_bad_file(tmp_path):
-    out = _good_features(tmp_path)
-    good = dict(ta.data.load_feature_file(out / "a.npz"))
-    assert good["faces"].shape == (320, 3)
-    bad = tmp_path / "bad"
-    bad.mkdir()
-    (bad / "t.npz").write_bytes((out / "a.npz").read_bytes()[:500])            # truncated
-    mis = dict(good, features=np.zeros((10, 4), np.float32))                   # [10, n] beside [320, 3]
-    np.savez(bad / "m.npz", **mis)
-    few = {k: v for k, v in good.items() if k != "residuals"}
-    np.savez(bad / "r.npz", **few)
-    ds = ta.data.FeatureDataset(bad)
-    for i, (name, problem) in enumerate([("m.npz", "features has shape [10, 4] beside faces [320, 3]"),
-                                         ("r.npz", "missing array(s) residuals"),
-                                         ("t.npz", "not a readable feature file")]):
-        assert ds.files[i].name == name
-        with pytest.raises(TorchAKVFError) as info:
-            ds[i]
-        assert str(bad / name) in str(info.value) and problem in str(info.value)
-
-
-def test_truncated_cache_entry_is_recomputed_not_copied(tmp_path):
-    paths = small_meshes(tmp_path / "in", names=("a",))
-    cache = tmp_path / "cache"
-    first = run_corpus(paths, tmp_path / "o1", FeaturesTask(4, cache_dir=cache), progress=False)
-    assert first.ok == 1
-    (entry,) = cache.glob("*.npz")
-    whole = entry.read_bytes()
-    entry.write_bytes(whole[:300])
-    second = run_corpus(paths, tmp_path / "o2", FeaturesTask(4, cache_dir=cache), progress=False)
-    assert (second.ok, second.cached) == (1, 0)                  # not "ok (from cache)"
-    assert (tmp_path / "o2" / "a.npz").read_bytes() == whole
-    assert entry.read_bytes() == whole                           # the entry is whole again
-    third = run_corpus(paths, tmp_path / "o3", FeaturesTask(4, cache_dir=cache), progress=False)
-    assert third.cached == 1
-
 
 # ---- smaller things -----------------------------------------------------------------------
-
-@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
-def test_outputs_get_the_umask_mode(tmp_path, umask, mode):
-    old = os.umask(umask)
-    try:
-        ta.io.write_seg(tmp_path / "x.seg", np.array([0, 1]))
-        ta.io.atomic_write_bytes(tmp_path / "y.bin", b"1")
-    finally:
-        os.umask(old)
-    for name in ("x.seg", "y.bin"):
-        assert (tmp_path / name).stat().st_mode & 0o777 == mode
 
 
 def test_stale_temp_files_are_removed_at_start(tmp_path):
@@ -386,52 +287,6 @@ def test_stale_temp_files_are_removed_at_start(tmp_path):
     assert not stale.exists() and other.exists()
 
 
-def test_two_runs_on_one_out_at_once(tmp_path, capsys):
-    paths = small_meshes(tmp_path / "in", names=("a",))
-    out = tmp_path / "out"
-    out.mkdir()
-    with outdir.OutputLock(out):                           # a run in progress
-        with pytest.raises(TorchAKVFError, match=f"another torchakvf run \\(pid {os.getpid()}\\)"):
-            run_corpus(paths, out, FakeTask(), progress=False)
-        proc = subprocess.run([sys.executable, "-m", "torchakvf.cli", "features", str(paths[0]),
-                               "--out", str(out), "--n", "4"], capture_output=True, text=True,
-                              cwd=REPO, env=ENV)
-        assert proc.returncode == 2
-        assert_one_line_error(proc.stderr, "another torchakvf run", "wait for it")
-    assert not (out / "a.txt").exists()
-    done = run_corpus(paths, out, FakeTask(), progress=False)   # released: runs
-    assert done.ok == 1
-
-
 # ---- bugs are not bad meshes; exit codes --------------------------------------------------
 
-def test_programming_error_surfaces_after_the_manifest_is_flushed(tmp_path):
-    paths = small_meshes(tmp_path / "in", names=("a", "bug", "c"))
-    out = tmp_path / "out"
-    task = FakeTask(fail={"bug": TypeError("unsupported operand")})
-    with pytest.raises(TypeError, match="unsupported operand"):
-        run_corpus(paths, out, task, batch_faces=80, progress=False)
-    assert [r["stem"] for r in read_manifest_records(out)] == ["a"]    # batch 1 recorded
-    assert task.batches == [["a"], ["bug"]]                            # stopped there, no retry
 
-
-@pytest.mark.parametrize("exc", [TorchAKVFError("bad mesh"), MemoryError(), OSError(5, "I/O error"),
-                                 RuntimeError("not positive definite")])
-def test_bad_input_fails_alone_and_the_run_goes_on(tmp_path, exc):
-    paths = small_meshes(tmp_path / "in", names=("a", "bad", "c"))
-    summary = run_corpus(paths, tmp_path / "out", FakeTask(fail={"bad": exc}), batch_faces=10_000,
-                         progress=False)
-    assert (summary.ok, summary.failed, summary.exit_code) == (2, 1, 1)
-    assert by_stem(tmp_path / "out")["bad"]["status"] == "failed"
-
-
-def test_manifest_fields_hook_and_exit_codes(tmp_path, capsys):
-    paths = small_meshes(tmp_path / "in", names=("a",))
-    run_corpus(paths, tmp_path / "out", FakeTask(), progress=False)
-    assert by_stem(tmp_path / "out")["a"]["faces_seen"] == 80
-    (tmp_path / "in" / "junk.off").write_bytes(b"OFF\n3 1 0\n")
-    for cmd in (["features", "--n", "4"], ["segment", "-k", "2", "--n-fields", "4", "--formats", "seg"]):
-        rc, stdout, _ = cli_run([cmd[0], tmp_path / "in", "--out", tmp_path / cmd[0], *cmd[1:]], capsys)
-        assert rc == 1 and "1 ok, 1 failed" in stdout and "junk.off" in stdout
-        rc, stdout, _ = cli_run([cmd[0], paths[0], "--out", tmp_path / f"{cmd[0]}-ok", *cmd[1:]], capsys)
-        assert rc == 0 and "1 ok, 0 failed" in stdout

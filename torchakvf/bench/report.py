@@ -9,33 +9,44 @@ import platform
 from pathlib import Path
 
 from ..io.outputs import atomic_write_bytes
-from .bench_runs import STAGES
+from .runs import STAGES
 
-__all__ = ["REPORT_JSON", "REPORT_MD", "report_header", "write_bench_reports", "summary_lines"]
+__all__ = ["REPORT_JSON", "REPORT_MD", "report_header", "write_bench_reports", "summary_lines", "budget_lines"]
 
 REPORT_JSON = "report.json"
 REPORT_MD = "report.md"
 
 
-def report_header(version, psb_root, out, device, seed, batch_faces, baseline_every, limit, categories,
-            remedy, n_akvf, n_fields, segment_kwargs, options) -> dict:
+def report_header(psb_root, out, settings, options, n_akvf: int, command_line: dict | None) -> dict:
+    """The report's header: what was run and where (``settings``: the checked
+    :class:`~torchakvf.bench.run.BenchSettings`; ``options``: the SegmentOptions; ``command_line``:
+    the command's options as given)."""
     import torch
 
-    env = {"torchakvf": version, "torch": torch.__version__, "python": platform.python_version(),
+    from .. import __version__
+    from ..evaluate.settings import changed_options
+
+    device = settings.device
+    env = {"torchakvf": __version__, "torch": torch.__version__, "python": platform.python_version(),
            "platform": platform.platform(), "cpu_count": os.cpu_count(),
            "torch_threads": torch.get_num_threads()}
     if str(device).startswith("cuda"):
         env["cuda_device"] = torch.cuda.get_device_name(torch.device(device))
+    categories = settings.categories
     if isinstance(categories, str):
         categories = [c.strip() for c in categories.split(",") if c.strip()]
+    segment_kwargs = changed_options(options)
+    if settings.coarse_faces:
+        segment_kwargs["coarse_faces"] = settings.coarse_faces
     return {
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "options": dict(options) if options is not None else None,
-        "settings": {"psb": str(psb_root), "out": str(out), "device": str(device), "seed": int(seed),
-                     "batch_faces": int(batch_faces), "baseline_every": int(baseline_every),
-                     "limit": limit, "categories": categories, "protocol": "by-segmentation",
-                     "remedy": remedy, "n_akvf": n_akvf, "n_fields": n_fields,
-                     "segment_kwargs": dict(sorted(segment_kwargs.items()))},
+        "options": dict(command_line) if command_line is not None else None,
+        "settings": {"psb": str(psb_root), "out": str(out), "device": str(device), "seed": int(options.seed),
+                     "batch_faces": int(settings.batch_faces), "baseline_every": int(settings.baseline_every),
+                     "limit": settings.limit, "categories": categories, "protocol": "by-segmentation",
+                     "remedy": options.remedy, "n_akvf": n_akvf, "n_fields": settings.n_fields,
+                     "segment_kwargs": dict(sorted(segment_kwargs.items())),
+                     "budgets": list(settings.budgets), "repeats": int(settings.repeats)},
         "environment": env,
         "units": {"seconds": "wall seconds (time.perf_counter)", "faces": "faces of the input file",
                   "memory": "MiB (2**20 bytes)",
@@ -43,7 +54,6 @@ def report_header(version, psb_root, out, device, seed, batch_faces, baseline_ev
         "runs": {},
         "notes": [],
     }
-
 
 
 # ---- reports ------------------------------------------------------------------------------
@@ -70,7 +80,7 @@ def _describe(name: str, run: dict, settings: dict) -> str:
     return f"torchakvf, batches of <= {run['batch_faces']} faces, the budget sweep's meshes"
 
 
-def _budget_lines(sweep: dict) -> list:
+def budget_lines(sweep: dict) -> list:
     L = ["\n## Batched vs one at a time, by face budget (same meshes, this run)\n"]
     L.append(f"{sweep['meshes']} meshes ({sweep['faces']:,} faces; ids "
              f"{', '.join(map(str, sweep['mesh_ids']))}), each run once one mesh per batch "
@@ -93,7 +103,7 @@ def _budget_lines(sweep: dict) -> list:
     if sweep["rows"] and all(row["batches"] == sweep["meshes"] for row in sweep["rows"]):
         L.append("\nEvery budget ran one mesh per batch, the plan of the one-at-a-time run: on the CPU "
                  "with several workers the meshes are never grouped (a CPU batch is solved one mesh "
-                 "at a time inside; `torchakvf.evaluate.plan.CPU_BATCHES_PER_WORKER`), so these "
+                 "at a time inside; `torchakvf.pipeline.batches.batches_per_worker`), so these "
                  "ratios show the machine's run-to-run noise.")
     L.append("\nratio = one-at-a-time seconds / batched seconds (>= 1: batching at least as fast); "
              "CPU-time ratio: the same with the CPU seconds of this process and its workers (other "
@@ -103,9 +113,21 @@ def _budget_lines(sweep: dict) -> list:
 
 
 def _markdown(r: dict) -> str:
+    L = ["# torchakvf bench\n"]
+    L += _header_lines(r)
+    L += _run_lines(r)
+    L += _by_k_lines(r)
+    L += _comparison_lines(r.get("comparison"))
+    if r.get("budget_sweep"):
+        L.extend(budget_lines(r["budget_sweep"]))
+    L += _trouble_lines(r)
+    return "\n".join(L) + "\n"
+
+
+def _header_lines(r: dict) -> list:
     s = r["settings"]
     sel = r["selection"]
-    L = ["# torchakvf bench\n"]
+    L = []
     if r.get("partial"):
         L.append(f"**Partial report:** the bench has not finished (stopped, or still running); "
                  f"these are the runs done after {_f(r.get('wall_seconds'), 1)} s.\n")
@@ -129,7 +151,12 @@ def _markdown(r: dict) -> str:
                 f"all" if r["peak_memory"].get("worker_maxrss_mib") else "")
              + (f", CUDA peak allocated {_f(r['peak_memory']['cuda_max_memory_allocated_mib'], 0)} MiB"
                 if r["peak_memory"]["cuda_max_memory_allocated_mib"] is not None else ""))
-    L.append("\n## Runs\n")
+    return L
+
+
+def _run_lines(r: dict) -> list:
+    s = r["settings"]
+    L = ["\n## Runs\n"]
     L.append("| run | meshes ok | faces | wall s | meshes/s | faces/s | load s | pack s | akvf s | "
              "segment s | write s | other s | workers | peak RSS MiB | CUDA peak MiB |")
     L.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
@@ -157,7 +184,11 @@ def _markdown(r: dict) -> str:
              "can sum to W x the wall time). Peak RSS is ru_maxrss after the run: the process's "
              "peak so far, which never goes down; with workers, 'main + W x worker' where worker "
              "is the largest worker's peak so far: a bound on the run's resident total.")
-    L.append("\n## Untangle + cluster seconds by k\n")
+    return L
+
+
+def _by_k_lines(r: dict) -> list:
+    L = ["\n## Untangle + cluster seconds by k\n"]
     names = [n for n, run in r["runs"].items() if "skipped" not in run]
     ks = sorted({int(k) for n in names for k in r["runs"][n]["segment_seconds_by_k"]})
     L.append("| k | " + " | ".join(f"{n}: predictions | {n}: s | {n}: s/prediction" for n in names) + " |")
@@ -174,8 +205,11 @@ def _markdown(r: dict) -> str:
         L.append(f"| {k} | " + " | ".join(cells) + " |")
     L.append("\nA round of a batch segments every mesh at one k each; its time is charged to "
              "the k's by face share (meshes padded with k = 1 charge nothing).")
-    L.append("\n## Baselines / torchakvf (same meshes, this run)\n")
-    c = r.get("comparison")
+    return L
+
+
+def _comparison_lines(c: dict | None) -> list:
+    L = ["\n## Baselines / torchakvf (same meshes, this run)\n"]
     if c is None:
         L.append("No baselines were run (--baseline-every 0).")
     else:
@@ -199,8 +233,12 @@ def _markdown(r: dict) -> str:
             L.append("\nExcluded from the comparison (failed in some run):")
             for i, why in c["excluded"].items():
                 L.append(f"- {i}: {why}")
-    if r.get("budget_sweep"):
-        L.extend(_budget_lines(r["budget_sweep"]))
+    return L
+
+
+def _trouble_lines(r: dict) -> list:
+    """Failures, unconverged eigensolves, inputs left out and notes."""
+    L = []
     fails = [(n, i, e) for n, run in r["runs"].items() for i, e in run.get("failed", {}).items()]
     if fails:
         L.append("\n## Failures\n")
@@ -218,7 +256,7 @@ def _markdown(r: dict) -> str:
         L.append("\n## Notes\n")
         for note in r["notes"]:
             L.append(f"- {note}")
-    return "\n".join(L) + "\n"
+    return L
 
 
 def _jsonable(obj):

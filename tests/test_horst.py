@@ -1,6 +1,6 @@
-"""The accelerated Horst iteration of the untangling (SQUAREM extrapolation, issue 13) against a
-plain Horst iteration written out here: the same optimum or a better one, a stationary point of
-plain Horst, in fewer steps, and its extrapolation step by hand."""
+"""Horst's iteration (:mod:`torchakvf.fields.horst`): SQUAREM against a plain Horst iteration
+written out here (the same optimum or a better one, in fewer steps), its extrapolation by hand,
+the one-mesh CPU path against the batched one bitwise, and the gradient's choice."""
 from __future__ import annotations
 
 import importlib
@@ -8,7 +8,13 @@ import importlib
 import pytest
 import torch
 
+import torchakvf as ta
+
+
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+
+
+horst_mod = importlib.import_module("torchakvf.fields.horst")
 
 
 def _problem(n: int, e: int, seed: int):
@@ -47,7 +53,7 @@ def _objective(y: torch.Tensor, a: torch.Tensor) -> float:
 def test_accelerated_horst_reaches_plain_horsts_optimum_in_fewer_steps(n, e, seed):
     y, a = _problem(n, e, seed)
     tol = 1e-8
-    got, steps = untangle_mod._horst(y, a, tol, 2000, torch.float64)
+    got, steps = horst_mod.horst(y, a, tol, 2000, torch.float64)
     for r in range(a.shape[1]):
         plain, plain_steps = _plain_horst(y[0], a[0, r], tol, 2000)
         ours = got[0, r]
@@ -69,7 +75,7 @@ def test_accelerated_horst_reaches_plain_horsts_optimum_in_fewer_steps(n, e, see
 
 def test_one_step_is_a_plain_horst_step():
     y, a = _problem(8, 800, 3)
-    stepped, steps = untangle_mod._horst(y, a, 0.0, 1, torch.float64)
+    stepped, steps = horst_mod.horst(y, a, 0.0, 1, torch.float64)
     assert (steps == 1).all()
     for r in range(a.shape[1]):
         plain, _ = _plain_horst(y[0], a[0, r], 0.0, 1)
@@ -80,8 +86,55 @@ def test_extrapolated_point_by_hand():
     gen = torch.Generator().manual_seed(5)
     a0, a1, a2 = untangle_mod.random_rotations(3, 5, gen)
     r, v = a1 - a0, a2 - 2 * a1 + a0
-    alpha = max(min(-float(r.norm() / v.norm()), -1.0), -untangle_mod.SQUAREM_MAX_STEP)
+    alpha = max(min(-float(r.norm() / v.norm()), -1.0), -horst_mod.SQUAREM_MAX_STEP)
     u, _, vh = torch.linalg.svd(a0 - 2 * alpha * r + alpha ** 2 * v)
-    assert torch.allclose(untangle_mod._extrapolated(a0, a1, a2), u @ vh, atol=1e-12)
+    assert torch.allclose(horst_mod.extrapolated(a0, a1, a2), u @ vh, atol=1e-12)
     # |r| <= |v| gives α = -1: the point a0 + 2r + v = a2 itself
-    assert torch.allclose(untangle_mod._extrapolated(a0, a0 + 0.1 * (a2 - a0), a2), a2, atol=1e-12)
+    assert torch.allclose(horst_mod.extrapolated(a0, a0 + 0.1 * (a2 - a0), a2), a2, atol=1e-12)
+
+
+def _horst_problem(n: int, e: int, r: int, seed: int):
+    """Scaled forms [1, e, n] with some structure (a block of rows heavier on half the fields)
+    and r starts: the identity and r - 1 random rotations."""
+    gen = torch.Generator().manual_seed(seed)
+    y = torch.randn(1, e, n, generator=gen, dtype=torch.float64)
+    y[0, :e // 3, :n // 2] *= 4
+    rots = untangle_mod.random_rotations(r - 1, n, gen)
+    a = torch.cat([torch.eye(n, dtype=torch.float64)[None], rots])[None]
+    return y, a
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float32, 1e-5), (torch.float64, 1e-6)])
+@pytest.mark.parametrize("n,e,r", [(6, 300, 4), (12, 900, 2), (4, 120, 1)])
+def test_horst_one_mesh_equals_the_batched_path(n, e, r, dtype, tol):
+    y, a = _horst_problem(n, e, r, seed=n + r)
+    fast_a, fast_iters = horst_mod.horst_one_mesh(y, a, tol, 500, dtype)
+    ref_a, ref_iters = horst_mod.horst_batched(y, a, tol, 500, dtype)
+    assert torch.equal(fast_a, ref_a)
+    assert torch.equal(fast_iters, ref_iters)
+    assert fast_iters.dtype == ref_iters.dtype and fast_a.shape == ref_a.shape
+    if r > 1:
+        assert len(set(ref_iters[0].tolist())) > 1    # restarts stopped at different steps
+    # the iteration cap, and the dispatch of horst for one CPU mesh
+    capped = horst_mod.horst(y, a, tol, 3, dtype)
+    for got, ref in zip(capped, horst_mod.horst_batched(y, a, tol, 3, dtype)):
+        assert torch.equal(got, ref)
+    assert (capped[1] == 3).all()
+
+
+fourth_moments_mod = importlib.import_module("torchakvf.fields.fourth_moments")
+
+
+def _forms(m: int, e: int, n: int, seed: int) -> torch.Tensor:
+    gen = torch.Generator().manual_seed(seed)
+    y = torch.randn(m, e, n, generator=gen, dtype=torch.float64)
+    y[:, : e // 4, : n // 2] *= 3          # some structure: heavier rows on half the fields
+    return y
+
+
+def test_the_moments_are_float64_steps():
+    y = _forms(1, 200, 4, seed=1)
+    assert isinstance(horst_mod.horst_gradient(y, 9, torch.float64, True), fourth_moments_mod.FourthMoments)
+    assert isinstance(horst_mod.horst_gradient(y, 9, torch.float64, False), horst_mod.Products)
+    with pytest.raises(ta.TorchAKVFError):
+        horst_mod.horst_gradient(y, 9, torch.float32, True)

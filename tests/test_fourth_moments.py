@@ -1,6 +1,6 @@
-"""The untangling's float64 Horst steps from Y's fourth moments (issue 13): the gradient
-Yᵀ (Y A)^3 equals the two products' to round-off (padding rows and mesh subsets included), the
-iteration reaches the same rotations, and the size rule picks each way where it is faster."""
+"""Horst's gradient from Y's fourth moments (:mod:`torchakvf.fields.fourth_moments`): equal to
+the two products' to round-off (padding rows, mesh subsets and several row passes included),
+the same rotations, and the size rule."""
 from __future__ import annotations
 
 import importlib
@@ -8,10 +8,14 @@ import importlib
 import pytest
 import torch
 
-import torchakvf as ta
-from torchakvf import shapes
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+
+
+horst_mod = importlib.import_module("torchakvf.fields.horst")
+
+
+fourth_moments_mod = importlib.import_module("torchakvf.fields.fourth_moments")
 
 
 def _forms(m: int, e: int, n: int, seed: int) -> torch.Tensor:
@@ -27,8 +31,8 @@ def test_moment_gradient_equals_the_products(n):
     y[1, 500:] = 0                          # the second mesh padded to the first's rows
     gen = torch.Generator().manual_seed(10 + n)
     al = torch.stack([untangle_mod.random_rotations(3, n, gen) for _ in range(2)])   # [2, 3, n, n]
-    got = untangle_mod._FourthMoments(y)(al)
-    want = untangle_mod._Products(y, 3, torch.float64)(al)
+    got = fourth_moments_mod.FourthMoments(y)(al)
+    want = horst_mod.Products(y, 3, torch.float64)(al)
     assert got.shape == want.shape == (2, 3, n, n) and got.dtype == torch.float64
     # Both sum the same 700·n³ products of four entries of y and three of A (|y| <= ~12,
     # |A| <= 1) in another order: the error is round-off of sums of that size. A wrong
@@ -37,11 +41,11 @@ def test_moment_gradient_equals_the_products(n):
     assert float((got - want).abs().max()) <= 1e-13 * scale
     # a subset of the meshes (the batched path's live meshes; a batched product of another
     # batch size may round differently)
-    sub = untangle_mod._FourthMoments(y).select(torch.tensor([1]))
+    sub = fourth_moments_mod.FourthMoments(y).select(torch.tensor([1]))
     assert float((sub(al[1:]) - got[1:]).abs().max()) <= 1e-13 * scale
     # a batch's pair products by index gathers (other devices' way) are the same products
-    assert torch.equal(untangle_mod._FourthMoments(y, gather=True).moments,
-                       untangle_mod._FourthMoments(y).moments)
+    assert torch.equal(fourth_moments_mod.FourthMoments(y, gather=True).moments,
+                       fourth_moments_mod.FourthMoments(y).moments)
 
 
 @pytest.mark.parametrize("n", [3, 9, 32])
@@ -49,15 +53,15 @@ def test_moments_over_several_row_passes(n):
     """Rows taken in passes of up to 2048 (the last one partial) and every group of the
     quadruple blocks: each moment M_iklm (i any, k <= l <= m) equals the direct sum over rows."""
     y = _forms(1, 4100, n, seed=20 + n)
-    got = untangle_mod._FourthMoments(y)
-    k, l, m = got._k, got._l, got._m
+    got = fourth_moments_mod.FourthMoments(y)
+    k, l, m = got.triple_k, got.triple_l, got.triple_m
     want = torch.einsum("ei,ec->ic", y[0], y[0, :, k] * y[0, :, l] * y[0, :, m])
     mult = torch.where((k == l) & (l == m), 1.0, torch.where((k == l) | (l == m), 3.0, 6.0))
     scale = float((y[0].abs() ** 4).sum(0).max())
     assert got.moments.shape == (1, n, len(k))
     assert float((got.moments[0] - want * mult.double()).abs().max()) <= 1e-13 * 6 * scale
     # the pair products by index gathers (other devices' way) are the same products
-    assert torch.equal(untangle_mod._FourthMoments(y, gather=True).moments, got.moments)
+    assert torch.equal(fourth_moments_mod.FourthMoments(y, gather=True).moments, got.moments)
 
 
 def test_moment_steps_reach_the_products_rotations():
@@ -67,30 +71,14 @@ def test_moment_steps_reach_the_products_rotations():
     y = _forms(1, 900, 6, seed=4)
     gen = torch.Generator().manual_seed(5)
     a = torch.cat([torch.eye(6, dtype=torch.float64)[None], untangle_mod.random_rotations(3, 6, gen)])[None]
-    got, got_iters = untangle_mod._horst(y, a, 1e-9, 500, torch.float64, moments=True)
-    want, want_iters = untangle_mod._horst(y, a, 1e-9, 500, torch.float64, moments=False)
+    got, got_iters = horst_mod.horst(y, a, 1e-9, 500, torch.float64, moments=True)
+    want, want_iters = horst_mod.horst(y, a, 1e-9, 500, torch.float64, moments=False)
     assert torch.equal(got_iters, want_iters)
     assert len(set(want_iters[0].tolist())) > 1
     assert float((got - want).abs().max()) < 1e-8
     # the general (batched) path takes the moments too, with the same bits for one mesh
-    batched, batched_iters = untangle_mod._horst_batched(y, a, 1e-9, 500, torch.float64, moments=True)
+    batched, batched_iters = horst_mod.horst_batched(y, a, 1e-9, 500, torch.float64, moments=True)
     assert torch.equal(batched, got) and torch.equal(batched_iters, got_iters)
-
-
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_untangle_is_the_same_with_either_gradient(monkeypatch, dtype):
-    """The moments only replace the float64 steps' products (after the float32 phase, or all
-    of them with iteration_dtype=float64): the same iterations, rotations and objective to
-    round-off."""
-    s = shapes.three_blobs()
-    fields = ta.akvf(ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces)]), n=12)
-    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, steps: True)
-    got = untangle_mod.untangle(fields, restarts=3, seed=2, iteration_dtype=dtype)
-    monkeypatch.setattr(untangle_mod, "_moments_pay", lambda e, n, steps: False)
-    want = untangle_mod.untangle(fields, restarts=3, seed=2, iteration_dtype=dtype)
-    assert torch.equal(got.iterations, want.iterations)
-    assert float((got.rotation - want.rotation).abs().max()) < 1e-8
-    assert float((got.score - want.score).abs().max()) <= 1e-10 * float(want.score.abs().max())
 
 
 @pytest.mark.parametrize("e,n,steps,moments", [(45594, 32, 237, True), (14112, 32, 191, True),
@@ -101,12 +89,4 @@ def test_the_size_rule(e, n, steps, moments):
     """Where each way was measured faster (benchmarks/results/untangle_moments.md): the moments
     for long meshes, few fields and many steps (their one-time cost must be earned back), the
     products for short meshes with many fields."""
-    assert untangle_mod._moments_pay(e, n, steps) is moments
-
-
-def test_the_moments_are_float64_steps():
-    y = _forms(1, 200, 4, seed=1)
-    assert isinstance(untangle_mod._gradient(y, 9, torch.float64, True), untangle_mod._FourthMoments)
-    assert isinstance(untangle_mod._gradient(y, 9, torch.float64, False), untangle_mod._Products)
-    with pytest.raises(ta.TorchAKVFError):
-        untangle_mod._gradient(y, 9, torch.float32, True)
+    assert fourth_moments_mod.fourth_moments_pay(e, n, steps) is moments

@@ -1,4 +1,4 @@
-"""The runs of ``torchakvf bench`` (see :mod:`torchakvf.evaluate.bench`): torchakvf through the
+"""The runs of ``torchakvf bench`` (see :mod:`torchakvf.bench.run`): torchakvf through the
 evaluation's batching and prediction, the scipy baseline one mesh at a time, the warm-up, and
 what each measures (seconds per stage, memory)."""
 from __future__ import annotations
@@ -17,16 +17,17 @@ from .. import shapes
 from ..io import load_mesh
 from ..io.outputs import OutputSpaceError, write_seg
 from ..mesh import Mesh, MeshBatch, clean_mesh
-from ..parts.engine import SegmentOptions, segment_each_k
+from ..parts.segment import segment_each_k
 from ..pipeline.parallel import error_text, is_programming_error, map_batches
 from ..progress import progress
-from .plan import PredictionPlan, batches_per_worker, heaviest_first, make_batches, mesh_work, solved_face_counts
-from .predict import PredictSettings, predict_in_worker
+from ..evaluate.plan import PredictionPlan
+from ..evaluate.predict import PredictSettings, predict_in_worker
+from ..pipeline.batches import prediction_batches
 
 log = logging.getLogger("torchakvf.bench")
 
 __all__ = ["STAGES", "BenchMesh", "load_scipy_reference", "run_torchakvf", "run_scipy", "warm_up",
-           "rss_mib", "cpu_seconds", "predict_settings"]
+           "rss_mib", "cpu_seconds"]
 
 #: Stage names of a run, in report order.
 STAGES = ("load", "pack", "akvf", "segment", "write", "other")
@@ -124,25 +125,18 @@ def _finish_run(run: dict, meshes, wall: float, stages: dict, by_k: dict, device
     return run
 
 
-def predict_settings(device: str, seed: int, remedy: str, n_fields, segment_kwargs: dict) -> PredictSettings:
-    """The evaluation's prediction settings for a bench run (protocol by-segmentation)."""
-    options = {k: v for k, v in segment_kwargs.items() if k != "coarse_faces"}
-    return PredictSettings(auto=False, n_fields=n_fields, k_range=None, k_rule=None,
-                           coarse_faces=segment_kwargs.get("coarse_faces"),
-                           options=SegmentOptions(seed=int(seed), remedy=remedy, **options),
-                           device=str(device))
+def run_torchakvf(name: str, meshes, work: Path, predict: PredictSettings, *, batch_faces: int,
+                  workers: int = 1) -> dict:
+    """Segment ``meshes`` at every k through the evaluation's batching and prediction
+    (``predict``: options, field count, decimation, device), predictions written under ``work``.
 
-
-def run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: str, seed: int,
-                  remedy: str, n_fields, segment_kwargs: dict, workers: int = 1) -> dict:
-    """Segment ``meshes`` at every k through the evaluation's batching and prediction.
-
-    As ``evaluate_psb`` does: sorted by (number of k's, faces, id), cut by
-    :func:`~torchakvf.evaluate.plan.make_batches`; a failing batch of several meshes is retried
+    As ``evaluate_psb`` does: batched by
+    :func:`~torchakvf.pipeline.batches.prediction_batches`; a failing batch of several meshes is retried
     one mesh at a time, a failing single mesh is recorded in ``failed`` and the run goes on; a
     mesh whose eigensolve did not converge is recorded in ``unconverged`` ({id: max residual}).
     Returns the run's dict (see the module notes).
     """
+    device = predict.device
     run = {"name": name, "kind": "torchakvf", "device": device, "batch_faces": int(batch_faces),
            "workers": int(workers),
            "meshes": len(meshes), "faces": sum(m.faces for m in meshes),
@@ -159,14 +153,10 @@ def run_torchakvf(name: str, meshes, work: Path, *, batch_faces: int, device: st
     log.info("bench %s: %d meshes, %d faces, batches of <= %d faces, device %s", name, len(meshes),
              run["faces"], batch_faces, device)
     t_start, cpu_start = time.perf_counter(), cpu_seconds()
-    order = sorted(plans, key=lambda p: (n_k[p.mesh_id], faces_of[p.mesh_id], p.mesh_id))
-    solved = solved_face_counts(faces_of, segment_kwargs.get("coarse_faces"))
-    settings = predict_settings(device, seed, remedy, n_fields, segment_kwargs)
-    batches = heaviest_first(make_batches(order, solved, int(batch_faces), workers=workers,
-                                          work_of=mesh_work(faces_of, n_k),
-                                          per_worker=batches_per_worker(device)), faces_of, n_k)
-    for res in map_batches(batches, predict_in_worker,
-                           (settings,), workers=workers, fatal=(OutputSpaceError,)):
+    batches = prediction_batches(plans, faces_of, n_k, batch_faces, coarse_faces=predict.coarse_faces,
+                                 workers=workers, device=device)
+    for res in map_batches(batches, predict_in_worker, (predict,), workers=workers,
+                           fatal=(OutputSpaceError,)):
         batch = res.batch
         if res.split:
             log.warning("bench %s: batch of %d meshes failed (%s); retrying them one by one",
@@ -282,15 +272,15 @@ def run_scipy(ref, meshes, work: Path, *, seed: int, n_akvf: int) -> dict:
     return _finish_run(run, meshes, wall, stages, by_k, "cpu")
 
 
-def warm_up(device: str, seed: int, remedy: str, n_akvf: int, segment_kwargs: dict | None = None) -> float:
-    """Untimed: a small built-in shape through AKVFs + segmentation on ``device`` (lazy imports,
-    CUDA context and libraries). Returns its seconds (reported, charged to no run)."""
-    options = {k: v for k, v in (segment_kwargs or {}).items() if k not in ("coarse_faces", "refine")}
+def warm_up(predict: PredictSettings, n_akvf: int) -> float:
+    """Untimed: a small built-in shape through AKVFs + segmentation on ``predict.device`` (lazy
+    imports, CUDA context and libraries). Returns its seconds (reported, charged to no run)."""
+    device = predict.device
     t0 = time.perf_counter()
     try:
         s = shapes.dumbbell(n_around=12)
         batch = MeshBatch.from_meshes([Mesh(s.vertices, s.faces, name="warm-up")], device=device)
-        segment_each_k(batch, 2, seed=seed, remedy=remedy, refine=False, n_akvf=n_akvf, **options)
+        segment_each_k(batch, 2, predict.options.replace(refine=False), n_akvf=n_akvf)
     except Exception as exc:  # noqa: BLE001 - a warm-up problem shows up in the runs anyway
         log.warning("bench: warm-up failed (%s: %s); timing without it", type(exc).__name__, exc)
     _cuda_reset(device)

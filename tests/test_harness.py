@@ -1,4 +1,5 @@
-"""The PSB evaluation harness: end to end on a tiny synthetic "PSB", protocols, resume, CLI."""
+"""torchakvf.evaluate.harness: the PSB evaluation end to end on a tiny synthetic "PSB", protocols,
+resume, settings, the eval command."""
 from __future__ import annotations
 
 import argparse
@@ -11,8 +12,7 @@ import pytest
 from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.evaluate import metrics as M
-from torchakvf.evaluate.harness import (evaluate_psb, human_mode, parse_metrics,
-                                        score_segmentation)
+from torchakvf.evaluate.harness import evaluate_psb, human_mode, parse_metrics
 from meshfiles import write_off, write_seg
 
 
@@ -78,7 +78,7 @@ def test_gallery_shows_prediction_beside_a_human_at_the_same_k(tiny_psb, run_by_
     from torchakvf.evaluate import psb as P
     from torchakvf.evaluate.metrics import rand_index_error
     from torchakvf.evaluate.plan import plan_meshes, find_entries
-    from torchakvf.evaluate.report import _gallery_item
+    from torchakvf.evaluate.gallery import gallery_item
 
     root, d = tiny_psb
     out, summary, _ = run_by_seg
@@ -86,7 +86,7 @@ def test_gallery_shows_prediction_beside_a_human_at_the_same_k(tiny_psb, run_by_
     assert (out / "gallery" / "Human.png").stat().st_size > 10_000
     assert "[Human](gallery/Human.png)" in (out / "summary.md").read_text()
     plan = plan_meshes(find_entries(root)[0], out, "by-segmentation", False, 6)[0]
-    title, v, f, pred, human, err = _gallery_item(plan, summary.row(1))
+    title, v, f, pred, human, err = gallery_item(plan, summary.row(1))
     # the first human (2 parts) beside the prediction made for k = 2
     assert title == "1" and len(f) == len(d.faces) and len(np.unique(pred)) == 2
     np.testing.assert_array_equal(human, d.part_labels)
@@ -101,7 +101,7 @@ def test_galleries_drawn_in_worker_processes_equal_those_drawn_here(tiny_psb, ru
     import dataclasses
     import shutil
     from torchakvf.evaluate.plan import find_entries, plan_meshes
-    from torchakvf.evaluate.report import write_galleries
+    from torchakvf.evaluate.gallery import write_galleries
 
     root, _ = tiny_psb
     out, summary, _ = run_by_seg
@@ -241,30 +241,6 @@ def test_selection_errors(tiny_psb, tmp_path):
         evaluate_psb(tmp_path / "nope", tmp_path, progress=False)
 
 
-def test_score_segmentation_protocols():
-    d = shapes.dumbbell(n_around=12)
-    lab = d.part_labels
-    gts = [lab, np.zeros_like(lab)]
-    preds = {2: lab, 1: np.zeros_like(lab)}
-    bs = score_segmentation(d.vertices, d.faces, preds, gts, "by-segmentation", metrics="rand")
-    assert bs == {"rand_index_error": 0.0}
-    bm = score_segmentation(d.vertices, d.faces, preds, gts, "by-model", metrics="rand", k=2)
-    assert bm["rand_index_error"] == pytest.approx(M.rand_index_error(lab, gts[1]) / 2)
-
-
-def test_k_auto_pick_rules():
-    from torchakvf.evaluate.k_auto import pick_k
-
-    ks = [2, 3, 4, 5, 6]
-    costs = [10.0, 6.0, 2.0, 1.8, 1.7]      # elbow at 4
-    assert pick_k(ks, costs, "elbow") == 4
-    assert pick_k(ks, costs, "knee") == 4
-    lam = np.array([0, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 5, 6, 7, 8, 9, 10], dtype=float)
-    assert pick_k(ks, costs, "spectrum", lam) == 4           # gap after 8 fields -> k = 4
-    with pytest.raises(TorchAKVFError):
-        pick_k(ks, costs, "best")
-
-
 def test_eval_command_parses_and_validates(tiny_psb, tmp_path):
     from torchakvf.evaluate.commands import add_eval_command
 
@@ -328,7 +304,7 @@ def test_real_psb_one_mesh(psb, tmp_path):
     assert (tmp_path / "rand_index.png").stat().st_size > 1000
 
 
-# ---- bad inputs: reported one per line, the rest still scored (issue 11) ------------------------
+# ---- bad inputs: reported one per line, the rest still scored --------------------------------
 
 @pytest.fixture(scope="module")
 def good_psb(tmp_path_factory):
@@ -450,58 +426,3 @@ def test_eval_on_cuda_matches_cpu(good_psb, tmp_path, cuda):
         assert M.matched_agreement(gpu, cpu) >= 0.99, k
 
 
-def test_batches_go_to_the_workers_heaviest_first():
-    from types import SimpleNamespace as NS
-
-    from torchakvf.evaluate.plan import heaviest_first
-    p = {i: NS(mesh_id=i) for i in range(5)}
-    faces = {0: 100, 1: 5000, 2: 300, 3: 300, 4: 1000}
-    ks = {0: 1, 1: 0, 2: 9, 3: 9, 4: 2}
-    batches = [[p[0]], [p[1], p[4]], [p[2]], [p[3]]]
-    # work: 200, 5000 + 3000 = 8000, 3000, 3000 (ties keep their order)
-    order = heaviest_first(batches, faces, ks)
-    assert [[q.mesh_id for q in b] for b in order] == [[1, 4], [2], [3], [0]]
-    assert sorted(map(id, order)) == sorted(map(id, batches))       # the same batches, moved
-
-
-def test_batches_of_several_workers_balance_the_work_under_the_budget():
-    from types import SimpleNamespace as NS
-
-    from torchakvf.evaluate.plan import balanced_batches, make_batches, mesh_work
-    p = [NS(mesh_id=i) for i in range(6)]
-    faces = {i: 100 for i in range(6)}
-    ks = {0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 5: 9}
-    work = mesh_work(faces, ks)
-    assert work == {0: 100, 1: 200, 2: 300, 3: 400, 4: 500, 5: 1000}
-    ids = lambda bs: [[q.mesh_id for q in b] for b in bs]             # noqa: E731
-    # one worker: consecutive plans, 300 faces per batch (work 600 and 1900)
-    assert ids(make_batches(p, faces, 300)) == [[0, 1, 2], [3, 4, 5]]
-    assert ids(make_batches(p, faces, 300, workers=1, work_of=work)) == [[0, 1, 2], [3, 4, 5]]
-    # two workers, two batches: heaviest first into the lightest batch with room (ties: the
-    # first): 5 -> A 1000, 4 -> B 500, 3 -> B 900, 2 -> B 1200 (full), 1 -> A 1200, 0 -> A 1300
-    assert ids(make_batches(p, faces, 300, workers=2, work_of=work)) == [[0, 1, 5], [2, 3, 4]]
-    # no budget to speak of: still one batch per worker, not one batch
-    assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work)) == [[0, 1, 5], [2, 3, 4]]
-    # a mesh that fits in no batch opens one: 2 batches of <= 200 faces cannot hold 6 meshes
-    # (5 -> A, 4 -> B, 3 -> B full, 2 -> A full, 1 -> C, 0 -> C)
-    assert ids(balanced_batches(p, faces, 200, work, 2)) == [[2, 5], [3, 4], [0, 1]]
-    # more workers than meshes: one mesh per batch
-    assert sorted(ids(make_batches(p, faces, 10 ** 6, workers=8, work_of=work))) == [[i] for i in range(6)]
-    # several batches per worker (the CPU's finer share): 2 workers x 2 = 4 batches, heaviest
-    # first into the lightest: 5 -> A 1000, 4 -> B 500, 3 -> C 400, 2 -> D 300, 1 -> D (300,
-    # the lightest) 500, 0 -> C (400) 500
-    assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=2)) == [[5], [4], [0, 3], [1, 2]]
-    # never more batches than meshes
-    assert sorted(ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=4))) == [[i] for i in range(6)]
-    # None: one mesh per batch, whatever the budget; heaviest first (each into an empty batch)
-    assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=None)) == [[i] for i in (5, 4, 3, 2, 1, 0)]
-    # ... but one worker keeps the budget's consecutive batches (nothing to share)
-    assert ids(make_batches(p, faces, 10 ** 6, workers=1, work_of=work, per_worker=None)) == [list(range(6))]
-
-
-def test_cpu_batches_are_one_mesh_each_with_several_workers():
-    import torch
-
-    from torchakvf.evaluate.plan import batches_per_worker
-    assert batches_per_worker("cpu") is batches_per_worker(torch.device("cpu")) is None
-    assert batches_per_worker("cuda") == batches_per_worker("cuda:1") == 1
