@@ -12,7 +12,7 @@ the sides one after another:
 * **scipy ref** — the independent plain pipeline of :mod:`torchakvf.scipy_reference` on the
   cleaned mesh (cleaning not charged to it): ``killing_operator_scipy(V, F, remedy="smooth")``,
   then ``eigsh(R, k=n, M=diags(S1), sigma=-1, which='LM')`` with SuperLU and its Rayleigh-Ritz
-  (``_solve_akvf``), as a user would write it.
+  (``solve_akvf``), as a user would write it.
 * **decimate** — ``coarse_mesh(cleaned mesh, --decimate)`` alone: the first step any
   coarse-to-fine solve would pay before its coarse solve, prolongation and fine refinement.
 * **eigsh only** — ``eigsh`` (SuperLU) on torchakvf's own operator at torchakvf's shift, the
@@ -81,7 +81,7 @@ def residuals_np(r, s1, lam, w):
 def scipy_ref(v, f, n):
     """The independent scipy pipeline: assembly + eigsh shift-invert (SuperLU) + Rayleigh-Ritz."""
     r, s1, _, _ = ref.killing_operator_scipy(v, f, remedy="smooth")
-    lam, w = ref._solve_akvf(r, ref._clamp_mass(s1), n, -1.0)
+    lam, w = ref.solve_akvf(r, ref.clamp_mass(s1), n, -1.0)
     return r, s1, lam, w
 
 
@@ -261,7 +261,7 @@ def main(argv=None) -> int:
                     d_before=float(np.max(np.abs(lam_ta - res_l.eigenvalues[0].double().cpu().numpy())
                                           / np.maximum(np.abs(lam_ta), 1))) if on_cpu else math.nan,
                     res_ta=float(res.residuals.max()), res_l=float(res_l.residuals.max()),
-                    res_ref=float(residuals_np(r, ref._clamp_mass(s1), lam_ref, w_ref).max()),
+                    res_ref=float(residuals_np(r, ref.clamp_mass(s1), lam_ref, w_ref).max()),
                     res_e=float(res_e.max()),
                     d_eigsh=float(np.max(np.abs(lam_ta - lam_e) / np.maximum(np.abs(lam_e), 1))),
                     d_ref=float(np.max(np.abs(lam_ta - lam_ref) / np.maximum(np.abs(lam_ref), 1))),

@@ -103,7 +103,7 @@ def akvf_descriptors(mesh) -> dict:
     """Killing spectrum, untangled energies and per-face features on the decimated mesh."""
     from torchakvf import MeshBatch, untangle
     from torchakvf.fields.akvf import akvf_falling_back
-    from torchakvf.parts.segment import DEFAULT_REMEDY
+    from torchakvf.options import DEFAULT_REMEDY
 
     batch = MeshBatch.from_meshes([mesh], coarse_faces=COARSE_FACES)
     fields, fell_back = akvf_falling_back(batch, n=N_FIELDS, seed=SEED, remedy=DEFAULT_REMEDY)

@@ -141,7 +141,7 @@ def main(argv=None) -> int:
 
     meshes = [load_mesh(args.psb / "meshes" / f"{i}.off.gz") for i in (1, 21, 121, 181, 301)]
     ta.akvf(meshes[0], n=8)
-    akvf_module = sys.modules["torchakvf.fields.akvf"]
+    akvf_module = sys.modules["torchakvf.solvers.akvf_solver"]
     original = factor_module.mesh_factor
 
     def pardiso_factor(system, b, name, device=None):

@@ -5,7 +5,7 @@ Each k of a mesh today gets its own untangling (n = 3k clamped to [16, 32]) and 
 into k' = min(3k, k + 16) clusters. The PSB protocol asks 4.3 distinct k's per mesh, so these
 rules make ~1.2 untanglings and 4.3 k-means runs per mesh. Variants (``--variants``):
 
-* ``base``       every k its own rules (MergeWeights.min_k 1, engine.FIELDS_STEP["merge"] 1);
+* ``base``       every k its own rules (MergeWeights.min_k 1, options.FIELDS_STEP["merge"] 1);
 * ``floorF``     min_k F: every k < F is treated as F for both rules (k' and n of k = F), so
                  all k <= F of a mesh share one untangling and one over-segmentation, merged
                  down to each k;
@@ -37,14 +37,15 @@ import torch
 from kmeans_restarts import BLOCKS, LABELLED, StageClock
 from torchakvf.evaluate import harness as H
 from torchakvf.evaluate import psb as P
-from torchakvf.parts import engine as E
+from torchakvf import options as O
+from torchakvf.parts import field_counts as FC
 from torchakvf.parts.merge import MergeWeights
 
 
 def rules(variant: str) -> tuple[int, int]:
-    """(MergeWeights.min_k, engine.FIELDS_STEP["merge"]) of a variant name: floorF -> min_k F,
-    q8/u8 -> step 8 (u8 rounds up, as the engine does; q8, rounding to the nearest multiple,
-    was measured with an earlier version of this script and is not the engine's rule)."""
+    """(MergeWeights.min_k, options.FIELDS_STEP["merge"]) of a variant name: floorF -> min_k F,
+    q8/u8 -> step 8 (u8 rounds up, as the package does; q8, rounding to the nearest multiple,
+    was measured with an earlier version of this script and is not the package's rule)."""
     m = re.fullmatch(r"(base|floor(\d+))?(\+?u8)?", variant)
     if not m:
         raise SystemExit(f"unknown variant {variant!r} (base, floorF, u8, floorF+u8)")
@@ -55,15 +56,15 @@ def implied_counts(variant: str) -> tuple[int, int]:
     """(untanglings, k-means runs) over the labelled PSB meshes' protocol k's, method merge:
     distinct n per mesh, distinct (n, k') per mesh (cluster_safe_n ignored)."""
     min_k, step = rules(variant)
-    keep, E.FIELDS_STEP["merge"] = E.FIELDS_STEP["merge"], step
-    opts = E.SegmentOptions(merge=MergeWeights(min_k=min_k))
+    keep, O.FIELDS_STEP["merge"] = O.FIELDS_STEP["merge"], step
+    opts = O.SegmentOptions(merge=MergeWeights(min_k=min_k))
     unt = km = 0
     for e in P.find_psb_meshes(P.default_psb_root()):
         ks = sorted(set(P.human_segment_counts(e)))
-        ns = {k: E.default_n_fields(k, "merge", min_k) for k in ks}
+        ns = {k: FC.default_n_fields(k, "merge", min_k) for k in ks}
         unt += len(set(ns.values()))
-        km += len({(ns[k], E.cluster_count(k, 10 ** 9, opts)) for k in ks})
-    E.FIELDS_STEP["merge"] = keep
+        km += len({(ns[k], FC.cluster_count(k, 10 ** 9, opts)) for k in ks})
+    O.FIELDS_STEP["merge"] = keep
     return unt, km
 
 
@@ -80,7 +81,7 @@ def main():
     res = {}
     for v in a.variants.split(","):
         min_k, step = rules(v)
-        E.FIELDS_STEP["merge"] = step
+        O.FIELDS_STEP["merge"] = step
         clock.akvf = clock.segment = 0.0
         t0 = time.process_time()
         s = H.evaluate_psb(P.default_psb_root(), Path(a.out) / v, ids=ids, metrics="rand", workers=1,

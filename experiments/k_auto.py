@@ -47,7 +47,8 @@ def build(a):
     from torchakvf.mesh.clean import face_areas
     from torchakvf.parts import segment
     from torchakvf.parts.concavity import dual_edges
-    from torchakvf.parts.engine import SPARE_FIELDS, UNTANGLE_RESTARTS, cluster_safe_n, default_n_fields
+    from torchakvf.options import SEGMENT_UNTANGLE_RESTARTS as UNTANGLE_RESTARTS, SPARE_FIELDS
+    from torchakvf.parts.field_counts import cluster_safe_n, default_n_fields
     from torchakvf.parts.merge import oversegment_k, region_graph
     torch.set_num_threads(1)
     out = Path(a.out)

@@ -28,7 +28,8 @@ from torchakvf.mesh.clean import face_areas
 from torchakvf.parts import segment
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.merge import oversegment_k, region_graph
-from torchakvf.parts.segment import SPARE_FIELDS, UNTANGLE_RESTARTS, default_n_fields, field_counts
+from torchakvf.options import SEGMENT_UNTANGLE_RESTARTS as UNTANGLE_RESTARTS, SPARE_FIELDS
+from torchakvf.parts.field_counts import default_n_fields, field_counts
 
 RATIOS = (1.0, 2.0, 2.5, 3.0, 4.0)
 

@@ -2,8 +2,8 @@
 edges (issue 13, features at full resolution), one thread, process CPU time.
 
 1. **Per step**, on random scaled forms [E, n]: the moments' one-time cost (``Qᵀ Q`` over column
-   pairs), a step of 9 rotations and of 1 (``_FourthMoments``) against the products'
-   (``_Products`` in float64), and what the size rule (``_moments_pay``) picks for 180 steps
+   pairs), a step of 9 rotations and of 1 (``FourthMoments``) against the products'
+   (``Products`` in float64), and what the size rule (``fourth_moments_pay``) picks for 180 steps
    of single rotations (20 per restart).
 2. **Whole untangling** (``ta.untangle``, 8 restarts besides the identity, the default float32
    phase then the float64 one) of real AKVFs, n = 32 at full resolution and n = 16, 24, 32 at
@@ -34,6 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # t
 from timing import best_of, write_report  # noqa: E402
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
+from torchakvf.fields.fourth_moments import FourthMoments  # noqa: E402
+from torchakvf.fields.horst import Products  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -48,8 +50,8 @@ def per_step_rows(sizes):
     gen = torch.Generator().manual_seed(0)
     for e, n in sizes:
         y = torch.randn(1, e, n, generator=gen, dtype=torch.float64)
-        once, mom = best_ms(lambda: untangle_mod._FourthMoments(y), 2)
-        prod = untangle_mod._Products(y, 9, torch.float64)
+        once, mom = best_ms(lambda: FourthMoments(y), 2)
+        prod = Products(y, 9, torch.float64)
         al = torch.linalg.qr(torch.randn(1, 9, n, n, generator=gen, dtype=torch.float64))[0]
         m9, g = best_ms(lambda: mom(al))
         p9, h = best_ms(lambda: prod(al))
@@ -57,25 +59,25 @@ def per_step_rows(sizes):
         p1, _ = best_ms(lambda: prod(al[:, :1]))
         err = float((g - h).abs().max() / h.abs().max())
         rows.append(f"| {e} | {n} | {once:.0f} | {m9:.1f} | {p9:.1f} | {m1:.2f} | {p1:.2f} | {err:.0e} | "
-                    f"{'moments' if untangle_mod._moments_pay(e, n, 180) else 'products'} |")
+                    f"{'moments' if untangle_mod.fourth_moments_pay(e, n, 180) else 'products'} |")
     return rows
 
 
 def _choice(fields, n: int) -> str:
     """What the untangling's float64 phase took, read off a run with the rule spied on."""
     seen = []
-    pay = untangle_mod._moments_pay
+    pay = untangle_mod.fourth_moments_pay
 
     def spy(e, n_, steps):
         out = pay(e, n_, steps)
         seen.append(f"{'moments' if out else 'products'} ({steps} steps)")
         return out
 
-    untangle_mod._moments_pay = spy
+    untangle_mod.fourth_moments_pay = spy
     try:
         ta.untangle(fields, n=n, restarts=8)
     finally:
-        untangle_mod._moments_pay = pay
+        untangle_mod.fourth_moments_pay = pay
     return ", ".join(seen)
 
 
@@ -87,15 +89,15 @@ def whole_rows(cases, repeat: int):
         res = {}
         for rnd in range(repeat):
             for side in (["rule", "products"] if rnd % 2 == 0 else ["products", "rule"]):
-                pay = untangle_mod._moments_pay
+                pay = untangle_mod.fourth_moments_pay
                 if side == "products":
-                    untangle_mod._moments_pay = lambda e, n, steps: False
+                    untangle_mod.fourth_moments_pay = lambda e, n, steps: False
                 try:
                     t = time.process_time()
                     u = ta.untangle(fields, n=n, restarts=8)
                     best[side] = min(best[side], time.process_time() - t)
                 finally:
-                    untangle_mod._moments_pay = pay
+                    untangle_mod.fourth_moments_pay = pay
                 res[side] = u
         e = int(fields.batch.edge_ptr[1])
         diff = float((res["rule"].rotation - res["products"].rotation).abs().max())

@@ -299,8 +299,9 @@ def test_default_remedy_is_the_one_everywhere():
     from torchakvf.operators.killing import DEFAULT_REMEDY
     from torchakvf.parts import DEFAULT_REMEDY as parts_default
     assert DEFAULT_REMEDY == "smooth" and parts_default is DEFAULT_REMEDY
-    for fn in (ta.akvf, ta.segment, killing_operator):
+    for fn in (ta.akvf, killing_operator):
         assert inspect.signature(fn).parameters["remedy"].default == DEFAULT_REMEDY, fn
+    assert ta.SegmentOptions().remedy == DEFAULT_REMEDY     # segment's, through its options
 
 
 # ---------------------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ def test_a_cube_asked_for_too_many_fields():
         check_fields_fit("cube.off", box.faces, 28, k=5)
     text = str(info.value)
     assert text == ("cube.off: mesh has 12 faces (18 edges), too few for k=5 (needs 28 fields): a mesh "
-                    "has at most one field per edge; use a smaller k or subdivide it (torchakvf.mesh.subdivide)")
+                    "takes fewer fields than it has edges; use a smaller k or subdivide it (torchakvf.mesh.subdivide)")
     with pytest.raises(ParameterError, match=r"use k <= 2 or subdivide it"):
         check_fields_fit("cube.off", box.faces, 28, k=5, fields_for_k=lambda k: 8 * k)
     with pytest.raises(ParameterError, match=r"\(needs 28 fields\): .* edge; use --subdivide$"):

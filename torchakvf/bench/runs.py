@@ -220,8 +220,8 @@ def _scipy_segment_mesh(ref, mesh, pred_dir: Path, seed: int, n_akvf: int, stage
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)   # star1 clamping: mesh quality, expected
         R, S1, edges, meta = ref.killing_operator_scipy(clean.vertices, clean.faces)
-        S1 = ref._clamp_mass(S1)
-        _, forms = ref._solve_akvf(R, S1, min(int(n_akvf), R.shape[0] - 1), -1.0)
+        S1 = ref.clamp_mass(S1)
+        _, forms = ref.solve_akvf(R, S1, min(int(n_akvf), R.shape[0] - 1), -1.0)
     tick("akvf")
     for k in mesh.ks:
         n = min(int(np.clip(2 * k, 16, 32)), forms.shape[1])

@@ -20,6 +20,7 @@ from .concavity import DualEdges, dual_edges
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .field_counts import cluster_count
 from .generators import part_generators
+from .pieces import limit_parts
 from .graphcut import CornerMeans, edge_weights, graphcut_labels
 from .merge import (RegionGraph, boundary_bends, merge_parts, merged_distances, next_merge_cost, partition_cost,
                     region_graph, unit_rows)
@@ -166,10 +167,11 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
     else:
         cut = _segmentation_labels(over, cache, opts, k, floor, float(km.cost[b]), f1 - f0)
     clean, feats = over.mesh, over.feats
-    gens = part_generators(cut.labels, feats, over.area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
+    labels = limit_parts(cut.labels, clean.vertices, clean.faces, k)
+    gens = part_generators(labels, feats, over.area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
     converged, residual = solve_quality(fields, b)
     return MeshSegmentation(
-        name=clean.name, k=k, labels=clean.labels_to_input_faces(cut.labels),
+        name=clean.name, k=k, labels=clean.labels_to_input_faces(labels),
         features=clean.to_input_faces(feats), eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
         generators=gens,
         refined=refine_along_isolines(clean.vertices, clean.faces, cut.vdist) if opts.refine else None,

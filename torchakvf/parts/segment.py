@@ -25,6 +25,7 @@ from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, as_batch
 from ..fields.untangle import UntangledFields
 from ..mesh import MeshBatch
+from ..mesh.size_check import check_fields_fit
 from ..options import SegmentOptions, segment_options
 from .field_counts import akvf_count, check_ks, per_mesh
 from .generators import SymmetryGenerator
@@ -87,6 +88,9 @@ def segment_each_k(meshes, ks, options: SegmentOptions | None = None, *, n_field
         batch = as_batch(meshes, device=device, coarse_faces=coarse_faces)
         ks = check_ks(batch, ks)
         n_akvf = akvf_count(ks, n_fields, opts.method, opts.merge_min_k) if n_akvf is None else n_akvf
+        for b in range(len(batch)):
+            check_fields_fit(batch.names[b], batch.meshes[b].faces, n_akvf, k=max(ks[b]),
+                             fields_for_k=lambda j: akvf_count([[j]], n_fields, opts.method, opts.merge_min_k))
         fields, fell_back = solve_akvfs(batch, n_akvf, opts)
     t1 = time.perf_counter()
     out = SegmentEachK(fields=fields, fell_back=fell_back, meshes=[{} for _ in range(len(fields.batch))],

@@ -1,9 +1,10 @@
 """The one AKVF solve of a segmentation, shared by every k of every mesh."""
 from __future__ import annotations
 
-from ..fields.akvf import AKVFResult, akvf, akvf_falling_back
+from ..fields.akvf import AKVFResult, akvf
 from ..mesh import MeshBatch
 from ..options import SegmentOptions
+from ..solvers.akvf_solver import AKVFSolver
 
 #: The residual tolerance of a segmentation's AKVF solve: :func:`~torchakvf.fields.akvf.akvf`'s
 #: default, read from it so the two cannot drift apart.
@@ -12,9 +13,10 @@ AKVF_TOL = akvf.__kwdefaults__["tol"]
 
 def solve_akvfs(batch: MeshBatch, n: int, opts: SegmentOptions) -> tuple[AKVFResult, list]:
     """The n smallest AKVFs of every mesh of the batch, once for every k: (result, [(mesh index,
-    why it was solved at full resolution)]) as :func:`~torchakvf.fields.akvf.akvf_falling_back`."""
-    return akvf_falling_back(batch, n=int(n), seed=opts.seed, remedy=opts.remedy, solver=opts.solver,
-                             tol=AKVF_TOL)
+    why it was solved at full resolution)]), by an :class:`~torchakvf.solvers.AKVFSolver` that
+    solves at full resolution a decimated mesh that cannot be solved (``fell_back``)."""
+    solver = AKVFSolver(batch, remedy=opts.remedy, solver=opts.solver, full_resolution_fallback=True)
+    return solver.solve(int(n), tol=AKVF_TOL, seed=opts.seed), solver.fell_back
 
 
 def solve_quality(fields: AKVFResult, b: int) -> tuple[bool, float]:

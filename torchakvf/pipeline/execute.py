@@ -103,14 +103,15 @@ def _load(it: Item, task, out_dir: Path) -> bool:
 
 
 def require_edges(item: Item, n: int, what: str) -> None:
-    """A task's ``validate`` check: ``n`` fields need at least ``n`` edges on the cleaned mesh
-    (``what`` names the option in the error, e.g. ``"--n 32 fields asked for"``)."""
+    """A task's ``validate`` check: ``n`` fields need more than ``n`` edges on the cleaned mesh,
+    as the eigensolvers do (``what`` names the option in the error, e.g. ``"--n 32 fields asked for"``)."""
     from ..errors import ParameterError
     from ..mesh.batch import mesh_edges
 
     n_edges = len(mesh_edges(item.clean.faces)[0])
-    if n > n_edges:
-        raise ParameterError(f"{item.path}: {what} but the mesh has only {n_edges} edges")
+    if n >= n_edges:
+        raise ParameterError(f"{item.path}: {what} but the mesh has only {n_edges} edges "
+                             "(it takes fewer fields than it has edges)")
 
 
 def output_record(rec: dict, task, out_dir: Path, stem: str) -> dict:

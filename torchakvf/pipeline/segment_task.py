@@ -14,10 +14,10 @@ from pathlib import Path
 from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
+from ..mesh.size_check import check_fields_fit
 from ..options import SegmentOptions, segment_options
 from ..parts.field_counts import akvf_count
 from ..parts.segment import segment_each_k
-from .execute import require_edges
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -84,7 +84,10 @@ class SegmentTask:
         n_faces = len(item.clean.faces)
         if self.k > n_faces:
             raise ParameterError(f"{item.path}: -k {self.k} is larger than the mesh's {n_faces} faces")
-        require_edges(item, self.n_akvf, f"{self.n_akvf} fields needed")
+        opts = self.options
+        check_fields_fit(str(item.path), item.clean.faces, self.n_akvf, k=self.k,
+                         subdivide_hint="subdivide it first (torchakvf.mesh.subdivide)",
+                         fields_for_k=lambda j: akvf_count([[j]], self.n_fields, opts.method, opts.merge_min_k))
 
     def process(self, items, device):
         t0 = time.perf_counter()

@@ -31,8 +31,5 @@ from .operator import (akvf_scipy, clamp_mass, killing_operator_scipy, mesh_edge
                        whitney_face_vectors_scipy)
 from .segmentation import features_scipy, segment_scipy, spherical_kmeans_numpy, untangle_numpy
 
-#: The names :mod:`torchakvf.evaluate.bench_runs` imports (until it uses the public ones).
-_clamp_mass, _solve_akvf = clamp_mass, solve_akvf
-
 __all__ = ["mesh_edges", "killing_operator_scipy", "whitney_face_vectors_scipy", "akvf_scipy", "clamp_mass",
            "solve_akvf", "untangle_numpy", "spherical_kmeans_numpy", "segment_scipy", "features_scipy"]
