@@ -1,11 +1,11 @@
-"""torchakvf._threads: single_threaded blocks nest and overlap across threads."""
+"""torchakvf.threads: single_threaded blocks nest and overlap across threads."""
 import torch
 
 
 def test_single_threaded_restores_the_thread_count_also_when_overlapping():
     import threading
 
-    from torchakvf._threads import single_threaded
+    from torchakvf.threads import single_threaded
     saved = torch.get_num_threads()
     try:
         torch.set_num_threads(2)

@@ -286,7 +286,7 @@ def lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_i
     restarts are gathered into slots, the results scattered back."""
     nb, n_max, d = x.shape
     r, k_max = centers.shape[1], centers.shape[2]
-    dev, dt = x.device, x.dtype
+    dev = x.device
     centers = centers.clone()
     ragged = center_ok is not None and not bool(center_ok.all())
     absent = None if center_ok is None else ~center_ok[:, None, None, :]          # [B, 1, 1, k]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import torch
 
-from .._threads import single_threaded
+from ..threads import single_threaded
 from ..errors import ParameterError
 from .fourth_moments import FourthMoments, side_by_side
 

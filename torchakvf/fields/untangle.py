@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import torch
 
 from ..restarts import best_restart
-from .._threads import single_threaded
+from ..threads import single_threaded
 from ..errors import ParameterError
 from ..mesh.batch import pad_packed
 from .akvf import AKVFResult

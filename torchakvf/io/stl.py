@@ -136,7 +136,7 @@ def read_ascii_lines(text: str, name: str) -> np.ndarray:
             corners.append(current)
         state = _STATE_AFTER[key] if key != "vertex" else ("loop" if len(current) < 3 else "loop_full")
     if state != "file":
-        raise MeshError(name, f"truncated: the file ends inside "
+        raise MeshError(name, "truncated: the file ends inside "
                               + (f"facet {len(corners)} (line {facet_line})" if state not in ("solid",)
                                  else f"a solid, after {len(corners)} facets, without 'endsolid'"))
     if not corners:

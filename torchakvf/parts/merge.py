@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..restarts import first_near_min
 from ..options import MergeWeights
 from .concavity import DualEdges, crease_weights, dual_edges

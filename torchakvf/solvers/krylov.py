@@ -38,7 +38,7 @@ import math
 
 import torch
 
-from .._threads import single_threaded
+from ..threads import single_threaded
 from ..errors import FieldCountError, ParameterError
 from ..operators.killing import KillingSystem
 from .factor import contiguous_transpose, mesh_factor

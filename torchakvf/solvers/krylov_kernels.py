@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
-from .._threads import single_threaded
+from ..threads import single_threaded
 
 #: Relative S-norm below which a new direction is numerically inside the basis and dropped.
 DEPENDENT = 1e-10

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .._threads import single_threaded
+from ..threads import single_threaded
 from ..errors import FieldCountError, ParameterError
 from ..mesh.batch import owner_index
 from ..operators.killing import KillingSystem
