@@ -19,8 +19,9 @@ from torchakvf.solvers.factor import mesh_factor
 
 from torchakvf import scipy_reference as ref
 
-from eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines, scipy_matrices
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines, scipy_matrices
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 #: "near zero" as in the tables: below this, with the next eigenvalue above GAP.
 ZERO, GAP = 0.1, 5.0

@@ -16,8 +16,9 @@ from torchakvf.operators import killing_operator
 from torchakvf.solvers import AKVFSolver, akvf_solver, lobpcg
 from torchakvf.solvers.akvf_solver import KRYLOV_MIN_EDGES, remedy_advice, solver_for
 
-from eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 
 @pytest.fixture(scope="module")

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from torchakvf import shapes
 from torchakvf.pipeline.runner import run_corpus
-from faketask import FakeTask
-from meshfiles import write_off
+from helpers.faketask import FakeTask
+from helpers.meshfiles import write_off
 
 
 def test_batches_go_to_the_workers_heaviest_first():

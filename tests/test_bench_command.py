@@ -5,7 +5,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from torchakvf import shapes
 from torchakvf.cli import main
@@ -13,8 +12,10 @@ from torchakvf.bench import run as bench
 from torchakvf.pipeline.batches import default_batch_faces
 from torchakvf.mesh.coarse import DEFAULT_COARSE_FACES
 from torchakvf.pipeline.parallel import default_workers
-from meshfiles import write_off, write_seg
+from helpers.meshfiles import write_off, write_seg
 
+# Tiny meshes: intra-op threads only spin (and the test machine is shared).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 @pytest.fixture()
 def fake_psb(tmp_path):
@@ -29,15 +30,6 @@ def fake_psb(tmp_path):
     t = shapes.three_blobs(n_around=12)
     write_off(root / "meshes" / "21.off", t.vertices, t.faces)
     return root, len(d.faces) + len(t.faces)
-
-
-@pytest.fixture()
-def one_thread():
-    """Tiny meshes: threads only spin (and the test machine is shared)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def _one_error_line(capsys) -> str:
@@ -79,7 +71,7 @@ def test_out_that_is_a_file_is_one_line(fake_psb, tmp_path, capsys):
     assert "--out" in _one_error_line(capsys)
 
 
-def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
+def test_end_to_end_report(fake_psb, tmp_path, capsys):
     root, n_faces = fake_psb
     out = tmp_path / "bench"
     assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "1",
@@ -129,7 +121,7 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
     assert "meshes/s" in md and "one_at_a_time" in md and "scipy" in md and "## Runs" in md
 
 
-def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypatch, one_thread):
+def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypatch):
     root, _ = fake_psb
     # The scipy baseline cannot be imported: it is skipped, with a note.
     monkeypatch.setattr(bench, "load_scipy_reference",
@@ -146,7 +138,7 @@ def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypat
     assert r0["selection"]["mesh_ids"] == [21]
 
 
-def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys, one_thread):
+def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys):
     root, _ = fake_psb
     (root / "gt" / "1" / "1_2.seg").write_text("1\n2\n")          # 2 labels for a whole mesh
     rc = main(["bench", "--psb", str(root), "--out", str(tmp_path / "b"), "--baseline-every", "0",
@@ -159,7 +151,7 @@ def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys, one_t
     assert "1_2.seg" in (tmp_path / "b" / "report.md").read_text()
 
 
-def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_thread):
+def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys):
     """--budgets: the same meshes once one per batch and once per budget, in one run; per
     budget the ratio one-at-a-time seconds / batched seconds (>= 1: batching at least as fast)."""
     root, n_faces = fake_psb
@@ -192,7 +184,7 @@ def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_t
     assert "by face budget: 300: " in stdout and "100000: " in stdout
 
 
-def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path, one_thread):
+def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path):
     """With baselines on, the sweep runs on their subset and reuses run one_at_a_time."""
     root, _ = fake_psb
     fast = dict(n_fields=16, kmeans_restarts=2, untangle_restarts=1)
@@ -215,7 +207,7 @@ def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path, one_thread)
     assert "budget_sweep" not in r0 and r0["settings"]["budgets"] == [] and r0["partial"] is False
 
 
-def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeypatch, one_thread):
+def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeypatch):
     """The report is written after every run (partial), so a bench stopped at a time limit
     (benchmarks/device_check.sh) keeps what it measured."""
     root, _ = fake_psb

@@ -15,7 +15,8 @@ from torchakvf import shapes
 from torchakvf.solvers import cholmod
 from torchakvf.solvers.factor import ShiftedFactor
 
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 needs_cholmod = pytest.mark.skipif(cholmod.library() is None,
                                    reason="cholespy's library has no CHOLMOD 3.0 layout here; "

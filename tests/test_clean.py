@@ -11,20 +11,15 @@ import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.mesh.clean import OUTLIER_DISTANCE, faces_at_outliers
 
-from refusals import write_file
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.refusals import write_file
+from helpers.meshfiles import off_text
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 
 # ---------------------------------------------------------------------------------------------
 # helpers
 # ---------------------------------------------------------------------------------------------
-
-def _off_text(vertices, faces, header_inline=False):
-    head = f"OFF {len(vertices)} {len(faces)} 0\n" if header_inline else \
-        f"OFF\n# a comment line\n{len(vertices)} {len(faces)} 0\n"
-    body = "".join(f"{float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in vertices)
-    body += "".join(f"3 {a} {b} {c}\n" for a, b, c in faces)
-    return head + body
 
 
 def _akvf_eigs(mesh, n=12):
@@ -60,7 +55,7 @@ def test_bad_topology_in_file_raises_on_cleaning(tmp_path, case):
     else:
         V, F = _moebius()
         problem = r"not orientable"
-    path = write_file(tmp_path / f"{case}.off", _off_text(V, F))
+    path = write_file(tmp_path / f"{case}.off", off_text(V, F))
     mesh = ta.load_mesh(path)          # parses fine: the topology is checked by the clean-up
     for call in (ta.clean_mesh, lambda m: ta.akvf(m, n=4)):
         with pytest.raises(ta.MeshError) as info:

@@ -42,8 +42,9 @@ from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.fields.akvf import solver_for
 from torchakvf.mesh.batch import pad_packed
 from torchakvf.operators.killing import killing_operator
-from meshfiles import write_off, write_seg
-from threads import one_torch_thread  # noqa: F401  (autouse: one intra-op thread here)
+from helpers.meshfiles import write_off, write_seg
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 TOL = 1e-6                  # akvf's residual tolerance
 N = 16                      # fields untangled (as test_precision.py)
@@ -397,7 +398,7 @@ def test_unusable_device_is_a_parameter_error(bad, words, tmp_path):
 
 @pytest.mark.parametrize("command", ["segment", "features", "eval", "bench"])
 def test_unusable_device_on_the_cli_is_one_line(command, corpus, tmp_path, capsys):
-    from faketask import assert_one_line_error
+    from helpers.faketask import assert_one_line_error
 
     bad, words = _unusable_devices()[-1]
     psb = tmp_path / "psb"

@@ -8,20 +8,16 @@ import pytest
 import torch
 
 import torchakvf as ta
-from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.inputs import discover_inputs
 from torchakvf.pipeline.runner import run_corpus
-from meshfiles import write_off, write_small_corpus
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.meshfiles import write_small_corpus
+from helpers.runs import small_meshes
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 N = 8
-
-
-def small_meshes(root: Path, names=("a", "b", "c"), level: int = 1) -> list[Path]:
-    s = shapes.icosphere(level)
-    return [write_off(root / f"{n}.off", s.vertices, s.faces) for n in names]
 
 
 @pytest.fixture(scope="module")

@@ -13,8 +13,9 @@ from torchakvf.operators import angle_defect, angle_sum, batch_geometry, d0, d1,
 
 from torchakvf import scipy_reference as ref
 
-from operator_meshes import EULER, SHAPES, as_scipy, per_mesh_sum, shape_meshes
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.operator_meshes import EULER, SHAPES, as_scipy, per_mesh_sum, shape_meshes
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 
 @pytest.fixture(scope="module")

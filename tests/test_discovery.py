@@ -5,20 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from torchakvf import shapes
 from torchakvf.mesh.clean import face_areas
 from torchakvf.parts import discovery
 from torchakvf.parts.discovery import CONNECTING, remove_small_parts
 from torchakvf.parts.topology import face_adjacency, labelled_pieces, piece_neighbours
-
-
-def _sphere_labels(level: int, k: int, seed: int):
-    """An icosphere's faces cut into k parts by random directions (nearest direction wins)."""
-    s = shapes.icosphere(level)
-    v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
-    rng = np.random.default_rng(seed)
-    bary = v[f].mean(1)
-    return v, f, np.argmax(bary @ rng.normal(size=(3, k)), axis=1)
+from helpers.partitions import sphere_labels
 
 
 def _remove_small_parts_loop(labels, adjacency, face_area, min_fraction, into_connecting):
@@ -65,7 +56,7 @@ def _remove_small_parts_loop(labels, adjacency, face_area, min_fraction, into_co
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("into_connecting", [False, True])
 def test_remove_small_parts_equals_the_loop(seed, into_connecting):
-    v, f, labels = _sphere_labels(3, 6, seed)
+    v, f, labels = sphere_labels(3, 6, seed)
     rng = np.random.default_rng(seed)
     noisy = labels.copy()
     flip = rng.random(len(noisy)) < 0.08                             # islands of one face or a few

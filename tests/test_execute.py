@@ -2,31 +2,16 @@
 bug ends the run, a failing batch is retried one mesh at a time."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 
-from torchakvf import cli, shapes
+from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
-from torchakvf.io.manifest import read_manifest, read_manifest_records
+from torchakvf.io.manifest import read_manifest_records
 from torchakvf.pipeline.runner import run_corpus
-from faketask import FakeTask
-from meshfiles import write_off
-
-
-def small_meshes(root: Path, names=("a", "b", "c"), level: int = 1) -> list[Path]:
-    s = shapes.icosphere(level)
-    return [write_off(root / f"{n}.off", s.vertices, s.faces) for n in names]
-
-
-def by_stem(out: Path) -> dict:
-    return {r["stem"]: r for r in read_manifest(out).values()}
-
-
-def cli_run(argv, capsys):
-    rc = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return rc, out, err
+from helpers.faketask import FakeTask
+from helpers.meshfiles import write_off
+from helpers.runs import by_stem, cli_run, small_meshes
 
 
 def test_programming_error_surfaces_after_the_manifest_is_flushed(tmp_path):

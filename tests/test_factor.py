@@ -14,8 +14,9 @@ from torchakvf import shapes
 from torchakvf.solvers import akvf_solver, cholmod
 from torchakvf.solvers.factor import INTERIOR_SHIFT_PER_PAIR, InteriorFactor
 
-from eigen_checks import batch_with_a_low_mesh
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.eigen_checks import batch_with_a_low_mesh
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 needs_cholmod = pytest.mark.skipif(cholmod.library() is None,
                                    reason="cholespy's library has no CHOLMOD 3.0 layout here; "

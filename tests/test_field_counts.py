@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 import torchakvf as ta
-from torchakvf import options, shapes
+from torchakvf import options
 from torchakvf.parts import field_counts, rounds
 from torchakvf.parts.field_counts import cluster_safe_n
 from torchakvf.parts.merge import MergeWeights
@@ -30,13 +30,6 @@ def test_field_counts_follow_the_floor(monkeypatch):
     assert field_counts.akvf_count([[2, 3]], None, "merge", 1) == 16 + options.SPARE_FIELDS
     monkeypatch.setitem(options.FIELDS_STEP, "merge", 1)
     assert field_counts.default_n_fields(2, "merge", 7) == 21 == field_counts.default_n_fields(7, "merge", 1)
-
-
-@pytest.fixture(scope="module")
-def fields():
-    meshes = [ta.Mesh(s.vertices, s.faces, name=n) for n, s in
-              (("blobs", shapes.three_blobs(n_around=20)), ("dumbbell", shapes.BUILTIN_SHAPES["dumbbell"]()))]
-    return ta.akvf(ta.MeshBatch.from_meshes(meshes), n=24, remedy="smooth")
 
 
 def test_default_field_counts_by_method(fields):

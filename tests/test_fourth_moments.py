@@ -7,6 +7,7 @@ import importlib
 
 import pytest
 import torch
+from helpers.forms import random_forms
 
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
@@ -18,16 +19,9 @@ horst_mod = importlib.import_module("torchakvf.fields.horst")
 fourth_moments_mod = importlib.import_module("torchakvf.fields.fourth_moments")
 
 
-def _forms(m: int, e: int, n: int, seed: int) -> torch.Tensor:
-    gen = torch.Generator().manual_seed(seed)
-    y = torch.randn(m, e, n, generator=gen, dtype=torch.float64)
-    y[:, : e // 4, : n // 2] *= 3          # some structure: heavier rows on half the fields
-    return y
-
-
 @pytest.mark.parametrize("n", [1, 2, 5, 12])
 def test_moment_gradient_equals_the_products(n):
-    y = _forms(2, 700, n, seed=n)
+    y = random_forms(2, 700, n, seed=n)
     y[1, 500:] = 0                          # the second mesh padded to the first's rows
     gen = torch.Generator().manual_seed(10 + n)
     al = torch.stack([untangle_mod.random_rotations(3, n, gen) for _ in range(2)])   # [2, 3, n, n]
@@ -52,7 +46,7 @@ def test_moment_gradient_equals_the_products(n):
 def test_moments_over_several_row_passes(n):
     """Rows taken in passes of up to 2048 (the last one partial) and every group of the
     quadruple blocks: each moment M_iklm (i any, k <= l <= m) equals the direct sum over rows."""
-    y = _forms(1, 4100, n, seed=20 + n)
+    y = random_forms(1, 4100, n, seed=20 + n)
     got = fourth_moments_mod.FourthMoments(y)
     k, l, m = got.triple_k, got.triple_l, got.triple_m
     want = torch.einsum("ei,ec->ic", y[0], y[0, :, k] * y[0, :, l] * y[0, :, m])
@@ -68,7 +62,7 @@ def test_moment_steps_reach_the_products_rotations():
     """The whole float64 iteration (SQUAREM, restarts stopping at different steps) from the
     moments against the products: the same step counts and rotations equal to far below the
     stopping tolerance."""
-    y = _forms(1, 900, 6, seed=4)
+    y = random_forms(1, 900, 6, seed=4)
     gen = torch.Generator().manual_seed(5)
     a = torch.cat([torch.eye(6, dtype=torch.float64)[None], untangle_mod.random_rotations(3, 6, gen)])[None]
     got, got_iters = horst_mod.horst(y, a, 1e-9, 500, torch.float64, moments=True)

@@ -4,17 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from torchakvf import shapes
 from torchakvf.mesh.clean import face_areas
-
-
-def _sphere_labels(level: int, k: int, seed: int):
-    """An icosphere's faces cut into k parts by random directions (nearest direction wins)."""
-    s = shapes.icosphere(level)
-    v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
-    rng = np.random.default_rng(seed)
-    bary = v[f].mean(1)
-    return v, f, np.argmax(bary @ rng.normal(size=(3, k)), axis=1)
+from helpers.partitions import sphere_labels
 
 
 def _generators_loop(labels, features, face_area, energies, n_parts, min_share=0.5):
@@ -34,7 +25,7 @@ def _generators_loop(labels, features, face_area, energies, n_parts, min_share=0
 @pytest.mark.parametrize("n_fields", [1, 2, 16])
 def test_part_generators_equal_a_masked_sum_per_part(n_fields):
     from torchakvf.parts.generators import part_generators
-    v, f, labels = _sphere_labels(3, 6, seed=n_fields)
+    v, f, labels = sphere_labels(3, 6, seed=n_fields)
     labels = labels.copy()
     labels[::23] = -1                                                # connecting region
     labels[labels == 5] = 9                                          # beyond n_parts: in no part

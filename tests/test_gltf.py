@@ -14,7 +14,7 @@ import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.io.gltf import face_count, parse_gltf
 
-from refusals import assert_refused, write_file
+from helpers.refusals import assert_refused, write_file
 
 
 def _two_mesh_scene():

@@ -16,6 +16,7 @@ from torchakvf.parts import graphcut as gc
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.graphcut import GraphCut, allowed_labels, energy, graphcut_labels, potts_expansion
 from torchakvf.parts.topology import face_adjacency
+from helpers.partitions import sphere_labels
 
 pytest.importorskip("gco", reason="gco-wrapper (a dependency: pip install -e .) not installed")
 
@@ -211,15 +212,6 @@ def test_a_part_the_cut_would_shrink_below_the_fraction_keeps_its_faces():
     np.testing.assert_array_equal(graphcut_labels(small, dist, d, area, opts, min_fraction=0.05) == 1, tip)
 
 
-def _sphere_labels(level: int, k: int, seed: int):
-    """An icosphere's faces cut into k parts by random directions (nearest direction wins)."""
-    s = shapes.icosphere(level)
-    v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
-    rng = np.random.default_rng(seed)
-    bary = v[f].mean(1)
-    return v, f, np.argmax(bary @ rng.normal(size=(3, k)), axis=1)
-
-
 def _allowed_by_products(labels, pairs, k, band):
     """The band by sparse products with (adjacency + identity), clipped to 1 each ring."""
     n = len(labels)
@@ -237,7 +229,7 @@ def _allowed_by_products(labels, pairs, k, band):
 
 @pytest.mark.parametrize("k,band", [(2, 0), (2, 1), (7, 3), (20, 6), (64, 2), (65, 4), (150, 6)])
 def test_allowed_labels_equals_sparse_products(k, band):
-    v, f, labels = _sphere_labels(3, k, seed=k + band)
+    v, f, labels = sphere_labels(3, k, seed=k + band)
     pairs = face_adjacency(f)
     np.testing.assert_array_equal(gc.allowed_labels(labels, pairs, k, band),
                                   _allowed_by_products(labels, pairs, k, band))
@@ -293,7 +285,7 @@ def _graphcut_inputs_full_size(labels, distances, dual, face_area, opts):
 
 @pytest.mark.parametrize("seed,k", [(0, 5), (1, 5), (2, 5), (3, 70)])
 def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed, k):
-    v, f, labels = _sphere_labels(3, k, seed)
+    v, f, labels = sphere_labels(3, k, seed)
     labels = labels.copy()
     rng = np.random.default_rng(seed)
     labels[rng.random(len(labels)) < 0.02] = -1                     # a few faces out of the cut
@@ -324,7 +316,7 @@ def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed, k):
 
 def test_corner_means_rows_are_barycenter_values_rows_and_cut_the_same():
     from torchakvf.parts.boundaries import barycenter_values
-    v, f, labels = _sphere_labels(3, 4, seed=8)
+    v, f, labels = sphere_labels(3, 4, seed=8)
     rng = np.random.default_rng(8)
     vdist = rng.random((len(v), 4))
     vdist[rng.random(vdist.shape) < 0.01] = np.inf

@@ -13,7 +13,7 @@ from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.evaluate import metrics as M
 from torchakvf.evaluate.harness import evaluate_psb, human_mode, parse_metrics
-from meshfiles import write_off, write_seg
+from helpers.meshfiles import write_off, write_seg
 
 
 #: cheap clustering for tests (the same in every call that shares an output folder)

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import torchakvf as ta
+from helpers.forms import random_forms
 
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
@@ -125,15 +126,8 @@ def test_horst_one_mesh_equals_the_batched_path(n, e, r, dtype, tol):
 fourth_moments_mod = importlib.import_module("torchakvf.fields.fourth_moments")
 
 
-def _forms(m: int, e: int, n: int, seed: int) -> torch.Tensor:
-    gen = torch.Generator().manual_seed(seed)
-    y = torch.randn(m, e, n, generator=gen, dtype=torch.float64)
-    y[:, : e // 4, : n // 2] *= 3          # some structure: heavier rows on half the fields
-    return y
-
-
 def test_the_moments_are_float64_steps():
-    y = _forms(1, 200, 4, seed=1)
+    y = random_forms(1, 200, 4, seed=1)
     assert isinstance(horst_mod.horst_gradient(y, 9, torch.float64, True), fourth_moments_mod.FourthMoments)
     assert isinstance(horst_mod.horst_gradient(y, 9, torch.float64, False), horst_mod.Products)
     with pytest.raises(ta.TorchAKVFError):

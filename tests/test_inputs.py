@@ -12,8 +12,8 @@ from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.pipeline.inputs import SkippedFile, assign_stems, discover_inputs, scan_inputs
 from torchakvf.pipeline.runner import run_corpus
-from faketask import FakeTask
-from meshfiles import write_off, write_small_corpus
+from helpers.faketask import FakeTask
+from helpers.meshfiles import write_off, write_small_corpus
 
 
 @pytest.fixture(scope="module")

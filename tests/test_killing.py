@@ -14,18 +14,14 @@ from torchakvf.operators import batch_geometry, killing_operator
 
 from torchakvf import scipy_reference as ref
 
-from operator_meshes import SHAPES, as_scipy, shape_meshes
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.operator_meshes import SHAPES, as_scipy, shape_meshes
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 
 @pytest.fixture(scope="module")
 def meshes():
     return shape_meshes()
-
-
-@pytest.fixture(scope="module")
-def batch(meshes):
-    return ta.MeshBatch.from_meshes([meshes[k] for k in SHAPES])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -59,7 +55,8 @@ def test_stiffness_matches_scipy_reference(meshes, name, bc):
         assert abs(Rt - R_other).max() <= 1e-12 * scale
 
 
-def test_stiffness_symmetric_whole_batch(batch):
+def test_stiffness_symmetric_whole_batch(meshes):
+    batch = ta.MeshBatch.from_meshes([meshes[k] for k in SHAPES])
     for bc in (True, False):
         R = as_scipy(killing_operator(batch, boundary_correction=bc, remedy="none").stiffness)
         assert abs(R - R.T).max() <= 1e-14 * abs(R).max()

@@ -13,8 +13,9 @@ from torchakvf import shapes
 
 from torchakvf import scipy_reference as ref
 
-from eigen_checks import PAPER, clusters, mesh_of, s1_principal_cosines, scipy_matrices
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.eigen_checks import PAPER, clusters, mesh_of, s1_principal_cosines, scipy_matrices
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 
 def _eigen_bounds(lam_ref: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

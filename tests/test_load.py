@@ -11,7 +11,8 @@ import trimesh
 import torchakvf as ta
 from torchakvf import shapes
 
-from refusals import assert_refused, write_file
+from helpers.refusals import assert_refused, write_file
+from helpers.meshfiles import off_text
 
 
 @pytest.fixture(scope="module")
@@ -20,14 +21,6 @@ def ico2_shuffled():
     s = shapes.icosphere(2)
     perm = np.random.default_rng(7).permutation(len(s.faces))
     return s.vertices, s.faces[perm]
-
-
-def _off_text(vertices, faces, header_inline=False):
-    head = f"OFF {len(vertices)} {len(faces)} 0\n" if header_inline else \
-        f"OFF\n# a comment line\n{len(vertices)} {len(faces)} 0\n"
-    body = "".join(f"{float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in vertices)
-    body += "".join(f"3 {a} {b} {c}\n" for a, b, c in faces)
-    return head + body
 
 
 @pytest.mark.parametrize("ext,kw", [("off", {}), ("obj", {}), ("ply", {}),
@@ -61,12 +54,12 @@ def test_load_stl_soup_keeps_face_order(tmp_path, ico2_shuffled):
 def test_load_hand_written_off_and_gzip(tmp_path, ico2_shuffled):
     V, F = ico2_shuffled
     for inline in (False, True):
-        p = write_file(tmp_path / f"h{int(inline)}.off", _off_text(V, F, inline))
+        p = write_file(tmp_path / f"h{int(inline)}.off", off_text(V, F, inline))
         m = ta.load_mesh(p)
         np.testing.assert_array_equal(m.faces, F)
         np.testing.assert_array_equal(m.vertices, V)     # repr round-trips exactly
     gz = tmp_path / "h.off.gz"
-    gz.write_bytes(gzip.compress(_off_text(V, F).encode()))
+    gz.write_bytes(gzip.compress(off_text(V, F).encode()))
     m = ta.load_mesh(gz)
     assert m.name == str(gz)
     np.testing.assert_array_equal(m.faces, F)
@@ -76,7 +69,6 @@ def test_load_hand_written_off_and_gzip(tmp_path, ico2_shuffled):
     trimesh.Trimesh(V, F, process=False).export(obj)
     (tmp_path / "h.obj.gz").write_bytes(gzip.compress(obj.read_bytes()))
     np.testing.assert_array_equal(ta.load_mesh(tmp_path / "h.obj.gz").faces, F)
-
 
 
 def test_load_ascii_stl_keeps_face_order(tmp_path, ico2_shuffled):

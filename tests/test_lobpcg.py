@@ -9,8 +9,9 @@ import torch
 import torchakvf as ta
 from torchakvf import shapes
 
-from eigen_checks import PAPER, batch_with_a_low_mesh, clusters, mesh_of, s1_principal_cosines
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.eigen_checks import PAPER, batch_with_a_low_mesh, clusters, mesh_of, s1_principal_cosines
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 
 def test_lobpcg_block_factor_equals_per_mesh_factors():

@@ -20,6 +20,7 @@ from torchakvf.parts.merge import (MergeWeights, RegionGraph, boundary_bends, gr
                                    merge_parts, merged_distances, next_merge_cost, oversegment_k,
                                    partition_cost, region_graph, unit_rows)
 from torchakvf.parts.topology import face_adjacency
+from helpers.partitions import sphere_labels
 
 
 def hinge(fold: float):
@@ -274,15 +275,6 @@ def test_region_graph_equals_a_plain_loop_over_the_dual_edges():
     np.testing.assert_allclose(partition_cost(labels, feats), cost, rtol=1e-12)
 
 
-def _sphere_labels(level: int, k: int, seed: int):
-    """An icosphere's faces cut into k parts by random directions (nearest direction wins)."""
-    s = shapes.icosphere(level)
-    v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
-    rng = np.random.default_rng(seed)
-    bary = v[f].mean(1)
-    return v, f, np.argmax(bary @ rng.normal(size=(3, k)), axis=1)
-
-
 def test_unit_rows_of_a_subset_are_the_subset_of_unit_rows():
     rng = np.random.default_rng(2)
     x = rng.normal(size=(400, 19)) * rng.choice([1e-6, 1.0, 1e6], size=(400, 1))
@@ -303,7 +295,7 @@ def _partition_cost_plain(labels, feats):
 
 
 def test_region_graph_and_costs_with_shared_arrays_are_those_computed_afresh():
-    v, f, labels = _sphere_labels(3, 9, seed=4)
+    v, f, labels = sphere_labels(3, 9, seed=4)
     labels = labels * 3 - 1                                          # ids -1, 2, 5, ...: gaps, one unlabelled
     dual = dual_edges(v, f)
     area = face_areas(v, f)

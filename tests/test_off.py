@@ -10,7 +10,7 @@ import pytest
 import torchakvf as ta
 from torchakvf import shapes
 
-from refusals import assert_refused, write_file
+from helpers.refusals import assert_refused, write_file
 
 _TRI = "0 0 0\n1 0 0\n0 1 0\n"
 _RNG_BYTES = np.random.default_rng(0).bytes(600)

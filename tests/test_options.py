@@ -7,7 +7,6 @@ import pytest
 
 import torchakvf as ta
 from torchakvf import options, shapes
-from torchakvf.cluster import spherical_kmeans
 from torchakvf.errors import ParameterError
 from torchakvf.parts import field_counts, rounds
 from torchakvf.parts.merge import MergeWeights
@@ -29,13 +28,6 @@ def test_segment_options_take_the_api_graphcut_values():
     assert options.SegmentOptions(graphcut=GraphCut(band=3)).graphcut == GraphCut(band=3)
     with pytest.raises(ParameterError, match="graphcut"):
         options.SegmentOptions(graphcut="yes")
-
-
-@pytest.fixture(scope="module")
-def fields():
-    meshes = [ta.Mesh(s.vertices, s.faces, name=n) for n, s in
-              (("blobs", shapes.three_blobs(n_around=20)), ("dumbbell", shapes.BUILTIN_SHAPES["dumbbell"]()))]
-    return ta.akvf(ta.MeshBatch.from_meshes(meshes), n=24, remedy="smooth")
 
 
 def test_kmeans_restarts_default_by_method(fields, monkeypatch):

@@ -10,20 +10,14 @@ import numpy as np
 import pytest
 
 import torchakvf as ta
-from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.pipeline import outdir
 from torchakvf.pipeline.runner import run_corpus
-from faketask import FakeTask, assert_one_line_error
-from meshfiles import write_off
+from helpers.faketask import FakeTask, assert_one_line_error
+from helpers.runs import small_meshes
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1", PYTHONPATH=str(REPO))
-
-
-def small_meshes(root: Path, names=("a", "b", "c"), level: int = 1) -> list[Path]:
-    s = shapes.icosphere(level)
-    return [write_off(root / f"{n}.off", s.vertices, s.faces) for n in names]
 
 
 @pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])

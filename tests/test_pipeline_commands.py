@@ -10,31 +10,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from torchakvf import cli, shapes
-from torchakvf.io.manifest import read_manifest
-from faketask import assert_one_line_error
-from meshfiles import write_off
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from torchakvf import shapes
+from helpers.faketask import assert_one_line_error
+from helpers.meshfiles import write_off
+from helpers.runs import by_stem, cli_run
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
-
-
-def run_cli(argv, capsys):
-    rc = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def manifest_by_stem(out: Path) -> dict:
-    return {r["stem"]: r for r in read_manifest(out).values()}
 
 
 def test_segment_end_to_end(tmp_path, capsys):
     s = shapes.dumbbell(n_around=18)
     src = write_off(tmp_path / "in" / "dumb.off", s.vertices, s.faces)
     out = tmp_path / "segs"
-    rc, stdout, err = run_cli(["segment", str(src), "-k", "2", "--out", str(out), "--n-fields", "8",
+    rc, stdout, err = cli_run(["segment", str(src), "-k", "2", "--out", str(out), "--n-fields", "8",
                                "--formats", "seg,npz,ply"], capsys)
     assert rc == 0, err
     assert "1 ok, 0 failed" in stdout
@@ -44,10 +35,10 @@ def test_segment_end_to_end(tmp_path, capsys):
     from torchakvf.evaluate.metrics import matched_agreement
     assert matched_agreement(labels, s.part_labels) >= 0.95
     assert (out / "dumb.ply").exists() and not (out / "dumb.png").exists()
-    rec = manifest_by_stem(out)["dumb"]
+    rec = by_stem(out)["dumb"]
     assert rec["status"] == "ok" and set(rec["seconds"]) == {"load", "akvf", "untangle", "cluster", "write"}
     assert rec["params"]["solver"] == "auto" and rec["params"]["method"] == "merge"   # the defaults
-    rc, stdout, _ = run_cli(["segment", str(src), "-k", "2", "--out", str(out), "--n-fields", "8",
+    rc, stdout, _ = cli_run(["segment", str(src), "-k", "2", "--out", str(out), "--n-fields", "8",
                              "--formats", "seg,npz,ply"], capsys)
     assert rc == 0 and "1 skipped" in stdout
 
@@ -73,7 +64,7 @@ def test_cli_user_errors_are_one_line(tmp_path, capsys, argv, message):
     s = shapes.icosphere(1)
     src = write_off(tmp_path / "m.off", s.vertices, s.faces)
     argv = [a.format(tmp=tmp_path, src=src) for a in argv]
-    rc, out, err = run_cli(argv, capsys)
+    rc, out, err = cli_run(argv, capsys)
     assert rc == 2
     assert_one_line_error(err, message.format(src=src))
     assert not (tmp_path / "o").exists()   # nothing created before the arguments are checked
@@ -94,9 +85,9 @@ def test_cli_unwritable_out_in_subprocess(tmp_path):
 def test_k_larger_than_faces_fails_that_mesh(tmp_path, capsys):
     s = shapes.icosphere(1)   # 80 faces
     src = write_off(tmp_path / "m.off", s.vertices, s.faces)
-    rc, out, err = run_cli(["segment", str(src), "-k", "100", "--out", str(tmp_path / "o")], capsys)
+    rc, out, err = cli_run(["segment", str(src), "-k", "100", "--out", str(tmp_path / "o")], capsys)
     assert rc == 1
     assert "0 ok, 1 failed" in out and "larger than the mesh's 80 faces" in out
-    rec = manifest_by_stem(tmp_path / "o")["m"]
+    rec = by_stem(tmp_path / "o")["m"]
     assert rec["status"] == "failed" and "-k 100" in rec["error"]
     assert "Traceback" not in err

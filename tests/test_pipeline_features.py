@@ -2,35 +2,20 @@
 content cache)."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import torchakvf as ta
-from torchakvf import cli, shapes
-from torchakvf.io.manifest import read_manifest
+from torchakvf import shapes
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.runner import run_corpus
-from meshfiles import write_off
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.meshfiles import write_off
+from helpers.runs import by_stem, cli_run, small_meshes
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 N = 8
-
-
-def small_meshes(root: Path, names=("a", "b", "c"), level: int = 1) -> list[Path]:
-    s = shapes.icosphere(level)
-    return [write_off(root / f"{n}.off", s.vertices, s.faces) for n in names]
-
-
-def by_stem(out: Path) -> dict:
-    return {r["stem"]: r for r in read_manifest(out).values()}
-
-
-def cli_run(argv, capsys):
-    rc = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 def test_features_refuses_a_big_mesh_up_front(tmp_path, capsys):

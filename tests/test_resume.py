@@ -12,33 +12,20 @@ import numpy as np
 import pytest
 
 import torchakvf as ta
-from torchakvf import cli, shapes
+from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest, read_manifest_records
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.runner import run_corpus
 from torchakvf.pipeline.segment_task import SegmentTask
-from faketask import FakeTask, assert_one_line_error
-from meshfiles import write_off
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.faketask import FakeTask, assert_one_line_error
+from helpers.meshfiles import write_off
+from helpers.runs import by_stem, cli_run, small_meshes
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1", PYTHONPATH=str(REPO))
-
-
-def by_stem(out: Path) -> dict:
-    return {r["stem"]: r for r in read_manifest(out).values()}
-
-
-def small_meshes(root: Path, names=("a", "b", "c"), level: int = 1) -> list[Path]:
-    s = shapes.icosphere(level)
-    return [write_off(root / f"{n}.off", s.vertices, s.faces) for n in names]
-
-
-def cli_run(argv, capsys):
-    rc = cli.main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 # ---- stale results ------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """Rounds of a segmentation (:mod:`torchakvf.parts.rounds`): each mesh untangled once per field
 count and clustered once per (fields, clusters), k's below the merge floor sharing one k-means,
-per-mesh caches kept only while a later k shares them, and warm-started rounds."""
+per-mesh caches kept only while a later k shares them, warm-started rounds, and a mesh's
+segmentation in a batch bitwise that of the mesh alone."""
 from __future__ import annotations
 
 import importlib
@@ -15,16 +16,10 @@ from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh.batch import pad_packed
 from torchakvf.options import SegmentOptions
 from torchakvf.parts import cut, field_counts, rounds, segment_each_k
+from torchakvf.parts.field_counts import akvf_count
 from torchakvf.parts.merge import MergeWeights
 from torchakvf.parts.rounds import previous_centroids, segment_rounds
 from torchakvf.restarts import best_restart
-
-
-@pytest.fixture(scope="module")
-def fields():
-    meshes = [ta.Mesh(s.vertices, s.faces, name=n) for n, s in
-              (("blobs", shapes.three_blobs(n_around=20)), ("dumbbell", shapes.BUILTIN_SHAPES["dumbbell"]()))]
-    return ta.akvf(ta.MeshBatch.from_meshes(meshes), n=24, remedy="smooth")
 
 
 def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
@@ -257,3 +252,40 @@ def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
                                                               merge=MergeWeights(min_k=1))))
     assert [(c[0], c[1]) for c in calls] == [(SegmentOptions().kmeans_restarts, None)] * 2
     assert SegmentOptions().kmeans_seeded_restarts == 0   # off by default
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """Three meshes solved in one batch and each alone, at enough fields for every k below."""
+    ms = [ta.Mesh(s.vertices, s.faces, name=s.name)
+          for s in (shapes.three_blobs(n_around=20), shapes.dumbbell(), shapes.sphere_with_two_ellipsoids())]
+    n = akvf_count([[9]])                       # 32 fields + spare: every k below fits
+    batch = ta.akvf(ta.MeshBatch.from_meshes(ms), n=n, remedy="smooth")
+    alone = [ta.akvf(m, n=n, remedy="smooth") for m in ms]
+    return ms, batch, alone
+
+
+def test_batched_rounds_equal_each_mesh_alone(solved):
+    """A mesh segmented in a batch gets the bits it gets alone (batching must not change
+    answers): meshes of one round at different field counts and cluster counts, so the round's
+    arrays are padded past each mesh's own."""
+    ms, batch, alone = solved
+    for b, f in enumerate(alone):   # the batched eigensolve's fields are each mesh's own
+        e0, e1 = int(batch.batch.edge_ptr[b]), int(batch.batch.edge_ptr[b + 1])
+        assert torch.equal(batch.forms[e0:e1], f.forms)
+    # round 0: n 32 / 24 / 24 and k' 27 / 24 / 24; round 1: mesh 1 sits out; round 2: mesh 0 alone
+    ks = [[9, 3, 10], [2], [5, 12]]
+    opts = SegmentOptions(seed=0, refine=False)
+    together = {}
+    for rnd in segment_rounds(batch, ks, opts):
+        assert rnd.untangled.n == max(int(v) for v in rnd.untangled.n_fields)
+        for b in rnd.active:
+            together[(b, rnd.ks[b])] = rnd.meshes[b]
+    for b, f in enumerate(alone):
+        for rnd in segment_rounds(f, [ks[b]], opts):
+            one, many = rnd.meshes[0], together[(b, rnd.ks[0])]
+            np.testing.assert_array_equal(many.labels, one.labels)
+            assert many.cost == one.cost
+            assert many.features.shape == one.features.shape
+            assert np.array_equal(many.features, one.features)
+            assert many.generators == one.generators     # from the untangled fields' energies

@@ -22,9 +22,11 @@ from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest
 from torchakvf.pipeline.inputs import discover_inputs
 from torchakvf.pipeline.resume import prepare
 from torchakvf.pipeline.runner import run_corpus
-from faketask import FakeTask
-from meshfiles import write_off, write_small_corpus
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.faketask import FakeTask
+from helpers.meshfiles import write_off, write_small_corpus
+from helpers.runs import by_stem
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 REPO = Path(__file__).resolve().parents[1]
 N = 8
@@ -42,12 +44,6 @@ def corpus(tmp_path_factory) -> Path:
     return root
 
 
-def run_cli(argv, capsys):
-    rc = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
 @pytest.fixture(scope="module")
 def reference(corpus, tmp_path_factory) -> Path:
     """An uninterrupted ``torchakvf features`` run over the corpus (through the CLI)."""
@@ -56,10 +52,6 @@ def reference(corpus, tmp_path_factory) -> Path:
                    "--batch-faces", str(BUDGET)])
     assert rc == 1  # the broken file failed, the others did not
     return out
-
-
-def manifest_by_stem(out: Path) -> dict:
-    return {r["stem"]: r for r in read_manifest(out).values()}
 
 
 def assert_same_outputs(a: Path, b: Path, stems, exact=True) -> None:
@@ -77,7 +69,7 @@ def assert_same_outputs(a: Path, b: Path, stems, exact=True) -> None:
 
 
 def test_broken_file_fails_alone(reference):
-    recs = manifest_by_stem(reference)
+    recs = by_stem(reference)
     assert recs["broken"]["status"] == "failed"
     assert "broken.off" in recs["broken"]["error"] and "OFF" in recs["broken"]["error"]
     assert not (reference / "broken.npz").exists()
@@ -170,7 +162,7 @@ def test_killed_process_then_resume(corpus, reference, tmp_path, sig, code):
     assert not list(out.glob(".*.tmp"))
     rc = cli.main(["features", str(corpus), "--out", str(out), "--n", str(N), "--batch-faces", str(BUDGET)])
     assert rc == 1
-    recs = manifest_by_stem(out)
+    recs = by_stem(out)
     assert {s for s, r in recs.items() if r["status"] == "ok"} == {"ico", "ell", "dumb"}
     assert_same_outputs(out, reference, ["ico", "ell", "dumb"], exact=True)
     for stem in ("ico", "ell", "dumb"):
@@ -227,7 +219,7 @@ def test_torn_manifest_line_is_ignored(tmp_path):
 
 
 def test_features_npz_plain_arrays_in_input_face_order(corpus, reference):
-    recs = manifest_by_stem(reference)
+    recs = by_stem(reference)
     assert {s for s, r in recs.items() if r["status"] == "ok"} == {"ico", "ell", "dumb"}
     for stem, src in [("ico", corpus / "ico.off"), ("ell", corpus / "ell.off"),
                       ("dumb", corpus / "sub" / "dumb.off")]:

@@ -12,7 +12,7 @@ import trimesh
 
 from torchakvf import scipy_reference as ref
 
-from planar_meshes import golden_disk
+from helpers.planar_meshes import golden_disk
 
 
 # ---------------------------------------------------------------------------------------------------------------

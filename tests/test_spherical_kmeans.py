@@ -1,6 +1,7 @@
 """Batched spherical k-means (:mod:`torchakvf.cluster.spherical_kmeans`): a hand case, the
 one-mesh CPU Lloyd path against the batched one (bitwise), a mesh's clustering independent of
-its batch, and warm starts from given centers (``init``)."""
+its batch, each mesh's seeding that of the batch, warm starts from given centers (``init``), and
+float32 iterations against float64."""
 from __future__ import annotations
 
 import importlib
@@ -9,7 +10,6 @@ import pytest
 import torch
 
 import torchakvf as ta
-from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.cluster.spherical_kmeans import lloyd
 from torchakvf.errors import ParameterError
@@ -114,13 +114,6 @@ def test_spherical_kmeans_equals_the_batched_path(monkeypatch):
         assert torch.equal(getattr(fast, name), getattr(ref, name)), name
 
 
-@pytest.fixture(scope="module")
-def fields():
-    meshes = [ta.Mesh(s.vertices, s.faces, name=n) for n, s in
-              (("blobs", shapes.three_blobs(n_around=20)), ("dumbbell", shapes.BUILTIN_SHAPES["dumbbell"]()))]
-    return ta.akvf(ta.MeshBatch.from_meshes(meshes), n=24, remedy="smooth")
-
-
 def test_kmeans_of_a_mesh_does_not_depend_on_its_batch(fields):
     """Mesh b clustered in a batch (other k beside it) and alone: the same labels, centers, cost."""
     unt = ta.untangle(fields, n=16, seed=0, restarts=2)
@@ -218,3 +211,62 @@ def test_bad_init_is_a_parameter_error():
         spherical_kmeans(x, mask, 3, restarts=2, init=[None, None])
     with pytest.raises(ParameterError):
         SegmentOptions(kmeans_seeded_restarts=-1)
+
+
+def test_kmeans_seeding_per_mesh_equals_the_batched_seeding():
+    """On CPU each mesh of a batch seeds its own k centers; the centers, and so the clustering,
+    are those of the batched seeding (which the other devices keep)."""
+    from torchakvf.cluster.spherical_kmeans import kmeanspp
+    g = torch.Generator().manual_seed(3)
+    x = torch.nn.functional.normalize(torch.randn(3, 50, 4, generator=g, dtype=torch.float64), dim=-1)
+    w = torch.ones(3, 50, dtype=torch.float64)
+    w[1, 40:] = 0                                                     # a shorter mesh
+    x = x * (w > 0)[..., None]
+    ks = [5, 2, 9]
+    u = torch.rand(3, 4, 9, generator=g, dtype=torch.float64)
+    ok = torch.arange(9)[None, :] < torch.tensor(ks)[:, None]
+    batched = kmeanspp(x, w, u, ok)
+    for b, k in enumerate(ks):
+        own = kmeanspp(x[b:b + 1], w[b:b + 1], u[b:b + 1, :, :k], ok[b:b + 1, :k])
+        assert torch.equal(own[0], batched[b, :, :k])
+    mask = w > 0
+    km = spherical_kmeans(x, mask, ks, restarts=4, seed=0)
+    for b, k in enumerate(ks):
+        one = spherical_kmeans(x[b:b + 1], mask[b:b + 1], [k], restarts=4, seed=0)
+        assert torch.equal(km.labels[b], one.labels[0]) and torch.equal(km.cost[b], one.cost[0])
+
+
+def _is_lloyd_fixed_point(x, mask, res, k) -> bool:
+    """The centers are the normalized (unit-weight) means of their clusters, and every row is
+    assigned to its nearest center, in float64."""
+    xn = torch.nn.functional.normalize(x.double(), dim=-1)
+    for b in range(x.shape[0]):
+        rows, lab, c = xn[b][mask[b]], res.labels[b][mask[b]], res.centers[b, :k].double()
+        sums = torch.zeros_like(c).index_add_(0, lab, rows)
+        means = torch.nn.functional.normalize(sums, dim=-1)
+        if not torch.allclose(means, c, atol=1e-10):
+            return False
+        if not bool(((rows @ c.T).argmax(dim=1) == lab).all()):
+            return False
+    return True
+
+
+def test_kmeans_float32_iterations_give_float64_labels(blobs_and_bent, blobs_and_bent_float64):
+    """float32 Lloyd iterations (then float64 to the end) reach a float64 fixed point with the
+    float64 path's labels and cost, with any thread count."""
+    x, mask = pad_packed(blobs_and_bent_float64.features.double(), blobs_and_bent.batch.face_ptr)
+    for k in (3, 9):
+        a = spherical_kmeans(x, mask, k, seed=0, restarts=10, iteration_dtype=torch.float64)
+        for threads in (None, 1):
+            saved = torch.get_num_threads()
+            if threads:
+                torch.set_num_threads(threads)
+            try:
+                b = spherical_kmeans(x, mask, k, seed=0, restarts=10, iteration_dtype=torch.float32)
+            finally:
+                torch.set_num_threads(saved)
+            assert b.centers.dtype == torch.float64
+            assert _is_lloyd_fixed_point(x, mask, b, k), (k, threads)
+            agree = (a.labels == b.labels)[mask].double().mean().item()
+            assert agree > 0.99, (k, threads, agree)
+            assert torch.allclose(a.cost, b.cost, rtol=1e-4), (k, threads)

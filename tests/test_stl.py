@@ -10,7 +10,7 @@ import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.io.stl import is_binary
 
-from refusals import assert_refused, write_file
+from helpers.refusals import assert_refused, write_file
 
 _FACET = "facet normal 0 0 1\n outer loop\n  vertex 0 0 0\n  vertex 1 0 0\n  vertex 0 1 0\n endloop\nendfacet\n"
 _RNG_BYTES = np.random.default_rng(0).bytes(600)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 import torch
 
 import torchakvf as ta
@@ -12,8 +13,9 @@ from torchakvf import shapes
 from torchakvf.fields import whitney_face_vectors
 from torchakvf.operators import batch_geometry, d0
 
-from eigen_checks import mesh_of
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+from helpers.eigen_checks import mesh_of
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 
 def test_whitney_of_exact_form_is_the_gradient():

@@ -8,7 +8,7 @@ import torch
 import torchakvf as ta
 from torchakvf import shapes
 
-from planar_meshes import golden_disk
+from helpers.planar_meshes import golden_disk
 
 #: name -> (vertices, faces) maker
 SHAPES = {

@@ -46,3 +46,13 @@ def write_small_corpus(root: Path, degenerate_face: bool = False) -> Path:
     write_off(root / "sub" / "dumb.off", dumb.vertices, dumb.faces)
     (root / "broken.off").write_bytes(b"\x00\x9f garbage \xff" * 20)
     return root
+
+
+def off_text(vertices, faces, header_inline: bool = False) -> str:
+    """An ASCII OFF file's text: a comment line after the ``OFF`` line, or the counts on the
+    ``OFF`` line itself when ``header_inline``; coordinates round-trip exactly."""
+    head = f"OFF {len(vertices)} {len(faces)} 0\n" if header_inline else \
+        f"OFF\n# a comment line\n{len(vertices)} {len(faces)} 0\n"
+    body = "".join(f"{float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in vertices)
+    body += "".join(f"3 {a} {b} {c}\n" for a, b, c in faces)
+    return head + body

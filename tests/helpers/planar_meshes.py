@@ -1,4 +1,4 @@
-"""Planar test meshes shared by the operator and reference tests: ``from planar_meshes import golden_disk``."""
+"""Planar test meshes shared by the operator and reference tests: ``from helpers.planar_meshes import golden_disk``."""
 from __future__ import annotations
 
 import numpy as np
