@@ -1,4 +1,6 @@
-"""Seeded mutations of valid files in every format read: each file is either read with exactly
+"""The formats fuzz test, named for what it does: it spans every reader in torchakvf.io at once.
+
+Seeded mutations of valid files in every format read: each file is either read with exactly
 the faces it declares (counted here, independently of the readers) or refused with a one-line
 MeshError naming it; the clean-up of what is read raises nothing else either."""
 from __future__ import annotations

@@ -80,7 +80,7 @@ def test_moment_steps_reach_the_products_rotations():
                                                (6000, 16, 100, True), (45594, 32, 40, False),
                                                (500, 16, 200, False)])
 def test_the_size_rule(e, n, steps, moments):
-    """Where each way was measured faster (benchmarks/results/untangle_moments.md): the moments
+    """Where each way was measured faster (experiments/results/untangle_moments.md): the moments
     for long meshes, few fields and many steps (their one-time cost must be earned back), the
     products for short meshes with many fields."""
     assert fourth_moments_mod.fourth_moments_pay(e, n, steps) is moments

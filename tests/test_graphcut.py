@@ -251,12 +251,9 @@ def _graphcut_inputs_full_size(labels, distances, dual, face_area, opts):
     """What graphcut_labels hands gco, built the straightforward way: the data terms of every
     labelled face, the fixed faces' edges folded in, then the band's rows taken."""
     k = distances.shape[1]
-    sites = np.flatnonzero(labels >= 0)
-    index = np.full(len(labels), -1, dtype=np.int64)
-    index[sites] = np.arange(len(sites))
-    pa, pb = index[dual.pairs[:, 0]], index[dual.pairs[:, 1]]
-    inside = (pa >= 0) & (pb >= 0)
-    pairs = np.stack([pa[inside], pb[inside]], axis=1)
+    sites = np.flatnonzero(labels >= 0)                     # sorted: a site's row by bisection
+    inside = (labels[dual.pairs] >= 0).all(axis=1)          # dual edges between two labelled faces
+    pairs = np.searchsorted(sites, dual.pairs[inside]).reshape(-1, 2)
     w = opts.smoothness * gc.edge_weights(dual, opts)[inside]
     area = np.asarray(face_area, dtype=np.float64)[sites]
     d = np.asarray(distances, dtype=np.float64)[sites]
