@@ -3,12 +3,13 @@ SurfaceIndex exact against brute force (ties, slivers, points off the surface), 
 fallback without libigl."""
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
 from torchakvf import shapes
 from torchakvf.errors import ParameterError
-from torchakvf.mesh import surface_map
 from torchakvf.mesh.surface_map import SurfaceIndex, closest_barycentric, libigl_available, locate_on_surface
 
 #: The closest-point searches of SurfaceIndex; "aabb" needs libigl.
@@ -161,7 +162,7 @@ def test_surface_index_search_is_checked(monkeypatch):
     s = shapes.icosphere(1)
     with pytest.raises(ParameterError, match="search"):
         SurfaceIndex(s.vertices, s.faces, search="bvh")
-    monkeypatch.setattr(surface_map, "_igl", lambda: None)
+    monkeypatch.setitem(sys.modules, "igl", None)                     # libigl not importable
     with pytest.raises(ParameterError, match="libigl"):
         SurfaceIndex(s.vertices, s.faces, search="aabb")
     assert SurfaceIndex(s.vertices, s.faces).search == "samples"      # the fallback without it
