@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -107,3 +108,13 @@ def blobs_and_bent_float64(blobs_and_bent):
     """``blobs_and_bent`` untangled to 16 fields with float64 iterations throughout."""
     import torchakvf as ta
     return ta.untangle(blobs_and_bent, n=16, seed=0, iteration_dtype=torch.float64)
+
+
+@pytest.fixture(scope="module")
+def ico2_shuffled():
+    """icosphere(2) (vertices, faces) with its faces in a random order (so "order kept" is a
+    real check)."""
+    from torchakvf import shapes
+    s = shapes.icosphere(2)
+    perm = np.random.default_rng(7).permutation(len(s.faces))
+    return s.vertices, s.faces[perm]

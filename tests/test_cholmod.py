@@ -15,7 +15,6 @@ from torchakvf import shapes
 from torchakvf.solvers import cholmod
 from torchakvf.solvers.factor import ShiftedFactor
 
-
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 needs_cholmod = pytest.mark.skipif(cholmod.library() is None,

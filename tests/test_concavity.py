@@ -9,14 +9,7 @@ from torchakvf import shapes
 from torchakvf.parts.concavity import crease_weights, dual_edges
 from torchakvf.parts.merge import region_graph
 from torchakvf.parts.topology import face_adjacency
-
-
-def hinge(fold: float):
-    """Two unit right triangles sharing the edge (0,0,0)-(1,0,0); the first lies in z = 0 with
-    normal +z, the second is rotated about the x axis by ``fold`` (> 0 folds it up: a valley)."""
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, -1, 0], [0, np.cos(fold), np.sin(fold)]], dtype=float)
-    f = np.array([[1, 0, 2], [0, 1, 3]])   # both counter-clockwise seen from +z when flat
-    return v, f
+from helpers.planar_meshes import hinge
 
 
 @pytest.mark.parametrize("fold,expected", [(np.pi / 2, np.pi / 2), (-np.pi / 3, -np.pi / 3), (0.0, 0.0)])

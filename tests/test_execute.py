@@ -2,7 +2,6 @@
 bug ends the run, a failing batch is retried one mesh at a time."""
 from __future__ import annotations
 
-
 import pytest
 
 from torchakvf import shapes

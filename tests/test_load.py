@@ -9,18 +9,9 @@ import pytest
 import trimesh
 
 import torchakvf as ta
-from torchakvf import shapes
 
 from helpers.refusals import assert_refused, write_file
 from helpers.meshfiles import off_text
-
-
-@pytest.fixture(scope="module")
-def ico2_shuffled():
-    """icosphere(2) with its faces in a random order (so 'order kept' is a real check)."""
-    s = shapes.icosphere(2)
-    perm = np.random.default_rng(7).permutation(len(s.faces))
-    return s.vertices, s.faces[perm]
 
 
 @pytest.mark.parametrize("ext,kw", [("off", {}), ("obj", {}), ("ply", {}),

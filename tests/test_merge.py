@@ -21,14 +21,7 @@ from torchakvf.parts.merge import (MergeWeights, RegionGraph, boundary_bends, gr
                                    partition_cost, region_graph, unit_rows)
 from torchakvf.parts.topology import face_adjacency
 from helpers.partitions import sphere_labels
-
-
-def hinge(fold: float):
-    """Two unit right triangles sharing the edge (0,0,0)-(1,0,0); the first lies in z = 0 with
-    normal +z, the second is rotated about the x axis by ``fold`` (> 0 folds it up: a valley)."""
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, -1, 0], [0, np.cos(fold), np.sin(fold)]], dtype=float)
-    f = np.array([[1, 0, 2], [0, 1, 3]])   # both counter-clockwise seen from +z when flat
-    return v, f
+from helpers.planar_meshes import hinge
 
 
 def test_region_graph_of_the_hinge_by_hand():

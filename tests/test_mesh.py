@@ -9,15 +9,6 @@ import pytest
 import torch
 
 import torchakvf as ta
-from torchakvf import shapes
-
-
-@pytest.fixture(scope="module")
-def ico2_shuffled():
-    """icosphere(2) with its faces in a random order."""
-    s = shapes.icosphere(2)
-    perm = np.random.default_rng(7).permutation(len(s.faces))
-    return s.vertices, s.faces[perm]
 
 
 def test_mesh_from_numpy_and_torch(ico2_shuffled):

@@ -2,7 +2,6 @@
 content cache)."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 

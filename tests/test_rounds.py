@@ -155,10 +155,6 @@ def test_segment_rounds_with_caches_kept_across_k_equal_one_k_at_a_time(monkeypa
     k' = 3 min_k, one over-segmentation) gives each k's labels and costs as a solve-free run at
     that k alone (fresh caches)."""
     pytest.importorskip("gco")
-    import torchakvf as ta
-    from torchakvf.options import SegmentOptions
-    from torchakvf.parts import cut, rounds
-    from torchakvf.parts.rounds import segment_rounds
 
     s = shapes.three_blobs(n_around=20)
     batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="blobs")])
@@ -181,10 +177,6 @@ def test_segment_rounds_drops_an_over_segmentation_no_later_k_shares(monkeypatch
     alike: after k = 2 (k = 3 next, the same k-means) it stays, after k = 3 (k = 9 next, other
     fields and clusters) and after a mesh's last k it goes."""
     pytest.importorskip("gco")
-    import torchakvf as ta
-    from torchakvf.options import SegmentOptions
-    from torchakvf.parts import cut, rounds
-    from torchakvf.parts.rounds import segment_rounds
 
     s = shapes.three_blobs(n_around=20)
     batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="a"), ta.Mesh(s.vertices, s.faces, name="b")])

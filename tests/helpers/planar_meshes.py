@@ -1,4 +1,5 @@
-"""Planar test meshes shared by the operator and reference tests: ``from helpers.planar_meshes import golden_disk``."""
+"""Planar test meshes: a disk for the operator and reference tests, a folded pair of triangles
+(``hinge``) for the dihedral-angle and merge tests."""
 from __future__ import annotations
 
 import numpy as np
@@ -22,3 +23,11 @@ def golden_disk(n_rings: int = 12):
     flip = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])[:, 2] < 0
     F[flip] = F[flip][:, ::-1]  # consistent orientation: interior left of the boundary
     return V, F
+
+
+def hinge(fold: float):
+    """Two unit right triangles sharing the edge (0,0,0)-(1,0,0); the first lies in z = 0 with
+    normal +z, the second is rotated about the x axis by ``fold`` (> 0 folds it up: a valley)."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, -1, 0], [0, np.cos(fold), np.sin(fold)]], dtype=float)
+    f = np.array([[1, 0, 2], [0, 1, 3]])   # both counter-clockwise seen from +z when flat
+    return v, f
