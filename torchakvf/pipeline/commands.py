@@ -101,6 +101,9 @@ def _add_segment(sub) -> None:
                    help=f"solve on meshes decimated to about N faces and cut the parts on the "
                         f"originals (default {DEFAULT_COARSE_FACES}, measured on the PSB; 0: full "
                         "resolution)")
+    p.add_argument("--subdivide", action="store_true",
+                   help="subdivide a mesh with too few edges for its fields (a 12-face cube at -k 5) "
+                        "at its edge midpoints until it has enough; labels stay one per face of the file")
     add_solver_argument(p, default="auto")
     add_graph_cut_argument(p)
     add_method_argument(p, DEFAULT_METHOD, METHODS)
@@ -121,7 +124,7 @@ def run_segment(args) -> int:
                              remedy=parse_remedy(args.remedy or DEFAULT_REMEDY), solver=args.solver,
                              method=args.method, graphcut=args.graph_cut == "on")
     task = SegmentTask(k, options, n_fields=n_fields, coarse_faces=coarse or None,
-                       formats=parse_formats(args.formats))
+                       formats=parse_formats(args.formats), subdivide=args.subdivide)
     return _run(args, task, parse_device(args.device, check_available=not _ray_workers(args)))
 
 

@@ -15,6 +15,7 @@ from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
 from ..mesh.size_check import check_fields_fit
+from ..mesh.subdivide import levels_to_fit, subdivide
 from ..options import SegmentOptions, segment_options
 from ..parts.field_counts import akvf_count
 from ..parts.segment import segment_each_k
@@ -42,6 +43,9 @@ class SegmentTask:
     coarse_faces : solve on meshes decimated to about this many faces (None: full resolution);
         the labels are cut on the input's faces either way (:mod:`torchakvf.mesh.coarse`)
     formats : the outputs per mesh (:data:`torchakvf.io.OUTPUT_FORMATS`)
+    subdivide : subdivide a mesh with too few edges for its fields at its edge midpoints until
+        it has enough (:func:`~torchakvf.mesh.subdivide.subdivide`; labels stay one per face
+        of the file); False: such a mesh fails with what the user can do
     overrides : SegmentOptions fields by name, e.g. ``SegmentTask(6, seed=1, method="paper")``
     """
 
@@ -49,7 +53,8 @@ class SegmentTask:
     stages = ("akvf", "untangle", "cluster")
 
     def __init__(self, k: int, options: SegmentOptions | None = None, *, n_fields: int | None = None,
-                 coarse_faces: int | None = None, formats=OUTPUT_FORMATS, **overrides):
+                 coarse_faces: int | None = None, formats=OUTPUT_FORMATS, subdivide: bool = False,
+                 **overrides):
         self.k = int(k)
         # one-line errors before any work
         self.options = segment_options(options, **overrides).replace(refine=False)
@@ -59,6 +64,7 @@ class SegmentTask:
                        else akvf_count([[self.k]], None, o.method, o.merge_min_k))
         self.formats = tuple(formats)
         self.coarse_faces = int(coarse_faces) if coarse_faces else None
+        self.subdivide = bool(subdivide)
 
     @property
     def seed(self) -> int:
@@ -73,7 +79,8 @@ class SegmentTask:
         return {"k": self.k, "eps": float(o.eps), "seed": int(o.seed), "n_fields": n_fields,
                 "remedy": o.remedy, "formats": list(self.formats),
                 "untangle_restarts": int(o.untangle_restarts), "kmeans_restarts": o.kmeans_restarts,
-                "coarse_faces": self.coarse_faces, "solver": o.solver, "method": o.method,
+                "coarse_faces": self.coarse_faces, "subdivide": self.subdivide, "solver": o.solver,
+                "method": o.method,
                 "merge": dataclasses.asdict(o.merge),
                 "graphcut": None if o.graphcut is None else dataclasses.asdict(o.graphcut)}
 
@@ -84,9 +91,14 @@ class SegmentTask:
         n_faces = len(item.clean.faces)
         if self.k > n_faces:
             raise ParameterError(f"{item.path}: -k {self.k} is larger than the mesh's {n_faces} faces")
+        if self.subdivide:
+            # the eigensolvers need more edges than fields
+            levels = levels_to_fit(item.clean, self.n_akvf + 1)
+            if levels:
+                item.clean = subdivide(item.clean, levels)
         opts = self.options
         check_fields_fit(str(item.path), item.clean.faces, self.n_akvf, k=self.k,
-                         subdivide_hint="subdivide it first (torchakvf.mesh.subdivide)",
+                         subdivide_hint="subdivide it (--subdivide)",
                          fields_for_k=lambda j: akvf_count([[j]], self.n_fields, opts.method, opts.merge_min_k))
 
     def process(self, items, device):
