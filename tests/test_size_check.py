@@ -11,7 +11,9 @@ from torchakvf.mesh.size_check import check_fields_fit
 
 def test_a_cube_asked_for_too_many_fields():
     box = trimesh.creation.box()
-    check_fields_fit("cube.off", box.faces, 18)                          # 18 edges: fits
+    check_fields_fit("cube.off", box.faces, 17)                          # 18 edges: 17 fields fit
+    with pytest.raises(ParameterError, match=r"\(18 edges\), too few for 18 fields"):
+        check_fields_fit("cube.off", box.faces, 18)                      # as many fields as edges
     with pytest.raises(ParameterError) as info:
         check_fields_fit("cube.off", box.faces, 28, k=5)
     text = str(info.value)
@@ -19,7 +21,7 @@ def test_a_cube_asked_for_too_many_fields():
                     "takes fewer fields than it has edges; use a smaller k or subdivide it (torchakvf.mesh.subdivide)")
     with pytest.raises(ParameterError, match=r"use k <= 2 or subdivide it"):
         check_fields_fit("cube.off", box.faces, 28, k=5, fields_for_k=lambda k: 8 * k)
-    with pytest.raises(ParameterError, match=r"\(needs 28 fields\): .* edge; use --subdivide$"):
+    with pytest.raises(ParameterError, match=r"\(needs 28 fields\): .* edges; use --subdivide$"):
         check_fields_fit("cube.off", box.faces, 28, k=5, fields_for_k=lambda k: 20 + k,
                          subdivide_hint="use --subdivide")
     with pytest.raises(ParameterError, match=r"too few for 30 fields"):
