@@ -46,8 +46,8 @@ def _load(name: str, path: pathlib.Path):
 
 
 from torchakvf import scipy_reference as ref  # noqa: E402
+from torchakvf.evaluate.psb import default_psb_root  # noqa: E402
 bench = _load("eigensolver_psb", _HERE / "eigensolver_psb.py")
-_tests_conftest = _load("_torchakvf_tests_conftest", _HERE.parent / "tests" / "conftest.py")
 
 N = 32
 TOL = 1e-6
@@ -60,7 +60,7 @@ def _batch(shapes) -> MeshBatch:
 
 
 def _psb_batch() -> MeshBatch:
-    root = _tests_conftest.psb_root()
+    root = default_psb_root()
     if root is None:
         pytest.skip("Princeton Segmentation Benchmark not found: set TORCHAKVF_PSB or put it at "
                     "../shared/psb")

@@ -11,28 +11,19 @@ Helpers that are not fixtures live in the ``helpers`` package beside this file
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
+from torchakvf.evaluate.psb import default_psb_root
 
-
-def psb_root() -> Path | None:
-    """The PSB folder: $TORCHAKVF_PSB, else ../shared/psb beside the repository."""
-    env = os.environ.get("TORCHAKVF_PSB")
-    for cand in ([Path(env)] if env else []) + [REPO.parent / "shared" / "psb"]:
-        if (cand / "meshes").is_dir():
-            return cand
-    return None
 
 
 @pytest.fixture(scope="session")
 def psb() -> Path:
-    root = psb_root()
+    root = default_psb_root()   # $TORCHAKVF_PSB, else ../shared/psb beside the repository
     if root is None:
         pytest.skip("Princeton Segmentation Benchmark not found: set TORCHAKVF_PSB or put it at "
                     "../shared/psb (meshes/N.off.gz, gt/N/N_k.seg.gz)")

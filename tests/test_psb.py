@@ -22,7 +22,7 @@ from torchakvf.evaluate.psb import (
     write_seg,
 )
 
-from conftest import psb_root  # noqa: E402 - the one place that says where the PSB lives
+from torchakvf.evaluate.psb import default_psb_root as psb_root  # noqa: E402
 
 
 #: A tetrahedron, as an OFF file's bytes.
