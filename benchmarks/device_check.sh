@@ -12,7 +12,7 @@
 #      budgets BENCH_BUDGETS (8000, 24000: 2 and all 6 meshes a batch; torchakvf bench --budgets),
 #      same meshes, same run;
 #   2b. full-resolution ta.akvf on CUDA (PSB 21 and 301) against scipy eigsh on the CPU, wall
-#      clock (benchmarks/bench_akvf_fullres.py --device cuda), at most 75 s;
+#      clock (benchmarks/akvf_fullres.py --device cuda), at most 75 s;
 # and writes the figures under $OUT (what comes back; default benchmarks/results/device):
 # device_check.md (everything), pytest_cuda.log, bench_{cuda,cpu}.json and .log,
 # akvf_fullres_cuda.md and .log.
@@ -20,8 +20,8 @@
 # Before: bash benchmarks/device_prepare.sh here (wheels + PSB subset, git-ignored), then call the
 # device tool with carry [".whl", ".psb_subset"], timeout_s 540 and the command
 #   bash benchmarks/device_check.sh
-# Commit what comes back as benchmarks/results/device_check_<date>.md (git add -f: results/ is
-# in .gitignore). On a machine without CUDA (a dry run) the CUDA tests skip and the CUDA bench
+# Commit what comes back (device_check.md) as benchmarks/results/device_check.md, the one current
+# GPU figure (benchmarks/README.md cites it). On a machine without CUDA (a dry run) the CUDA tests skip and the CUDA bench
 # reports "no CUDA"; BENCH_LIMIT=4 keeps such a run short.
 set -uo pipefail
 cd "$(dirname "$0")/.."
@@ -121,7 +121,7 @@ done
 if [ "$has_cuda" = 1 ] && [ "$(left)" -gt 40 ]; then
   t=$(cap 75)
   echo "== full-resolution ta.akvf on cuda, PSB 21 and 301 (at most $t s)"
-  timeout "$t" python3 benchmarks/bench_akvf_fullres.py --psb "$psb" --device cuda --clock wall \
+  timeout "$t" python3 benchmarks/akvf_fullres.py --psb "$psb" --device cuda --clock wall \
       --threads 0 --ids 21 301 --repeat 2 --decimate 0 --fresh 0 --out "$OUT/akvf_fullres_cuda.md" \
       > "$OUT/akvf_fullres_cuda.log" 2>&1
   rc=$?

@@ -16,7 +16,7 @@ Each case runs ``rounds=3`` (about 2-3 minutes in all on an idle 2-core machine;
 other processes load the CPUs: with 2 OpenMP/OpenBLAS threads on oversubscribed cores, small dense
 LAPACK/BLAS calls can spin-wait for ~100x their time, for torch (MKL) and scipy (OpenBLAS) alike;
 ``OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` gives stable comparisons there). The full 19-mesh PSB comparison is
-``python benchmarks/bench_eigensolver.py``.
+``python benchmarks/eigensolver_psb.py``.
 """
 from __future__ import annotations
 
@@ -46,8 +46,8 @@ def _load(name: str, path: pathlib.Path):
 
 
 from torchakvf import scipy_reference as ref  # noqa: E402
-bench = _load("bench_eigensolver", _HERE / "bench_eigensolver.py")
-_tests_conftest = _load("_torchakvf_tests_conftest", _HERE.parent / "tests" / "conftest.py")
+from torchakvf.evaluate.psb import default_psb_root  # noqa: E402
+bench = _load("eigensolver_psb", _HERE / "eigensolver_psb.py")
 
 N = 32
 TOL = 1e-6
@@ -60,7 +60,7 @@ def _batch(shapes) -> MeshBatch:
 
 
 def _psb_batch() -> MeshBatch:
-    root = _tests_conftest.psb_root()
+    root = default_psb_root()
     if root is None:
         pytest.skip("Princeton Segmentation Benchmark not found: set TORCHAKVF_PSB or put it at "
                     "../shared/psb")

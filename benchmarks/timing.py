@@ -1,17 +1,11 @@
-"""What the benchmark scripts share: the fastest of repeated calls, writing a report, the PSB
-check of a one-thread AKVF benchmark, comparing two AKVF results, ``ta.akvf`` with its
-interior shift replaced (by the definite shift ladder, or a recording wrapper), and a package
-module as it is at another git revision (the baseline of an A/B run in one process).
+"""What the benchmark and experiment scripts share: the fastest of repeated calls, writing a
+report, the PSB check of a one-thread AKVF benchmark, and comparing two AKVF results.
 
 Run as ``python benchmarks/<script>.py``, a script finds this module beside it (``benchmarks/``
-is the script's own folder, first on ``sys.path``)."""
+is the script's own folder, first on ``sys.path``); the scripts in ``experiments/`` put
+``benchmarks/`` on ``sys.path`` themselves."""
 from __future__ import annotations
 
-import contextlib
-import importlib
-import importlib.util
-import subprocess
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -61,38 +55,3 @@ def akvf_agreement(a, b) -> tuple[float, float]:
     qa, qb = torch.linalg.qr(a.forms)[0], torch.linalg.qr(b.forms)[0]
     span = float(torch.linalg.svdvals(qa.T @ qb).min().clamp(max=1).arccos().sin())
     return dlam, span
-
-
-def definite_only(system, b, need, definite):
-    """An ``interior_factor`` that never takes an interior shift: every mesh at its definite
-    shift, the Krylov solver as it was before the interior shift."""
-    return definite()
-
-
-@contextlib.contextmanager
-def interior_factor_as(fn):
-    """Within the block, ``ta.akvf`` makes its Krylov factors with ``fn`` (the signature of
-    :func:`torchakvf.solvers.factor.interior_factor`) instead; restored on leaving."""
-    akvf_module = importlib.import_module("torchakvf.fields.akvf")
-    kept = akvf_module.interior_factor
-    akvf_module.interior_factor = fn
-    try:
-        yield
-    finally:
-        akvf_module.interior_factor = kept
-
-
-def module_at_revision(rev: str, path: str, name: str):
-    """The package file ``path`` (e.g. ``torchakvf/fields/untangle.py``) as it is at git revision
-    ``rev``, executed as module ``name`` (e.g. ``torchakvf.fields._baseline_untangle``: its
-    relative imports resolve in the package around it, i.e. this checkout's) and registered in
-    ``sys.modules`` under that name (dataclasses look their module up there)."""
-    root = Path(__file__).resolve().parents[1]
-    src = subprocess.run(["git", "-C", str(root), "show", f"{rev}:{path}"], check=True,
-                         capture_output=True, text=True).stdout
-    mod = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, loader=None))
-    mod.__package__ = name.rpartition(".")[0]
-    mod.__file__ = f"{rev}:{path}"
-    sys.modules[name] = mod
-    exec(compile(src, mod.__file__, "exec"), mod.__dict__)
-    return mod

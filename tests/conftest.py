@@ -1,33 +1,29 @@
-"""Shared fixtures: where the PSB lives, and skips with a reason when it or CUDA is absent.
+"""Shared fixtures: where the PSB lives, and skips with a reason when it or CUDA is absent; one
+torch thread for a module; the solved fields several modules segment.
 
 ``device`` runs a test on "cpu" always and on "cuda" where there is a GPU (that parameter is
 marked ``cuda`` and skipped elsewhere), so the comparison logic of a device test runs in CI too
 (CPU against CPU). A test using the ``cuda`` fixture is marked ``cuda`` as well, so
 ``pytest -m cuda`` (benchmarks/device_check.sh) selects every test that needs a GPU.
+
+Helpers that are not fixtures live in the ``helpers`` package beside this file
+(``from helpers.meshfiles import write_off``).
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
+from torchakvf.evaluate.psb import default_psb_root
 
-
-def psb_root() -> Path | None:
-    """The PSB folder: $TORCHAKVF_PSB, else ../shared/psb beside the repository."""
-    env = os.environ.get("TORCHAKVF_PSB")
-    for cand in ([Path(env)] if env else []) + [REPO.parent / "shared" / "psb"]:
-        if (cand / "meshes").is_dir():
-            return cand
-    return None
 
 
 @pytest.fixture(scope="session")
 def psb() -> Path:
-    root = psb_root()
+    root = default_psb_root()   # $TORCHAKVF_PSB, else ../shared/psb beside the repository
     if root is None:
         pytest.skip("Princeton Segmentation Benchmark not found: set TORCHAKVF_PSB or put it at "
                     "../shared/psb (meshes/N.off.gz, gt/N/N_k.seg.gz)")
@@ -58,3 +54,58 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "cuda" in getattr(item, "fixturenames", ()) and item.get_closest_marker("cuda") is None:
             item.add_marker(pytest.mark.cuda)
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One torch intra-op thread for a whole test module, which opts in with
+    ``pytestmark = pytest.mark.usefixtures("one_torch_thread")``.
+
+    Small meshes run many tiny kernels and sparse solves: on a busy 2-core machine intra-op
+    threads spin-waiting on each other made such tests 10-100x slower (measured: 0.4 s vs 40 s
+    for the runner's corpus), while one thread is as fast on an idle machine.
+    """
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="module")
+def fields():
+    """24 AKVFs (remedy "smooth") of a batch of two meshes: three_blobs (20 around) and the
+    built-in dumbbell; one solve per module that segments, clusters or untangles them."""
+    import torchakvf as ta
+    from torchakvf import shapes
+    meshes = [ta.Mesh(s.vertices, s.faces, name=n) for n, s in
+              (("blobs", shapes.three_blobs(n_around=20)), ("dumbbell", shapes.BUILTIN_SHAPES["dumbbell"]()))]
+    return ta.akvf(ta.MeshBatch.from_meshes(meshes), n=24, remedy="smooth")
+
+
+@pytest.fixture(scope="module")
+def blobs_and_bent():
+    """20 AKVFs (remedy "smooth") of three_blobs and of the dumbbell bent by 0.6, for the checks
+    of float32 iterations: three distinct blobs (a well-separated optimum), and a shape whose
+    optima compete."""
+    import torchakvf as ta
+    from torchakvf import shapes
+    meshes = [ta.Mesh(s.vertices, s.faces, name=n) for n, s in
+              (("three_blobs", shapes.three_blobs()), ("bent", shapes.bend(shapes.dumbbell(), 0.6)))]
+    return ta.akvf(ta.MeshBatch.from_meshes(meshes), n=20, remedy="smooth")
+
+
+@pytest.fixture(scope="module")
+def blobs_and_bent_float64(blobs_and_bent):
+    """``blobs_and_bent`` untangled to 16 fields with float64 iterations throughout."""
+    import torchakvf as ta
+    return ta.untangle(blobs_and_bent, n=16, seed=0, iteration_dtype=torch.float64)
+
+
+@pytest.fixture(scope="module")
+def ico2_shuffled():
+    """icosphere(2) (vertices, faces) with its faces in a random order (so "order kept" is a
+    real check)."""
+    from torchakvf import shapes
+    s = shapes.icosphere(2)
+    perm = np.random.default_rng(7).permutation(len(s.faces))
+    return s.vertices, s.faces[perm]

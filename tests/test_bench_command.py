@@ -5,16 +5,17 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from torchakvf import shapes
 from torchakvf.cli import main
-from torchakvf.evaluate import bench
-from torchakvf.evaluate.plan import default_eval_batch_faces
+from torchakvf.bench import run as bench
+from torchakvf.pipeline.batches import default_batch_faces
 from torchakvf.mesh.coarse import DEFAULT_COARSE_FACES
 from torchakvf.pipeline.parallel import default_workers
-from meshfiles import write_off, write_seg
+from helpers.meshfiles import write_off, write_seg
 
+# Tiny meshes: intra-op threads only spin (and the test machine is shared).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 @pytest.fixture()
 def fake_psb(tmp_path):
@@ -29,15 +30,6 @@ def fake_psb(tmp_path):
     t = shapes.three_blobs(n_around=12)
     write_off(root / "meshes" / "21.off", t.vertices, t.faces)
     return root, len(d.faces) + len(t.faces)
-
-
-@pytest.fixture()
-def one_thread():
-    """Tiny meshes: threads only spin (and the test machine is shared)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def _one_error_line(capsys) -> str:
@@ -79,7 +71,7 @@ def test_out_that_is_a_file_is_one_line(fake_psb, tmp_path, capsys):
     assert "--out" in _one_error_line(capsys)
 
 
-def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
+def test_end_to_end_report(fake_psb, tmp_path, capsys):
     root, n_faces = fake_psb
     out = tmp_path / "bench"
     assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "1",
@@ -94,7 +86,7 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
     assert r["selection"]["ks"] == {"1": [2, 3], "21": [6]}   # protocol k's; 6 = DEFAULT_K_NO_GT
     assert r["selection"]["faces"] == n_faces and r["selection"]["predictions"] == 3
     # Decimation on by default: one decimated mesh a batch on CPU, one worker process a core.
-    assert r["settings"]["batch_faces"] == default_eval_batch_faces("cpu", DEFAULT_COARSE_FACES)
+    assert r["settings"]["batch_faces"] == default_batch_faces("cpu", DEFAULT_COARSE_FACES)
     assert r["settings"]["segment_kwargs"]["coarse_faces"] == DEFAULT_COARSE_FACES
     assert r["runs"]["batched"]["workers"] == default_workers("cpu")
     assert set(r["runs"]) == {"batched", "one_at_a_time", "scipy", "batched_subset"}
@@ -129,12 +121,12 @@ def test_end_to_end_report(fake_psb, tmp_path, capsys, one_thread):
     assert "meshes/s" in md and "one_at_a_time" in md and "scipy" in md and "## Runs" in md
 
 
-def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypatch, one_thread):
+def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypatch):
     root, _ = fake_psb
     # The scipy baseline cannot be imported: it is skipped, with a note.
     monkeypatch.setattr(bench, "load_scipy_reference",
                         lambda: (None, "scipy baseline skipped: importing torchakvf.scipy_reference failed (test)"))
-    fast = dict(n_fields=16, segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
+    fast = dict(n_fields=16, kmeans_restarts=2, untangle_restarts=1)
     r = bench.run_bench(root, tmp_path / "b1", baseline_every=2, limit=2, **fast)
     assert r["runs"]["scipy"]["skipped"].startswith("scipy baseline skipped")
     assert r["comparison"]["mesh_ids"] == [1] and r["comparison"]["ratios"]["scipy"] is None
@@ -146,7 +138,7 @@ def test_without_scipy_reference_and_baselines_off(fake_psb, tmp_path, monkeypat
     assert r0["selection"]["mesh_ids"] == [21]
 
 
-def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys, one_thread):
+def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys):
     root, _ = fake_psb
     (root / "gt" / "1" / "1_2.seg").write_text("1\n2\n")          # 2 labels for a whole mesh
     rc = main(["bench", "--psb", str(root), "--out", str(tmp_path / "b"), "--baseline-every", "0",
@@ -159,9 +151,9 @@ def test_bad_human_seg_is_reported_and_exits_1(fake_psb, tmp_path, capsys, one_t
     assert "1_2.seg" in (tmp_path / "b" / "report.md").read_text()
 
 
-def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_thread):
+def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys):
     """--budgets: the same meshes once one per batch and once per budget, in one run; per
-    budget the ratio one-at-a-time seconds / batched seconds (what issue 13 asks >= 1 of)."""
+    budget the ratio one-at-a-time seconds / batched seconds (>= 1: batching at least as fast)."""
     root, n_faces = fake_psb
     out = tmp_path / "b"
     assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "0",
@@ -192,10 +184,10 @@ def test_budget_sweep_batched_vs_one_at_a_time(fake_psb, tmp_path, capsys, one_t
     assert "by face budget: 300: " in stdout and "100000: " in stdout
 
 
-def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path, one_thread):
+def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path):
     """With baselines on, the sweep runs on their subset and reuses run one_at_a_time."""
     root, _ = fake_psb
-    fast = dict(n_fields=16, segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
+    fast = dict(n_fields=16, kmeans_restarts=2, untangle_restarts=1)
     r = bench.run_bench(root, tmp_path / "b", baseline_every=2, budgets=[5000, 1], workers=1,
                         repeats=2, **fast)
     sweep = r["budget_sweep"]
@@ -215,7 +207,7 @@ def test_budget_sweep_reuses_the_baseline_subset(fake_psb, tmp_path, one_thread)
     assert "budget_sweep" not in r0 and r0["settings"]["budgets"] == [] and r0["partial"] is False
 
 
-def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeypatch, one_thread):
+def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeypatch):
     """The report is written after every run (partial), so a bench stopped at a time limit
     (benchmarks/device_check.sh) keeps what it measured."""
     root, _ = fake_psb
@@ -231,7 +223,7 @@ def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeyp
     out = tmp_path / "b"
     with pytest.raises(KeyboardInterrupt):
         bench.run_bench(root, out, baseline_every=0, budgets=[300], workers=1, n_fields=16,
-                        segment_kwargs=dict(kmeans_restarts=2, untangle_restarts=1))
+                        kmeans_restarts=2, untangle_restarts=1)
     assert calls == ["batched", "one_at_a_time"]
     r = json.loads((out / "report.json").read_text())
     assert r["partial"] is True and set(r["runs"]) == {"batched"}
@@ -240,17 +232,3 @@ def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeyp
     assert sorted(p.name for p in out.iterdir()) == ["report.json", "report.md"]   # scratch gone
 
 
-def test_budget_report_says_when_every_budget_ran_one_mesh_per_batch():
-    """The CPU planner never groups meshes with several workers: a sweep whose every budget
-    ran as many batches as meshes says that its ratios compare one plan with itself."""
-    from torchakvf.evaluate.bench_report import _budget_lines
-
-    def sweep(batches):
-        rows = [dict(budget=b, batches=n, seconds=1.0, one_at_a_time_seconds=1.0, ratio=1.0, comparable=True,
-                     cpu_ratio=1.0, stage_ratios={"akvf": 1.0, "segment": 1.0}, seconds_each=[1.0])
-                for b, n in zip((4000, 80000), batches)]
-        return dict(meshes=3, faces=30, mesh_ids=[1, 2, 3], baseline_run="one_at_a_time", rows=rows)
-
-    note = "Every budget ran one mesh per batch"
-    assert note in "\n".join(_budget_lines(sweep([3, 3])))
-    assert note not in "\n".join(_budget_lines(sweep([3, 1])))

@@ -15,7 +15,7 @@ from torchakvf import shapes
 from torchakvf.solvers import cholmod
 from torchakvf.solvers.factor import ShiftedFactor
 
-from threads import one_torch_thread  # noqa: F401 - autouse fixture
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 needs_cholmod = pytest.mark.skipif(cholmod.library() is None,
                                    reason="cholespy's library has no CHOLMOD 3.0 layout here; "
@@ -152,3 +152,46 @@ def test_named_orderings_solve_alike():
                                    atol=1e-12 * np.abs(want).max())
     with pytest.raises(ta.SolverError, match="ordering must be one of"):
         cholmod.CholmodFactor(a.shape[0], *lower_csc(a), ordering="colamd")
+
+
+def grid_laplacian_spectrum(m: int) -> tuple[sp.csc_matrix, np.ndarray]:
+    """The 5-point Laplacian of an m x m grid and its eigenvalues (4 - 2cos(iπ/(m+1)) -
+    2cos(jπ/(m+1)), all in (0, 8))."""
+    one = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(m, m))
+    eye = sp.identity(m)
+    mu = 2.0 - 2.0 * np.cos(np.arange(1, m + 1) * np.pi / (m + 1))
+    return (sp.kron(one, eye) + sp.kron(eye, one)).tocsc(), np.add.outer(mu, mu).ravel()
+
+
+@needs_cholmod
+def test_indefinite_factor_counts_the_eigenvalues_below_and_solves():
+    a, lam = grid_laplacian_spectrum(24)
+    indptr, indices, values = lower_csc(a)
+    f = cholmod.CholmodFactor(a.shape[0], indptr, indices, values)
+    for shift in (3.1, 5.7):
+        v = values.copy()
+        v[indptr[:-1]] -= shift
+        assert not f.factorize(v)                        # indefinite: refused by default
+        assert not f.positive_definite
+        with pytest.raises(ta.SolverError, match="not positive definite"):
+            f.solve_rows(torch.ones(1, a.shape[0], dtype=torch.float64))
+        assert f.factorize(v, indefinite=True)
+        assert f.negative_pivots == int((lam < shift).sum())   # Sylvester's law of inertia
+        shifted = (a - shift * sp.identity(a.shape[0])).tocsc()
+        rhs = np.random.default_rng(0).standard_normal((3, a.shape[0]))
+        want = spla.splu(shifted).solve(rhs.T).T
+        cond = np.abs(lam - shift).max() / np.abs(lam - shift).min()
+        got = f.solve_rows(torch.from_numpy(rhs)).numpy()
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * cond * np.abs(want).max())
+    # a definite matrix: no negative pivot, usable either way
+    assert f.factorize(values, indefinite=True) and f.positive_definite and f.negative_pivots == 0
+
+
+@needs_cholmod
+def test_indefinite_factor_with_a_zero_pivot_is_refused():
+    # [[0, 1], [1, 0]]: nonsingular, but LDLᵀ without pivoting breaks down at the first pivot.
+    indptr, indices = np.array([0, 2, 3]), np.array([0, 1, 1])
+    f = cholmod.CholmodFactor(2, indptr, indices, np.array([0.0, 1.0, 0.0]))
+    assert not f.factorize(np.array([0.0, 1.0, 0.0]), indefinite=True)
+    with pytest.raises(ta.SolverError):
+        f.solve_rows(torch.ones(1, 2, dtype=torch.float64))

@@ -1,4 +1,6 @@
-"""Each stage on a device against the CPU result: operators, AKVFs, untangling, k-means, parts,
+"""Device tests, named for the device: they cover every stage, so no one module's file fits them.
+
+Each stage on a device against the CPU result: operators, AKVFs, untangling, k-means, parts,
 the corpus runner (segment and features) and the bench.
 
 Every test takes the ``device`` fixture (tests/conftest.py): it runs on "cpu" everywhere, so the
@@ -42,8 +44,9 @@ from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.fields.akvf import solver_for
 from torchakvf.mesh.batch import pad_packed
 from torchakvf.operators.killing import killing_operator
-from meshfiles import write_off, write_seg
-from threads import one_torch_thread  # noqa: F401  (autouse: one intra-op thread here)
+from helpers.meshfiles import write_off, write_seg
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
 TOL = 1e-6                  # akvf's residual tolerance
 N = 16                      # fields untangled (as test_precision.py)
@@ -94,7 +97,7 @@ def test_killing_operator_entries(device, dtype):
     # entries that cancel to zero, so the patterns are compared through the values.
     scale = rs.values().abs().max()
     assert (rs - gs).coalesce().values().abs().max() <= 1e-12 * scale
-    assert gs._nnz() <= 1.1 * rs._nnz() and rs._nnz() <= 1.1 * gs._nnz()
+    assert gs.values().numel() <= 1.1 * rs.values().numel() and rs.values().numel() <= 1.1 * gs.values().numel()
     for name in ("mass", "star1_raw", "edge_ptr"):
         a, b = getattr(ref, name), getattr(got, name).cpu()
         assert torch.allclose(a, b, rtol=1e-12, atol=0), name
@@ -397,7 +400,7 @@ def test_unusable_device_is_a_parameter_error(bad, words, tmp_path):
 
 @pytest.mark.parametrize("command", ["segment", "features", "eval", "bench"])
 def test_unusable_device_on_the_cli_is_one_line(command, corpus, tmp_path, capsys):
-    from faketask import assert_one_line_error
+    from helpers.faketask import assert_one_line_error
 
     bad, words = _unusable_devices()[-1]
     psb = tmp_path / "psb"

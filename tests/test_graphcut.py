@@ -1,19 +1,24 @@
-"""The graph-cut boundary stage (issue 12): alpha-expansion against a brute-force optimum."""
+"""The graph-cut boundary stage (:mod:`torchakvf.parts.graphcut`): alpha-expansion against a
+brute-force optimum, the band, parts kept from emptying, and its inputs to gco (the band as
+bit sets, corner means) against the straightforward constructions."""
 from __future__ import annotations
 
 import itertools
 
 import numpy as np
 import pytest
-
-pytest.importorskip("gco", reason="gco-wrapper (a dependency: pip install -e .) not installed")
+import scipy.sparse as sp
 
 from torchakvf import shapes
 from torchakvf.errors import ParameterError
 from torchakvf.mesh.clean import face_areas
+from torchakvf.parts import graphcut as gc
 from torchakvf.parts.concavity import dual_edges
-from torchakvf.parts.graphcut import (GraphCut, allowed_labels, energy, graphcut_labels,
-                                      potts_expansion)
+from torchakvf.parts.graphcut import GraphCut, allowed_labels, energy, graphcut_labels, potts_expansion
+from torchakvf.parts.topology import face_adjacency
+from helpers.partitions import sphere_labels
+
+pytest.importorskip("gco", reason="gco-wrapper (a dependency: pip install -e .) not installed")
 
 
 def _brute(unary, pairs, w):
@@ -143,7 +148,7 @@ def test_segment_graphcut_switch():
     wrong value is a ParameterError."""
     from torchakvf.errors import ParameterError
     import torchakvf as ta
-    from torchakvf.parts.engine import graphcut_option
+    from torchakvf.options import graphcut_option
 
     shape = shapes.mug(h=0.12)
     mesh = ta.Mesh(shape.vertices, shape.faces, "mug")
@@ -205,3 +210,119 @@ def test_a_part_the_cut_would_shrink_below_the_fraction_keeps_its_faces():
     small = np.where(z > 0.96, 1, 0)
     assert area[small == 1].sum() / area.sum() < 0.05
     np.testing.assert_array_equal(graphcut_labels(small, dist, d, area, opts, min_fraction=0.05) == 1, tip)
+
+
+def _allowed_by_products(labels, pairs, k, band):
+    """The band by sparse products with (adjacency + identity), clipped to 1 each ring."""
+    n = len(labels)
+    ok = labels >= 0
+    reach = sp.csr_matrix((np.ones(int(ok.sum())), (np.flatnonzero(ok), labels[ok])), shape=(n, k))
+    if band > 0 and len(pairs):
+        adj = sp.coo_matrix((np.ones(2 * len(pairs)), (np.r_[pairs[:, 0], pairs[:, 1]],
+                                                       np.r_[pairs[:, 1], pairs[:, 0]])), shape=(n, n))
+        step = (adj + sp.identity(n)).tocsr()
+        for _ in range(band):
+            reach = step @ reach
+            reach.data[:] = 1.0
+    return reach.toarray() > 0
+
+
+@pytest.mark.parametrize("k,band", [(2, 0), (2, 1), (7, 3), (20, 6), (64, 2), (65, 4), (150, 6)])
+def test_allowed_labels_equals_sparse_products(k, band):
+    v, f, labels = sphere_labels(3, k, seed=k + band)
+    pairs = face_adjacency(f)
+    np.testing.assert_array_equal(gc.allowed_labels(labels, pairs, k, band),
+                                  _allowed_by_products(labels, pairs, k, band))
+
+
+def test_allowed_labels_on_a_random_graph_with_unlabelled_faces():
+    rng = np.random.default_rng(3)
+    n, k = 300, 70
+    labels = rng.integers(-1, k, n)
+    pairs = rng.integers(0, n, size=(500, 2))          # repeated pairs and self-loops too
+    for band in (0, 1, 2, 5):
+        np.testing.assert_array_equal(gc.allowed_labels(labels, pairs, k, band),
+                                      _allowed_by_products(labels, pairs, k, band))
+    np.testing.assert_array_equal(gc.allowed_labels(labels, np.zeros((0, 2), dtype=int), k, 3),
+                                  _allowed_by_products(labels, np.zeros((0, 2), dtype=int), k, 3))
+
+
+def _graphcut_inputs_full_size(labels, distances, dual, face_area, opts):
+    """What graphcut_labels hands gco, built the straightforward way: the data terms of every
+    labelled face, the fixed faces' edges folded in, then the band's rows taken."""
+    k = distances.shape[1]
+    sites = np.flatnonzero(labels >= 0)                     # sorted: a site's row by bisection
+    inside = (labels[dual.pairs] >= 0).all(axis=1)          # dual edges between two labelled faces
+    pairs = np.searchsorted(sites, dual.pairs[inside]).reshape(-1, 2)
+    w = opts.smoothness * gc.edge_weights(dual, opts)[inside]
+    area = np.asarray(face_area, dtype=np.float64)[sites]
+    d = np.asarray(distances, dtype=np.float64)[sites]
+    finite = np.isfinite(d)
+    d = np.where(finite, d, 0.0)
+    unary = d * (area / max(float(area.mean()), 1e-300))[:, None]
+    allowed = _allowed_by_products(labels[sites], pairs, k, opts.band) & finite
+    own = labels[sites]
+    free = allowed.sum(axis=1) > 1
+    fa, fb = free[pairs[:, 0]], free[pairs[:, 1]]
+    unary = unary.copy()
+    for side, other in ((0, 1), (1, 0)):
+        edge = free[pairs[:, side]] & ~free[pairs[:, other]]
+        f_free, f_fixed = pairs[edge, side], pairs[edge, other]
+        np.add.at(unary, f_free, w[edge][:, None])
+        np.add.at(unary, (f_free, own[f_fixed]), -w[edge])
+    idx = np.flatnonzero(free)
+    local = np.full(len(sites), -1, dtype=np.int64)
+    local[idx] = np.arange(len(idx))
+    both = fa & fb
+    sub_pairs, sub_w, sub_unary = local[pairs[both]], w[both], unary[idx]
+    incident = np.bincount(sub_pairs.ravel(), weights=np.r_[sub_w, sub_w], minlength=len(idx))
+    big = float(np.abs(sub_unary).max(initial=0.0) + incident.max(initial=0.0)) + 1.0
+    return np.where(allowed[idx], sub_unary, big), sub_pairs, sub_w
+
+
+@pytest.mark.parametrize("seed,k", [(0, 5), (1, 5), (2, 5), (3, 70)])
+def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed, k):
+    v, f, labels = sphere_labels(3, k, seed)
+    labels = labels.copy()
+    rng = np.random.default_rng(seed)
+    labels[rng.random(len(labels)) < 0.02] = -1                     # a few faces out of the cut
+    dual = dual_edges(v, f)
+    area = face_areas(v, f)
+    dist = rng.random((len(labels), k))
+    dist[rng.random(dist.shape) < 0.05] = np.inf
+    opts = gc.GraphCut(smoothness=2.0, band=2)
+    seen = []
+
+    def record(unary, pairs, weights, cycles, allowed=None):
+        seen.append((unary.copy(), pairs.copy(), weights.copy()))
+        assert allowed is not None and allowed.shape == unary.shape and (allowed.sum(axis=1) > 1).all()
+        return np.argmin(unary, axis=1)                              # any labelling will do here
+
+    monkeypatch.setattr(gc, "potts_expansion", record)
+    out = gc.graphcut_labels(labels, dist, dual, area, opts)
+    out_cached = gc.graphcut_labels(labels, dist, dual, area, opts, cut_cost=gc.edge_weights(dual, opts))
+    np.testing.assert_array_equal(out, out_cached)
+    ref = _graphcut_inputs_full_size(labels, dist, dual, area, opts)
+    assert len(seen) == 2
+    for got in seen:
+        for a, b in zip(got, ref):
+            np.testing.assert_array_equal(a, b)                      # bitwise
+    assert (out[labels < 0] == labels[labels < 0]).all()
+    assert 0 < len(ref[0]) < (labels >= 0).sum()                     # a band, not every face
+
+
+def test_corner_means_rows_are_barycenter_values_rows_and_cut_the_same():
+    from torchakvf.parts.boundaries import barycenter_values
+    v, f, labels = sphere_labels(3, 4, seed=8)
+    rng = np.random.default_rng(8)
+    vdist = rng.random((len(v), 4))
+    vdist[rng.random(vdist.shape) < 0.01] = np.inf
+    full = barycenter_values(f, vdist)
+    cm = gc.CornerMeans(f, vdist)
+    assert cm.shape == full.shape
+    rows = np.flatnonzero(rng.random(len(f)) < 0.3)
+    np.testing.assert_array_equal(cm[rows], full[rows])
+    dual, area = dual_edges(v, f), face_areas(v, f)
+    opts = gc.GraphCut(band=3)
+    np.testing.assert_array_equal(gc.graphcut_labels(labels, cm, dual, area, opts),
+                                  gc.graphcut_labels(labels, full, dual, area, opts))

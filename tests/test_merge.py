@@ -1,5 +1,6 @@
-"""Part merging (issue 12): concavity, the merge cost by hand, adjacency-only merges, and the
-two failure-mode shapes (table, mug) part for part."""
+"""Part merging (:mod:`torchakvf.parts.merge`): the region graph and merge cost by hand and
+against plain loops, adjacency-only merges, the over-segmentation count, shared arrays against
+fresh ones, and the two failure-mode shapes (table, mug) part for part."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,45 +11,17 @@ from scipy.sparse.csgraph import connected_components
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.errors import ParameterError
+from torchakvf.evaluate.k_auto import pick_k
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
-from torchakvf.parts.engine import akvf_count
 from torchakvf.parts.concavity import crease_weights, dual_edges
-from torchakvf.evaluate.k_auto import pick_k
-from torchakvf.parts.merge import (MergeWeights, RegionGraph, greedy_merge, merge_costs, merge_parts,
-                                   merged_distances, next_merge_cost, oversegment_k, partition_cost,
-                                   region_graph)
+from torchakvf.parts.field_counts import akvf_count
+from torchakvf.parts.merge import (MergeWeights, RegionGraph, boundary_bends, greedy_merge, merge_costs,
+                                   merge_parts, merged_distances, next_merge_cost, oversegment_k,
+                                   partition_cost, region_graph, unit_rows)
 from torchakvf.parts.topology import face_adjacency
-
-
-def hinge(fold: float):
-    """Two unit right triangles sharing the edge (0,0,0)-(1,0,0); the first lies in z = 0 with
-    normal +z, the second is rotated about the x axis by ``fold`` (> 0 folds it up: a valley)."""
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, -1, 0], [0, np.cos(fold), np.sin(fold)]], dtype=float)
-    f = np.array([[1, 0, 2], [0, 1, 3]])   # both counter-clockwise seen from +z when flat
-    return v, f
-
-
-@pytest.mark.parametrize("fold,expected", [(np.pi / 2, np.pi / 2), (-np.pi / 3, -np.pi / 3), (0.0, 0.0)])
-def test_hinge_dihedral_sign_and_angle(fold, expected):
-    v, f = hinge(fold)
-    # The first face points up (+z), the fold sign convention relies on it.
-    n0 = np.cross(v[f[0, 1]] - v[f[0, 0]], v[f[0, 2]] - v[f[0, 0]])
-    assert n0[2] > 0
-    d = dual_edges(v, f)
-    assert d.pairs.tolist() == [[0, 1]]
-    np.testing.assert_allclose(d.length, [1.0], rtol=1e-12)
-    np.testing.assert_allclose(d.dihedral, [expected], atol=1e-12)
-    np.testing.assert_allclose(d.concavity, [max(expected, 0.0) / np.pi], atol=1e-12)
-
-
-def test_closed_convex_surface_is_convex_everywhere_and_pairs_match_adjacency():
-    s = shapes.icosphere(2)
-    d = dual_edges(s.vertices, s.faces)
-    np.testing.assert_array_equal(d.pairs, face_adjacency(s.faces))
-    assert (d.dihedral < 0).all() and d.concavity.max() == 0.0
-    # Concavity flips with the orientation (inside-out sphere: every crease is a valley).
-    assert (dual_edges(s.vertices, s.faces[:, ::-1]).dihedral > 0).all()
+from helpers.partitions import sphere_labels
+from helpers.planar_meshes import hinge
 
 
 def test_region_graph_of_the_hinge_by_hand():
@@ -97,16 +70,6 @@ def test_convexity_boundary_share_and_part_size_terms_by_hand():
     np.testing.assert_allclose(history, [0.5])
     # k = 1: (0,2) at 1/4 first; then part {0,2} (area 3, perimeter 2) with 1: 0.2 + 0 + 1/4.
     np.testing.assert_allclose(greedy_merge(g, 1, w)[1], [0.25, 0.45])
-
-
-def test_crease_weights_saturate_at_the_crease_angle():
-    cav, cvx = crease_weights(np.array([np.pi / 2, -np.pi / 8, 0.0, np.pi / 8]), np.pi / 4)
-    np.testing.assert_allclose(cav, [1.0, 0.0, 0.0, 0.5])
-    np.testing.assert_allclose(cvx, [0.0, 0.5, 0.0, 0.0])
-    v, f = hinge(-np.pi / 3)
-    g = region_graph(np.array([0, 1]), dual_edges(v, f), np.ones((2, 2)), np.ones(2))
-    np.testing.assert_allclose(g.convex, [[0, 1 / 3], [1 / 3, 0]])
-    np.testing.assert_allclose(g.concave, 0.0)
 
 
 def _adjacent_label_pairs(labels, faces):
@@ -232,21 +195,6 @@ def test_next_merge_cost_and_the_merge_rule_of_k_auto():
         pick_k(ks, np.ones(5), "merge")
 
 
-def test_first_near_min_breaks_round_off_ties_towards_the_first():
-    """The merge's pick among candidate costs: the first entry (row-major) within round-off of
-    the smallest; a genuinely smaller later entry still wins; NaN never wins; nothing finite
-    gives the first smallest (an inf the merge loop stops at)."""
-    from torchakvf._restarts import first_near_min
-
-    inf, nan = float("inf"), float("nan")
-    assert first_near_min(np.array([[inf, 0.3 * (1 + 1e-15)], [0.3, inf]])) == 1     # tie: first
-    assert first_near_min(np.array([[inf, 0.3], [0.3 * (1 - 1e-9), inf]])) == 2      # smaller: it
-    assert first_near_min(np.array([nan, 2.0, 1.0])) == 2
-    assert first_near_min(np.array([[inf, inf], [nan, inf]])) == 0
-    assert first_near_min(np.array([-1.0 - 1e-14, -1.0, -2.0])) == 2                 # negative
-    assert first_near_min(np.array([0.0, 5e-324, 0.0])) == 0
-
-
 def test_greedy_merge_round_off_tie_goes_to_the_first_pair():
     """Two candidate pairs equal but for the last bits of their cost (as a symmetric shape's
     mirrored pairs are, their products summed in another order on another BLAS): the first
@@ -265,22 +213,104 @@ def test_greedy_merge_round_off_tie_goes_to_the_first_pair():
     assert history == [float(cost[0, 1])]
 
 
-def test_first_near_min_is_best_restarts_pick():
-    """The merge's numpy pick and the restarts' torch pick are one rule: equal on random cost
-    matrices with infinities, NaN, exact and round-off ties."""
-    import torch
+def test_oversegment_k_floor_by_hand():
+    # ratio 3, cap k + 16: k < 5 takes the k' of 5 (15); above the floor each k its own
+    assert [oversegment_k(k, 3.0, 10 ** 6, 16, 5) for k in (1, 2, 4, 5, 6, 8, 20)] == [15, 15, 15, 15, 18, 24, 36]
+    assert [oversegment_k(k, 3.0, 10 ** 6, 16, 1) for k in (1, 2, 5)] == [3, 6, 15]
+    assert oversegment_k(2, 3.0, 10, 16, 5) == 10                       # at most the faces
+    assert oversegment_k(2, 3.0, 10 ** 6, 4, 5) == 9                     # the cap counts from the floor
 
-    from torchakvf._restarts import best_restart, first_near_min
 
-    rng = np.random.default_rng(7)
-    for trial in range(200):
-        k = int(rng.integers(1, 12))
-        c = rng.random((k, k))
-        c[rng.random((k, k)) < 0.4] = np.inf
-        c[rng.random((k, k)) < 0.1] = np.nan
-        if trial % 3 == 0 and np.isfinite(c).sum() >= 2:
-            finite = np.flatnonzero(np.isfinite(c.ravel()))
-            a, b = rng.choice(finite, 2, replace=False)
-            c.flat[b] = c.flat[a] * (1 + rng.choice([0.0, 1e-15, -1e-15, 1e-9]))
-        want = int(best_restart(torch.from_numpy(c.reshape(1, -1)), largest=False)[0])
-        assert first_near_min(c) == want, c
+@pytest.mark.parametrize("bad", [0, -1, True, 2.5, None])
+def test_min_k_is_checked(bad):
+    with pytest.raises(ParameterError, match="min_k"):
+        MergeWeights(min_k=bad)
+
+
+def test_region_graph_equals_a_plain_loop_over_the_dual_edges():
+    s = shapes.icosphere(2)
+    rng = np.random.default_rng(1)
+    bary = s.vertices[s.faces].mean(1)
+    labels = np.argmax(bary @ rng.normal(size=(6, 3)).T, axis=1) * 2     # ids 0, 2, ..., 10
+    labels[:5] = -1
+    feats = rng.normal(size=(len(labels), 4))
+    area = face_areas(s.vertices, s.faces)
+    dual = dual_edges(s.vertices, s.faces)
+    g = region_graph(labels, dual, feats, area, crease_angle=1.0)
+    ids = sorted(set(labels[labels >= 0].tolist()))
+    K = len(ids)
+    area_ref, mean_ref = np.zeros(K), np.zeros((K, 4))
+    for f, lab in enumerate(labels):
+        if lab >= 0:
+            p = ids.index(lab)
+            area_ref[p] += area[f]
+            mean_ref[p] += area[f] * feats[f] / np.linalg.norm(feats[f])
+    length, concave, convex = (np.zeros((K, K)) for _ in range(3))
+    cav, cvx = crease_weights(dual.dihedral, 1.0)
+    for e, (a, b) in enumerate(dual.pairs):
+        if labels[a] >= 0 and labels[b] >= 0 and labels[a] != labels[b]:
+            i, j = ids.index(labels[a]), ids.index(labels[b])
+            for mat, val in ((length, 1.0), (concave, cav[e]), (convex, cvx[e])):
+                mat[i, j] += dual.length[e] * val
+                mat[j, i] += dual.length[e] * val
+    np.testing.assert_array_equal(g.labels[labels >= 0], [ids.index(v) for v in labels[labels >= 0]])
+    np.testing.assert_allclose(g.area, area_ref, rtol=1e-14)
+    np.testing.assert_allclose(g.mean, mean_ref / area_ref[:, None], rtol=1e-12)
+    for got, ref in ((g.length, length), (g.concave, concave), (g.convex, convex)):
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-15)
+    # partition_cost from a plain loop too
+    unit = feats / np.linalg.norm(feats, axis=1, keepdims=True)
+    cost = 0.0
+    for lab in ids:
+        u = unit[labels == lab]
+        c = u.sum(0) / np.linalg.norm(u.sum(0))
+        cost += float(np.sum(1 - u @ c))
+    np.testing.assert_allclose(partition_cost(labels, feats), cost, rtol=1e-12)
+
+
+def test_unit_rows_of_a_subset_are_the_subset_of_unit_rows():
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(400, 19)) * rng.choice([1e-6, 1.0, 1e6], size=(400, 1))
+    x[::13] = 0.0
+    keep = rng.random(400) < 0.6
+    np.testing.assert_array_equal(unit_rows(x[keep]), unit_rows(x)[keep])
+
+
+def _partition_cost_plain(labels, feats):
+    """Σ_f (1 - cos(x_f, c_p)) with each center the normalized sum of its part's unit rows."""
+    norm = np.linalg.norm(feats, axis=1, keepdims=True)
+    x = np.divide(feats, norm, out=np.zeros_like(feats), where=norm > 0)
+    uniq, inv = np.unique(labels, return_inverse=True)
+    centers = np.zeros((len(uniq), feats.shape[1]))
+    np.add.at(centers, inv, x)
+    centers /= np.linalg.norm(centers, axis=1, keepdims=True)
+    return float(np.sum(1.0 - np.einsum("ij,ij->i", x, centers[inv])))
+
+
+def test_region_graph_and_costs_with_shared_arrays_are_those_computed_afresh():
+    v, f, labels = sphere_labels(3, 9, seed=4)
+    labels = labels * 3 - 1                                          # ids -1, 2, 5, ...: gaps, one unlabelled
+    dual = dual_edges(v, f)
+    area = face_areas(v, f)
+    rng = np.random.default_rng(4)
+    feats = np.abs(rng.normal(size=(len(f), 12)))
+    weights = MergeWeights(crease_angle=1.0)
+    unit, bends = unit_rows(feats), boundary_bends(dual, weights.crease_angle)
+    cav, cvx = crease_weights(dual.dihedral, weights.crease_angle)
+    np.testing.assert_array_equal(bends[0], dual.length * cav)
+    np.testing.assert_array_equal(bends[1], dual.length * cvx)
+    g0 = region_graph(labels, dual, feats, area, weights.crease_angle)
+    g1 = region_graph(labels, dual, None, area, weights.crease_angle, unit=unit, bends=bends)
+    for name in ("labels", "area", "mean", "length", "concave", "convex"):
+        np.testing.assert_array_equal(getattr(g0, name), getattr(g1, name))
+    np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, 4, weights, dual),
+                                  merge_parts(labels, f, v, feats, area, 4, weights, dual, unit=unit, bends=bends))
+    for k in (2, 4):   # one region graph made beforehand serves every k
+        np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, k, weights, dual),
+                                      merge_parts(labels, f, v, feats, area, k, weights, dual, graph=g1))
+    assert next_merge_cost(labels, dual, feats, area, weights) == \
+        next_merge_cost(labels, dual, feats, area, weights, unit=unit, bends=bends)
+    assert partition_cost(labels, feats) == partition_cost(labels, feats, unit=unit)
+    every = labels + 1                                               # every face in a part
+    assert partition_cost(every, feats) == partition_cost(every, feats, unit=unit)
+    assert partition_cost(every, feats) == _partition_cost_plain(every, feats)

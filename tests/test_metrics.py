@@ -279,12 +279,12 @@ def test_one_graph_scoring_many_pairs_runs_dijkstra_once_per_labelling(monkeypat
     """A mesh's scorer keeps each labelling's distance to its cut: every pair gives the value of
     a fresh computation (bitwise), and Dijkstra runs once per distinct labelling, however the
     pairs repeat (a human against several predictions, the same labels in a new array)."""
-    from torchakvf.evaluate.metrics import _EdgeGraph
+    from torchakvf.evaluate.metrics import EdgeGraph
     v, f = sphere_mesh(2)
     c = v[f].mean(axis=1)
     labellings = [octant_labels(v, f), (c[:, 2] > 0).astype(np.int64), (c[:, 0] > 0.3).astype(np.int64),
                   np.zeros(len(f), dtype=np.int64)]
-    graph = _EdgeGraph(v, f)
+    graph = EdgeGraph(v, f)
     runs, real = [], graph.distance_to
     monkeypatch.setattr(graph, "distance_to", lambda src: runs.append(len(src)) or real(src))
     for a in labellings:

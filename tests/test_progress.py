@@ -54,3 +54,5 @@ def test_disabled_reports_nothing(caplog):
         bar.update(2, note="done")
         bar.close()
     assert stream.getvalue() == "" and not caplog.records and bar.done == 2
+
+

@@ -10,24 +10,19 @@ import pytest
 ray = pytest.importorskip("ray", reason="the Ray runner is optional: pip install 'torchakvf[ray]'")
 
 import numpy as np  # noqa: E402
-import torch  # noqa: E402
 
 from torchakvf import cli, shapes  # noqa: E402
 from torchakvf.pipeline.features import FeaturesTask  # noqa: E402
 from torchakvf.pipeline.ray_runner import run_corpus_ray  # noqa: E402
 from torchakvf.pipeline.runner import MANIFEST, discover_inputs, read_manifest, run_corpus  # noqa: E402
-from meshfiles import write_off, write_small_corpus  # noqa: E402
+from helpers.faketask import FakeTask  # noqa: E402
+from helpers.meshfiles import write_off, write_small_corpus  # noqa: E402
 
 N = 8
 BUDGET = 600  # faces per batch: each of the three meshes is a batch of its own
 
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)   # as the workers do (1 CPU each): same arithmetic, and no thrashing
-    yield
-    torch.set_num_threads(old)
+# One intra-op thread, as the workers run (1 CPU each): the same arithmetic, and no thrashing.
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
@@ -169,3 +164,15 @@ def test_ray_workers_flag_errors_are_one_line(tmp_path, capsys, value, message):
     assert rc == 2 and len(lines) == 1 and lines[0].startswith("torchakvf: error: ")
     assert message in lines[0] and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_bad_file_fails_alone_on_ray(ray_local, tmp_path):
+    ico = shapes.icosphere(1)
+    paths = [write_off(tmp_path / "in" / f"{n}.off", ico.vertices, ico.faces) for n in ("a", "b")]
+    (tmp_path / "in" / "bad.off").write_bytes(b"\xff\xfe")
+    paths.append(tmp_path / "in" / "bad.off")
+    summary = run_corpus_ray(paths, tmp_path / "out", FakeTask(), batch_faces=100, workers=2)
+    assert (summary.ok, summary.failed) == (2, 1)
+    assert (tmp_path / "out" / "a.txt").read_text() == "80"
+    by_stem = {r["stem"]: r for r in read_manifest(tmp_path / "out").values()}
+    assert by_stem["bad"]["status"] == "failed"

@@ -8,11 +8,13 @@ from .errors import ConvergenceWarning, MeshError, ParameterError, SolverError, 
 from .io import load_mesh
 from .mesh import CleanMesh, Mesh, MeshBatch, clean_mesh
 from .fields import AKVFResult, UntangledFields, akvf, untangle
+from .options import SegmentOptions
+from .solvers import AKVFSolver
 from .parts import MeshSegmentation, Segmentation, segment
 from . import data
 
 __version__ = "0.1.0"
 
 __all__ = ["TorchAKVFError", "MeshError", "SolverError", "ParameterError", "ConvergenceWarning", "load_mesh", "Mesh",
-           "CleanMesh", "clean_mesh", "MeshBatch", "AKVFResult", "akvf", "UntangledFields", "untangle",
-           "Segmentation", "MeshSegmentation", "segment", "__version__"]
+           "CleanMesh", "clean_mesh", "MeshBatch", "AKVFResult", "AKVFSolver", "akvf", "UntangledFields", "untangle",
+           "SegmentOptions", "Segmentation", "MeshSegmentation", "segment", "__version__"]

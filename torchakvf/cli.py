@@ -63,7 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_demo(sub)
     from .pipeline.commands import add_corpus_commands
-    from .evaluate.commands import add_bench_command, add_eval_command
+    from .bench.command import add_bench_command
+    from .evaluate.commands import add_eval_command
     add_corpus_commands(sub)
     add_eval_command(sub)
     add_bench_command(sub)

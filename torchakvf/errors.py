@@ -23,6 +23,11 @@ class SolverError(TorchAKVFError):
     """The eigensolver could not produce the requested eigenpairs for a mesh."""
 
 
+class FieldCountError(SolverError):
+    """More fields were asked for than a mesh has edges (a mesh too small for ``n``): no remedy
+    or other solver helps, only fewer fields."""
+
+
 class ParameterError(TorchAKVFError, ValueError):
     """A parameter is out of its documented range."""
 

@@ -11,10 +11,18 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .._restarts import best_restart
+from ..restarts import best_restart
 from ..errors import ParameterError
 
 _NEG = -4.0   # below any cosine: marks centers that do not exist for a mesh
+
+#: k-means++ restarts of :func:`spherical_kmeans` called by itself (a segmentation uses
+#: :data:`~torchakvf.options.KMEANS_RESTARTS_BY_METHOD`): many, since k-means has many
+#: near-equal local optima and a caller with no other knowledge wants the best.
+DEFAULT_RESTARTS = 20
+#: Lloyd iterations per precision phase of :func:`spherical_kmeans` called by itself (a
+#: segmentation uses :data:`~torchakvf.options.KMEANS_MAX_ITER`).
+DEFAULT_MAX_ITER = 100
 
 
 @dataclass
@@ -23,7 +31,7 @@ class KMeansResult:
     padding); centers : [B, k_max, d] unit vectors (0 when unused); cost : [B] Σ w (1 - cos) of
     the restart kept; iterations : [B] Lloyd iterations (float32 and float64 phases together);
     restart_costs : [B, R] the cost every restart ended at (the kept one is the lowest; of
-    costs equal to round-off, the first: :func:`~torchakvf._restarts.best_restart`)."""
+    costs equal to round-off, the first: :func:`~torchakvf.restarts.best_restart`)."""
 
     labels: torch.Tensor
     centers: torch.Tensor
@@ -32,8 +40,8 @@ class KMeansResult:
     restart_costs: torch.Tensor | None = None
 
 
-def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 20,
-                     max_iter: int = 100, seed: int = 0, weights: torch.Tensor | None = None,
+def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = DEFAULT_RESTARTS,
+                     max_iter: int = DEFAULT_MAX_ITER, seed: int = 0, weights: torch.Tensor | None = None,
                      iteration_dtype: torch.dtype = torch.float32, init=None) -> KMeansResult:
     """Cluster the rows of each mesh by cosine similarity.
 
@@ -53,9 +61,9 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         (normalized here) for mesh b: its LAST restart starts from them, the other k_b - j_b
         centers chosen k-means++-style (given the seeds) with that restart's own draws; the
         other restarts, and meshes with None, are seeded as without ``init``. E.g. the previous
-        k's clustering of the same mesh (:func:`~torchakvf.parts.engine.segment_rounds`).
+        k's clustering of the same mesh (:func:`~torchakvf.parts.rounds.segment_rounds`).
     """
-    nb, n_max, d = x.shape
+    nb = x.shape[0]
     ks = [int(k)] * nb if isinstance(k, numbers.Integral) else [int(v) for v in k]
     counts = mask.sum(1).tolist()
     if len(ks) != nb:
@@ -70,6 +78,22 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
     kvec = torch.tensor(ks, device=dev)
     center_ok = torch.arange(k_max, device=dev)[None, :] < kvec[:, None]          # [B, k_max]
 
+    centers = _seeded_centers(x, w, mask, ks, r, seed, center_ok, init)             # [B, R, k_max, d]
+    labels, cost, iters, centers = _lloyd_each(x, w, mask, ks, centers, max_iter, iteration_dtype, center_ok)
+    pick = best_restart(cost, largest=False)
+    ar = torch.arange(nb, device=dev)
+    labels = labels[ar, :, pick].masked_fill(~mask, -1)
+    return KMeansResult(labels=labels, centers=centers[ar, pick] * center_ok[..., None],
+                        cost=cost[ar, pick], iterations=iters[ar, pick], restart_costs=cost)
+
+
+def _seeded_centers(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, r: int, seed: int,
+                    center_ok: torch.Tensor, init) -> torch.Tensor:
+    """[B, R, k_max, d] k-means++ centers of every restart of every mesh (x [B, N_max, d] unit
+    rows, w [B, N_max] weights, ks [B], center_ok [B, k_max]); with ``init``, each listed mesh's
+    last restart grown from its given seeds (see :func:`spherical_kmeans`)."""
+    nb, _, d = x.shape
+    k_max, dev, dt = max(ks), x.device, x.dtype
     # Uniform draws for seeding, per mesh from its own generator and of its own k (padded), so a
     # mesh's clustering does not depend on the k's of the meshes beside it in the batch.
     draws = torch.zeros(nb, r, k_max, dtype=dt)
@@ -82,19 +106,27 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         # per mesh, so the same centers.
         centers = x.new_zeros(nb, r, k_max, d)
         for b in range(nb):
-            centers[b:b + 1, :, :ks[b]] = _kmeanspp(x[b:b + 1], w[b:b + 1], draws[b:b + 1, :, :ks[b]],
-                                                    center_ok[b:b + 1, :ks[b]])
+            centers[b:b + 1, :, :ks[b]] = kmeanspp(x[b:b + 1], w[b:b + 1], draws[b:b + 1, :, :ks[b]],
+                                                   center_ok[b:b + 1, :ks[b]])
     else:
-        centers = _kmeanspp(x, w, draws, center_ok)                                # [B, R, k_max, d]
+        centers = kmeanspp(x, w, draws, center_ok)                                # [B, R, k_max, d]
     if init is not None:
         if len(init) != nb:
             raise ParameterError(f"init has {len(init)} entries for {nb} meshes")
         for b, seeds in enumerate(init):
             if seeds is not None:
                 end = int(torch.nonzero(mask[b]).max()) + 1   # the same rows in any batch
-                centers[b, r - 1, :ks[b]] = _kmeanspp_from(x[b, :end], w[b, :end], seeds,
-                                                           draws[b, r - 1, :ks[b]], b)
+                centers[b, r - 1, :ks[b]] = kmeanspp_from(x[b, :end], w[b, :end], seeds,
+                                                          draws[b, r - 1, :ks[b]], b)
+    return centers
 
+
+def _lloyd_each(x: torch.Tensor, w: torch.Tensor, mask: torch.Tensor, ks: list, centers: torch.Tensor,
+                max_iter: int, iteration_dtype: torch.dtype, center_ok: torch.Tensor):
+    """:func:`lloyd` of every restart of every mesh: (labels [B, N_max, R], cost [B, R],
+    iterations [B, R], centers [B, R, k_max, d])."""
+    nb, n_max, d = x.shape
+    r, k_max, dev, dt = centers.shape[1], max(ks), x.device, x.dtype
     if dev.type == "cpu":
         # On CPU each mesh iterates alone with its own k: no padded centers (computed, masked and
         # searched by max on every iteration when the k's differ), and no mesh computes as many
@@ -102,8 +134,8 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
         # those of the batched run.
         # Rows past a mesh's last one are padding (weight 0; the same label on every iteration).
         ends = [int(torch.nonzero(mask[b]).max()) + 1 for b in range(nb)]
-        parts = [_lloyd(x[b:b + 1, :ends[b]], w[b:b + 1, :ends[b]], centers[b:b + 1, :, :ks[b]], max_iter,
-                        iteration_dtype) for b in range(nb)]
+        parts = [lloyd(x[b:b + 1, :ends[b]], w[b:b + 1, :ends[b]], centers[b:b + 1, :, :ks[b]], max_iter,
+                       iteration_dtype) for b in range(nb)]
         labels = torch.full((nb, n_max, r), -1, dtype=torch.long, device=dev)
         cost = torch.cat([p[1] for p in parts])
         iters = torch.cat([p[2] for p in parts])
@@ -112,16 +144,12 @@ def spherical_kmeans(x: torch.Tensor, mask: torch.Tensor, k, *, restarts: int = 
             labels[b, :ends[b]] = p[0][0]
             centers[b, :, :ks[b]] = p[3]
     else:
-        labels, cost, iters, centers = _lloyd(x, w, centers, max_iter, iteration_dtype, center_ok)
-    pick = best_restart(cost, largest=False)
-    ar = torch.arange(nb, device=dev)
-    labels = labels[ar, :, pick].masked_fill(~mask, -1)
-    return KMeansResult(labels=labels, centers=centers[ar, pick] * center_ok[..., None],
-                        cost=cost[ar, pick], iterations=iters[ar, pick], restart_costs=cost)
+        labels, cost, iters, centers = lloyd(x, w, centers, max_iter, iteration_dtype, center_ok)
+    return labels, cost, iters, centers
 
 
-def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
-           iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
+def lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+          iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
     """Lloyd iterations of every restart from seeded centers, then the final float64 assignment.
 
     x : [B, N, d] unit rows (0 on padding); w : [B, N] weights (0 on padding)
@@ -129,17 +157,17 @@ def _lloyd(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: in
     Returns labels [B, N, R], cost [B, R] = Σ w (1 - cos), iterations [B, R], centers [B, R, k, d].
 
     One mesh on CPU with all its centers (every call of :func:`spherical_kmeans` there) takes
-    :func:`_lloyd_one_mesh`, the same arithmetic without the batch's bookkeeping; any other
-    call :func:`_lloyd_batched`.
+    :func:`lloyd_one_mesh`, the same arithmetic without the batch's bookkeeping; any other
+    call :func:`lloyd_batched`.
     """
     if len(x) == 1 and x.device.type == "cpu" and (center_ok is None or bool(center_ok.all())):
-        return _lloyd_one_mesh(x, w, centers, max_iter, iteration_dtype)
-    return _lloyd_batched(x, w, centers, max_iter, iteration_dtype, center_ok)
+        return lloyd_one_mesh(x, w, centers, max_iter, iteration_dtype)
+    return lloyd_batched(x, w, centers, max_iter, iteration_dtype, center_ok)
 
 
-def _lloyd_one_mesh(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
-                    iteration_dtype: torch.dtype):
-    """:func:`_lloyd_batched` for one mesh (x [1, N, d], w [1, N], centers [1, R, k, d]) with
+def lloyd_one_mesh(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+                   iteration_dtype: torch.dtype):
+    """:func:`lloyd_batched` for one mesh (x [1, N, d], w [1, N], centers [1, R, k, d]) with
     every center present, on CPU, bitwise.
 
     The same products of the same shapes and layouts, the same cluster sums in the same order:
@@ -252,13 +280,13 @@ def _final_assignment(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, a
     return labels, cost
 
 
-def _lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
-                   iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
-    """:func:`_lloyd` for any batch on any device: each iteration the live meshes' active
+def lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_iter: int,
+                  iteration_dtype: torch.dtype, center_ok: torch.Tensor | None = None):
+    """:func:`lloyd` for any batch on any device: each iteration the live meshes' active
     restarts are gathered into slots, the results scattered back."""
     nb, n_max, d = x.shape
     r, k_max = centers.shape[1], centers.shape[2]
-    dev, dt = x.device, x.dtype
+    dev = x.device
     centers = centers.clone()
     ragged = center_ok is not None and not bool(center_ok.all())
     absent = None if center_ok is None else ~center_ok[:, None, None, :]          # [B, 1, 1, k]
@@ -340,8 +368,8 @@ def _lloyd_batched(x: torch.Tensor, w: torch.Tensor, centers: torch.Tensor, max_
     return labels, cost, iters, centers
 
 
-def _kmeanspp_from(x: torch.Tensor, w: torch.Tensor, seeds: torch.Tensor, u: torch.Tensor,
-                   b: int) -> torch.Tensor:
+def kmeanspp_from(x: torch.Tensor, w: torch.Tensor, seeds: torch.Tensor, u: torch.Tensor,
+                  b: int) -> torch.Tensor:
     """One mesh's k centers: the given seeds, then k-means++ draws for the rest.
 
     x : [N, d] unit rows (0 on padding); w : [N] weights; seeds : [j, d] (normalized here,
@@ -370,7 +398,7 @@ def _kmeanspp_from(x: torch.Tensor, w: torch.Tensor, seeds: torch.Tensor, u: tor
     return out
 
 
-def _kmeanspp(x: torch.Tensor, w: torch.Tensor, u: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
+def kmeanspp(x: torch.Tensor, w: torch.Tensor, u: torch.Tensor, ok: torch.Tensor) -> torch.Tensor:
     """k-means++ seeding of every restart by inverse-CDF sampling with pre-drawn uniforms.
 
     x : [B, N, d] unit rows; w : [B, N] weights; u : [B, R, k_max] uniforms; ok : [B, k_max].

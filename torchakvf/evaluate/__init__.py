@@ -9,14 +9,14 @@ Submodules (import them directly; this package imports nothing on its own so tha
 * :mod:`torchakvf.evaluate.psb_archive` - preparing the PSB from its official archive (file or URL):
   conversion of the benchmark's layout into ours
 * :mod:`torchakvf.evaluate.harness`     - ``evaluate_psb``: plan, predict, score, report
-  (:mod:`~torchakvf.evaluate.plan`, :mod:`~torchakvf.evaluate.predict`,
-  :mod:`~torchakvf.evaluate.score`, :mod:`~torchakvf.evaluate.report`)
+  (:mod:`~torchakvf.evaluate.settings` (EvalSettings, the settings.json guard),
+  :mod:`~torchakvf.evaluate.plan` (meshes and their k's), :mod:`~torchakvf.evaluate.predict`,
+  :mod:`~torchakvf.evaluate.score`, :mod:`~torchakvf.evaluate.report`,
+  :mod:`~torchakvf.evaluate.gallery`)
 * :mod:`torchakvf.evaluate.k_auto`      - choosing k per mesh
-* :mod:`torchakvf.evaluate.bench`       - ``torchakvf bench``: throughput of the evaluation's
-  prediction against its baselines (:mod:`~torchakvf.evaluate.bench_runs`,
-  :mod:`~torchakvf.evaluate.bench_report`)
-* :mod:`torchakvf.evaluate.commands`    - the ``eval`` and ``bench`` commands
+* :mod:`torchakvf.evaluate.commands`    - the ``eval`` command
 
 Layers: ``evaluate`` uses ``parts`` (the segmentation engine) and ``pipeline`` (worker
-processes, the runner's defaults); nothing below imports ``evaluate``.
+processes, the batch planner); only :mod:`torchakvf.bench` (which times the evaluation's
+prediction) imports ``evaluate``.
 """

@@ -1,14 +1,22 @@
-"""Eval gallery: one PNG per category, each mesh's predicted parts next to a human
-segmentation of the same k, with the Rand index error (1 - RI) of the pair.
+"""Eval galleries: one PNG per category, each mesh's predicted parts next to a human
+segmentation of the same k, with the Rand index error (1 - RI) of the pair
+(:func:`write_galleries`, drawn in worker processes; :func:`write_gallery` draws one).
 
 The human segmentation's labels are renumbered to match the prediction's (maximum face
 overlap, Hungarian assignment), so a part and its human counterpart share a colour.
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+
+from ..errors import TorchAKVFError
+from ..io import load_mesh
+from ..pipeline.parallel import map_batches
+from . import psb as P
+from .metrics import rand_index_error
 
 #: Meshes per row (each is two pictures: prediction, human).
 MESHES_PER_ROW = 4
@@ -104,4 +112,63 @@ def write_gallery(path, items: Sequence[tuple], title: str | None = None,
     _save(fig, path, tight=False)
 
 
-__all__ = ["write_gallery", "match_labels"]
+__all__ = ["write_gallery", "write_galleries", "gallery_item", "match_labels"]
+
+
+def gallery_item(plan, row):
+    """(title, V, F, prediction, human, 1-RI) of one scored mesh: its first human segmentation
+    with a prediction at that human's segment count (by-segmentation), else the first human
+    beside the prediction at the mesh's own k (by-model, k auto)."""
+    ks = [k for k in row.ks if plan.pred_path(k).is_file()]
+    if not ks:
+        return None
+    humans = [P.read_seg(s) for s in plan.entry.seg_paths]
+    counts = [P.segment_count(h) for h in humans]
+    pick = next((i for i, c in enumerate(counts) if c in ks), 0)
+    k = counts[pick] if counts[pick] in ks else ks[0]
+    pred, human = P.read_seg(plan.pred_path(k)), humans[pick]
+    mesh = load_mesh(plan.entry.mesh_path)
+    if not (len(pred) == len(human) == mesh.n_faces):
+        return None
+    return (str(plan.mesh_id), mesh.vertices, mesh.faces, pred, human,
+            rand_index_error(pred, human))
+
+
+def write_galleries(out: Path, plans, rows, workers: int = 1) -> dict:
+    """``gallery/<Category>.png`` per category with scored meshes: each mesh's prediction next to
+    one human segmentation at the same k, with its 1-RI (:func:`~torchakvf.evaluate.gallery.
+    write_gallery`). Returns {category: path relative to ``out``}, in the plans' order.
+
+    workers : processes drawing categories side by side (rendering is CPU-bound numpy: on the
+        PSB about a third of an evaluation's wall time when drawn in this process alone)."""
+    by_id = {r.mesh_id: r for r in rows}
+    pairs: dict = {}
+    for p in plans:
+        r = by_id.get(p.mesh_id)
+        if r is not None and r.scored:
+            pairs.setdefault(r.category, []).append((p, r))
+    batches = [[(cat, ps)] for cat, ps in pairs.items()]
+    written, errors = {}, []
+    for res in map_batches(batches, _draw_galleries, (out,), workers=max(1, min(int(workers), len(batches)))):
+        if res.error is not None:
+            errors.append(res.error)
+        elif not res.split:
+            written.update(res.result)
+    if errors:
+        raise TorchAKVFError(f"{out / 'gallery'}: {len(errors)} gallery(ies) could not be drawn: {errors[0]}")
+    return {cat: written[cat] for cat in pairs if cat in written}
+
+
+def _draw_galleries(batch, out: Path) -> dict:
+    """{category: path relative to out} of the galleries of ``batch`` [(category, [(plan, row)])]
+    (a module-level function: it may run in a worker process)."""
+    written = {}
+    for cat, pairs in batch:
+        its = [it for it in (gallery_item(p, r) for p, r in pairs) if it is not None]
+        if not its:
+            continue
+        rel = Path("gallery") / f"{cat}.png"
+        mean = float(np.mean([it[5] for it in its]))
+        write_gallery(out / rel, its, title=f"{cat}: prediction | human, 1-RI per mesh (mean {mean:.3f})")
+        written[cat] = rel.as_posix()
+    return written

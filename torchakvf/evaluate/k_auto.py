@@ -1,6 +1,6 @@
 """Choosing the number of parts k automatically (beyond the paper, which takes k as given).
 
-Rule ``"elbow"`` (the default before the merge costs existed): segment every mesh for each k in ``k_range`` from *one* AKVF
+Rule ``"elbow"``: segment every mesh for each k in ``k_range`` from *one* AKVF
 solve and *one* field count (``n_fields = default_n_fields(k_max)`` for every k, so that the
 per-face features, and hence the k-means costs, are comparable across k; moved, like
 ``segment`` does, off a cluster of near-equal eigenvalues), normalise the
@@ -12,8 +12,8 @@ which extra parts stop paying for themselves. Ties go to the smaller k. Only int
 * ``"merge"`` - from the merge costs (:func:`~torchakvf.parts.merge.next_merge_cost`): at each k
   the cheapest merge left among the k parts, c_next(k); descending from k_max, merging goes on
   while that merge is cheap, and stops at the first k whose next merge costs more than τ
-  (:data:`MERGE_TAU`, chosen by cross-validation across PSB categories,
-  benchmarks/results/quality_v2_kauto.md); k_min when every merge is cheap.
+  (:data:`MERGE_TAU`, chosen by cross-validation across PSB categories, see docs/design.md);
+  k_min when every merge is cheap.
 
 Other rules, kept for comparison (see the measurements in the evaluation report):
 
@@ -34,23 +34,24 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, as_batch
-from ..parts.engine import (DEFAULT_REMEDY, SPARE_FIELDS, SegmentOptions, cluster_safe_n,
-                            default_n_fields, segment_rounds, solve_akvfs)
-from ..parts.merge import MergeWeights
+from ..options import SPARE_FIELDS, MergeWeights, SegmentOptions, segment_options
+from ..parts.field_counts import cluster_safe_n, default_n_fields
+from ..parts.rounds import segment_rounds
+from ..parts.solve import solve_akvfs
 from ..parts.results import Segmentation
 
 RULES = ("elbow", "knee", "spectrum", "merge")
-#: The rule used unless one is given: "merge" (held-out 1-RI 0.151 on the cached PSB subset
-#: against 0.245 for "elbow" and 0.161 at the humans' mode k; benchmarks/results/quality_v2_kauto.md).
+#: The rule used unless one is given: "merge", the best held-out 1-RI of the rules on the PSB
+#: (see docs/design.md).
 DEFAULT_RULE = "merge"
 #: The "merge" rule's threshold on the cheapest merge left (units of the merge cost): chosen by
-#: 3-fold cross-validation across PSB categories (every fold chose 0.95, default merge weights).
+#: cross-validation across PSB categories with the default merge weights (see docs/design.md).
 MERGE_TAU = 0.95
 #: The merge weights' min_k of the scan when the caller gives no ``merge``: 1, every k
-#: over-segmented on its own, as when MERGE_TAU was chosen. With the segmentation default
-#: (MergeWeights.min_k 8) the small k's of the scan are merged down from one 24-part
+#: over-segmented on its own, the setting MERGE_TAU was chosen with. With the segmentation
+#: default (MergeWeights.min_k 8) the small k's of the scan are merged down from one
 #: over-segmentation and their next-merge costs read differently (a dumbbell's neck is left as
-#: a costly third part: k 3 instead of 2); that combination was not cross-validated.
+#: a costly third part).
 SCAN_MIN_K = 1
 DEFAULT_K_RANGE = (2, 10)
 
@@ -59,7 +60,15 @@ def scan_merge_weights(merge: MergeWeights | None) -> MergeWeights:
     """The scan's merge weights: ``merge`` as given, None: the defaults at :data:`SCAN_MIN_K`."""
     return MergeWeights(min_k=SCAN_MIN_K) if merge is None else merge
 
-__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "scan_merge_weights", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
+
+def scan_options(options: SegmentOptions | None, overrides: dict) -> SegmentOptions:
+    """The options of a scan: ``options`` with ``overrides`` applied; None: the defaults with
+    the scan's merge weights unless ``overrides`` name others."""
+    if options is None:
+        return segment_options(**{**overrides, "merge": scan_merge_weights(overrides.get("merge"))})
+    return segment_options(options, **overrides)
+
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "scan_merge_weights", "scan_options", "DEFAULT_K_RANGE", "KScan", "scan_k", "choose_k", "segment_auto", "pick_k",
            "check_k_range"]
 
 
@@ -144,28 +153,29 @@ def pick_k(ks, costs, rule: str = DEFAULT_RULE, eigenvalues=None, next_costs=Non
     return int(ks[int(np.argmax(below))])
 
 
-def scan_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, seed: int = 0,
-           remedy: str = DEFAULT_REMEDY, n_fields: int | None = None, keep: bool = True,
-           device=None, **segment_kwargs) -> KScan:
+def scan_k(meshes, k_range=DEFAULT_K_RANGE, options: SegmentOptions | None = None, *,
+           rule: str = DEFAULT_RULE, n_fields: int | None = None, keep: bool = True, device=None,
+           **overrides) -> KScan:
     """Segment every mesh for each k in ``k_range`` (inclusive) and pick one k per mesh.
 
     Parameters
     ----------
     meshes : MeshBatch, Mesh, list of Mesh, or an :class:`AKVFResult` to reuse
     k_range : (k_min, k_max), inclusive, k_max >= k_min + 2
+    options : the :class:`~torchakvf.options.SegmentOptions` (None: the defaults, with
+        the scan's merge weights :func:`scan_merge_weights` unless ``merge`` is given); used as
+        given otherwise
     rule : see the module notes (default :data:`DEFAULT_RULE`)
     n_fields : fields untangled for every k (default ``default_n_fields(k_max)`` per mesh, moved
-        by :func:`~torchakvf.parts.engine.cluster_safe_n` off a degenerate eigenvalue cluster)
+        by :func:`~torchakvf.parts.field_counts.cluster_safe_n` off a degenerate eigenvalue cluster)
     keep : keep every k's :class:`Segmentation` (memory: one label array per mesh per k)
     device : torch device the batch is built on (Mesh inputs)
-    segment_kwargs : the :class:`~torchakvf.parts.engine.SegmentOptions` (eps, boundary,
-        solver, kmeans_restarts, ...)
+    overrides : SegmentOptions fields by name (seed, eps, boundary, solver, kmeans_restarts, ...)
     """
     lo, hi = check_k_range(k_range)
     if rule not in RULES:
         raise ParameterError(f"rule must be one of {RULES}, got {rule!r}")
-    segment_kwargs["merge"] = scan_merge_weights(segment_kwargs.get("merge"))
-    opts = SegmentOptions(seed=seed, remedy=remedy, **segment_kwargs)
+    opts = scan_options(options, overrides)
     n = default_n_fields(hi) if n_fields is None else int(n_fields)
     if isinstance(meshes, AKVFResult):
         fields = meshes
@@ -205,7 +215,7 @@ def choose_k(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, **kwa
 
 
 def segment_auto(meshes, k_range=DEFAULT_K_RANGE, *, rule: str = DEFAULT_RULE, **kwargs) -> Segmentation:
-    """``segment(meshes, k="auto")``: each mesh segmented with its automatically chosen k.
+    """Each mesh segmented with its automatically chosen k.
 
     The returned :class:`MeshSegmentation` s carry ``params["k_auto"]`` (the rule, the k's
     tried and their costs).

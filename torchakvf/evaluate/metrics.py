@@ -50,13 +50,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse.csgraph import dijkstra
 
-from ..errors import ParameterError
-# (imported under a private name: several metrics take a face_areas= argument)
-from ..mesh.clean import face_areas as _face_areas
+from .cut_discrepancy import EdgeGraph, average_radius, cut_discrepancy, mesh_face_areas
+from .metric_inputs import as_weights, check_face_count, label_pair
 
 __all__ = [
     "matched_agreement",
@@ -68,6 +65,7 @@ __all__ = [
     "evaluate_segmentation",
     "mesh_face_areas",
     "average_radius",
+    "EdgeGraph",
 ]
 
 
@@ -88,70 +86,6 @@ class HammingResult(NamedTuple):
     distance: float
     missing_rate: float
     false_alarm_rate: float
-
-
-# ---------------------------------------------------------------------------------------------
-# input checks
-# ---------------------------------------------------------------------------------------------
-
-def _as_labels(labels, name: str) -> np.ndarray:
-    arr = np.asarray(labels)
-    if arr.ndim != 1:
-        raise ParameterError(f"{name} must be a 1-D array of per-face segment labels, "
-                             f"got shape {list(arr.shape)}")
-    if arr.size == 0:
-        raise ParameterError(f"{name} is empty: a segmentation needs at least one face")
-    if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
-        raise ParameterError(f"{name} must hold integer segment labels, got dtype {arr.dtype}")
-    return arr.astype(np.int64, copy=False)
-
-
-def _label_pair(a, b, names=("a", "b")) -> tuple[np.ndarray, np.ndarray]:
-    a = _as_labels(a, names[0])
-    b = _as_labels(b, names[1])
-    if a.shape != b.shape:
-        raise ParameterError(f"{names[0]} has {a.size} labels but {names[1]} has {b.size}: "
-                             f"both segmentations must label the same faces")
-    return a, b
-
-
-def _as_weights(weights, n: int, name: str = "face_areas") -> np.ndarray:
-    w = np.asarray(weights)
-    if w.ndim != 1 or w.size != n:
-        raise ParameterError(f"{name} must be a 1-D array with one value per face ({n}), "
-                             f"got shape {list(w.shape)}")
-    if not (np.issubdtype(w.dtype, np.floating) or np.issubdtype(w.dtype, np.integer)):
-        raise ParameterError(f"{name} must be numeric, got dtype {w.dtype}")
-    w = w.astype(np.float64, copy=False)
-    if not np.all(np.isfinite(w)):
-        raise ParameterError(f"{name} contains NaN or infinite values")
-    if np.any(w < 0):
-        raise ParameterError(f"{name} contains negative values")
-    if not w.sum() > 0:
-        raise ParameterError(f"{name} sum to zero: the total weight must be positive")
-    return w
-
-
-def _as_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    v = np.asarray(vertices)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
-        raise ParameterError(f"vertices must have shape [V, 3] with V > 0, got {list(v.shape)}")
-    if not np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_:
-        raise ParameterError(f"vertices must be numeric, got dtype {v.dtype}")
-    v = v.astype(np.float64, copy=False)
-    if not np.all(np.isfinite(v)):
-        raise ParameterError("vertices contain NaN or infinite coordinates")
-    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
-        raise ParameterError(f"faces must be triangles with shape [F, 3] and F > 0, "
-                             f"got {list(f.shape)}")
-    if f.dtype == np.bool_ or not np.issubdtype(f.dtype, np.integer):
-        raise ParameterError(f"faces must hold integer vertex indices, got dtype {f.dtype}")
-    f = f.astype(np.int64, copy=False)
-    if f.min() < 0 or f.max() >= len(v):
-        raise ParameterError(f"faces index vertices outside 0..{len(v) - 1} "
-                             f"(min {int(f.min())}, max {int(f.max())})")
-    return v, f
 
 
 # ---------------------------------------------------------------------------------------------
@@ -250,7 +184,7 @@ def rand_index_error(a, b) -> float:
     == 1`` exactly. The benchmark's C++ divides by an integer-truncated ``(N - 1) / 2``; see the
     module notes for the (< 0.04 %) difference this makes.
     """
-    a, b = _label_pair(a, b)
+    a, b = label_pair(a, b)
     t = _table(a, b)
     n = t.n_faces
     if n < 2:
@@ -265,8 +199,8 @@ def matched_agreement(a, b, face_areas=None) -> float:
     contingency table; segments left unmatched count as disagreement). 1 = the same partition.
     Not a benchmark metric: what "labels match the true parts on x% of the area" means.
     """
-    a, b = _label_pair(a, b)
-    w = _as_weights(face_areas, a.size) if face_areas is not None else np.ones(a.size)
+    a, b = label_pair(a, b)
+    w = as_weights(face_areas, a.size) if face_areas is not None else np.ones(a.size)
     t = _table(a, b, with_face_cell=True)
     weight = np.zeros((len(t.size_a), len(t.size_b)))
     weight[t.cell_a, t.cell_b] = np.bincount(t.face_cell, weights=w, minlength=len(t.cell_a))
@@ -301,9 +235,9 @@ def hamming_distance(a, b, face_areas=None) -> HammingResult:
         ``(distance, missing_rate, false_alarm_rate)``, each in [0, 1]. Swapping ``a`` and
         ``b`` swaps the two rates and keeps ``distance``.
     """
-    a, b = _label_pair(a, b)
+    a, b = label_pair(a, b)
     t = _table(a, b, with_face_cell=True)
-    w = np.ones(t.n_faces) if face_areas is None else _as_weights(face_areas, t.n_faces)
+    w = np.ones(t.n_faces) if face_areas is None else as_weights(face_areas, t.n_faces)
     total = float(w.sum())
     inter = np.bincount(t.face_cell, weights=w, minlength=t.cell_count.size)
     # Best overlap of every segment of b (over segments of a), and vice versa. Empty cells
@@ -348,13 +282,13 @@ def consistency_errors(a, b, face_areas=None) -> tuple[float, float]:
     -------
     (gce, lce) : tuple of float, each in [0, 1]
     """
-    a, b = _label_pair(a, b)
+    a, b = label_pair(a, b)
     t = _table(a, b, with_face_cell=face_areas is not None)
     freq = t.cell_count.astype(np.float64)  # faces in each cell: the per-face errors' multiplicity
     if face_areas is None:
         inter, size_a, size_b = freq, t.size_a.astype(np.float64), t.size_b.astype(np.float64)
     else:
-        w = _as_weights(face_areas, t.n_faces)
+        w = as_weights(face_areas, t.n_faces)
         inter = np.bincount(t.face_cell, weights=w, minlength=freq.size)
         size_a = np.bincount(t.ids_a, weights=w, minlength=len(t.size_a))
         size_b = np.bincount(t.ids_b, weights=w, minlength=len(t.size_b))
@@ -372,185 +306,6 @@ def _refinement_error(inter: np.ndarray, segment_size: np.ndarray) -> np.ndarray
     ok = segment_size > 0
     out[ok] = 1.0 - inter[ok] / segment_size[ok]
     return np.clip(out, 0.0, 1.0)
-
-
-# ---------------------------------------------------------------------------------------------
-# Cut discrepancy
-# ---------------------------------------------------------------------------------------------
-
-def mesh_face_areas(vertices, faces) -> np.ndarray:
-    """Area of every triangle.
-
-    Parameters
-    ----------
-    vertices : array [V, 3], float
-    faces : array [F, 3], int
-
-    Returns
-    -------
-    array [F], float64
-    """
-    v, f = _as_mesh(vertices, faces)
-    return _face_areas(v, f)
-
-
-def average_radius(vertices, faces) -> float:
-    """Mean distance from a point on the surface to its centroid (GAPS ``AverageRadius``).
-
-    Area-weighted mean, over faces, of the distance from the face centroid (mean of its three
-    corners) to the area-weighted centroid of the surface. This is the cut discrepancy's
-    normaliser.
-
-    Parameters
-    ----------
-    vertices : array [V, 3], float
-    faces : array [F, 3], int
-
-    Returns
-    -------
-    float
-        0 when the surface has zero area.
-    """
-    v, f = _as_mesh(vertices, faces)
-    return _average_radius(v, f, _face_areas(v, f))
-
-
-def _average_radius(v: np.ndarray, f: np.ndarray, areas: np.ndarray) -> float:
-    total = float(areas.sum())
-    if total <= 0:
-        return 0.0
-    centroids = v[f].mean(axis=1)
-    center = (areas[:, None] * centroids).sum(axis=0) / total
-    return float((areas * np.linalg.norm(centroids - center, axis=1)).sum() / total)
-
-
-class _EdgeGraph:
-    """Edges of a triangle mesh, grouped with their incident faces, and the edge-length graph.
-
-    Built once per mesh so several segmentations of the same mesh can be compared cheaply.
-    """
-
-    def __init__(self, vertices, faces):
-        v, f = _as_mesh(vertices, faces)
-        self.vertices, self.faces = v, f
-        n_v, n_f = len(v), len(f)
-        ends = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        owner = np.tile(np.arange(n_f, dtype=np.int64), 3)
-        lo, hi = ends.min(axis=1), ends.max(axis=1)
-        keep = lo != hi  # a degenerate face's collapsed side is no edge
-        lo, hi, owner = lo[keep], hi[keep], owner[keep]
-        code = lo * n_v + hi
-        order = np.argsort(code, kind="stable")
-        code = code[order]
-        #: faces incident to each edge, edge after edge; group k spans edge_start[k]:edge_start[k+1]
-        self.edge_faces = owner[order]
-        self.edge_start = np.flatnonzero(np.r_[True, code[1:] != code[:-1]])
-        uniq = code[self.edge_start]
-        self.edge_ends = np.stack([uniq // n_v, uniq % n_v], axis=1)
-        lengths = np.linalg.norm(v[self.edge_ends[:, 0]] - v[self.edge_ends[:, 1]], axis=1)
-        # Zero-length edges stay in the graph as explicit zeros (csgraph keeps stored zeros
-        # as edges), so "distance 0 from the cut" means what it means in the C++.
-        self.graph = sp.csr_matrix((lengths, (self.edge_ends[:, 0], self.edge_ends[:, 1])),
-                                   shape=(n_v, n_v))
-        self._areas = None
-        self._radius = None
-        #: labels (their bytes) -> distance of every vertex to their cut (None: no cut). A scorer
-        #: compares one human segmentation with several predictions (and one prediction with
-        #: several humans), so each labelling's Dijkstra is run once per mesh.
-        self._cut_distances: dict = {}
-
-    @property
-    def n_faces(self) -> int:
-        return len(self.faces)
-
-    @property
-    def face_areas(self) -> np.ndarray:
-        if self._areas is None:
-            self._areas = _face_areas(self.vertices, self.faces)
-        return self._areas
-
-    @property
-    def average_radius(self) -> float:
-        if self._radius is None:
-            self._radius = _average_radius(self.vertices, self.faces, self.face_areas)
-        return self._radius
-
-    def cut_vertices(self, labels: np.ndarray) -> np.ndarray:
-        """Vertices on a cut: endpoints of edges whose incident faces carry different labels.
-
-        An edge with one incident face (mesh boundary) is never a cut, as in the benchmark; a
-        non-manifold edge is a cut when any two of its faces differ.
-        """
-        if self.edge_start.size == 0:
-            return np.empty(0, dtype=np.int64)
-        lab = labels[self.edge_faces]
-        is_cut = (np.minimum.reduceat(lab, self.edge_start)
-                  != np.maximum.reduceat(lab, self.edge_start))
-        return np.unique(self.edge_ends[is_cut].ravel())
-
-    def distance_to(self, sources: np.ndarray) -> np.ndarray:
-        """Edge-path distance from each vertex to the nearest source ([V]; inf: unreachable)."""
-        return dijkstra(self.graph, directed=False, indices=sources, min_only=True)
-
-    def cut_distance(self, labels: np.ndarray) -> np.ndarray | None:
-        """[V] edge-path distance of each vertex to the cut of ``labels`` [F] (int64), None when
-        it has no cut; kept per labelling (by value) for this mesh's later comparisons."""
-        key = (labels.dtype.str, labels.shape, labels.tobytes())
-        if key not in self._cut_distances:
-            cut = self.cut_vertices(labels)
-            self._cut_distances[key] = self.distance_to(cut) if cut.size else None
-        return self._cut_distances[key]
-
-    def cut_discrepancy(self, a: np.ndarray, b: np.ndarray) -> float:
-        dist_a, dist_b = self.cut_distance(a), self.cut_distance(b)
-        if dist_a is None or dist_b is None:
-            return float("nan")  # the benchmark writes no CD entry here
-        radius = self.average_radius
-        if radius <= 0:
-            raise ParameterError("the mesh has zero surface area, so the cut discrepancy "
-                                 "(normalised by the average radius) is undefined")
-        # Like the C++, "on a cut" means at distance 0 from it (its cut vertices, plus any vertex
-        # joined to them by zero-length edges), and both directions are pooled into one mean.
-        d = np.concatenate([dist_b[dist_a == 0], dist_a[dist_b == 0]])
-        d = d[np.isfinite(d)]  # unreachable: other component (see module notes)
-        if d.size == 0:
-            return float("nan")
-        return float(d.mean() / radius)
-
-
-def cut_discrepancy(vertices, faces, a, b) -> float:
-    """Cut discrepancy: how far the cut boundaries of two segmentations are from each other.
-
-    For every vertex on a cut of ``a`` (an endpoint of an edge between faces of different
-    segments) take its geodesic distance to the nearest cut vertex of ``b``, and vice versa;
-    average all these distances (both directions pooled, as the benchmark's code does) and
-    divide by the mesh's average radius (:func:`average_radius`). Geodesic distance is
-    approximated, as in the benchmark, by the shortest path along mesh edges with Euclidean
-    edge lengths (Dijkstra, ``scipy.sparse.csgraph``).
-
-    Parameters
-    ----------
-    vertices : array [V, 3], float
-    faces : array [F, 3], int
-    a, b : array [F], int
-        Face labels of the two segmentations. Symmetric in ``a`` and ``b``.
-
-    Returns
-    -------
-    float
-        >= 0; 0 when the cuts coincide. NaN when either segmentation has no cut (a single
-        segment): the benchmark writes no value then and leaves the pair out of its averages,
-        so aggregate with ``np.nanmean``.
-    """
-    graph = _EdgeGraph(vertices, faces)
-    a, b = _label_pair(a, b)
-    _check_face_count(a, graph.n_faces, "a")
-    return graph.cut_discrepancy(a, b)
-
-
-def _check_face_count(labels: np.ndarray, n_faces: int, name: str) -> None:
-    if labels.size != n_faces:
-        raise ParameterError(f"{name} has {labels.size} labels but the mesh has {n_faces} faces")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -582,10 +337,10 @@ def evaluate_segmentation(vertices, faces, pred, gt, face_areas=None) -> dict:
         segmentation has no cut). A mesh's benchmark score is the mean of these over its human
         segmentations (``np.nanmean`` for the cut discrepancy).
     """
-    graph = _EdgeGraph(vertices, faces)
-    pred, gt = _label_pair(pred, gt, ("pred", "gt"))
-    _check_face_count(pred, graph.n_faces, "pred")
-    areas = graph.face_areas if face_areas is None else _as_weights(face_areas, graph.n_faces)
+    graph = EdgeGraph(vertices, faces)
+    pred, gt = label_pair(pred, gt, ("pred", "gt"))
+    check_face_count(pred, graph.n_faces, "pred")
+    areas = graph.face_areas if face_areas is None else as_weights(face_areas, graph.n_faces)
     hd = hamming_distance(pred, gt, areas)
     gce, lce = consistency_errors(pred, gt)
     gce_area, lce_area = consistency_errors(pred, gt, areas)

@@ -1,4 +1,5 @@
-"""Which PSB meshes an evaluation runs, which k's each needs, and in which batches.
+"""Which PSB meshes an evaluation runs and which k's each needs (the batches are planned by
+:mod:`torchakvf.pipeline.batches`).
 
 Problems with one input (an unreadable mesh header, a bad human ``.seg``, a corrupt meta file)
 are collected as lines naming the file, so that the rest of the run goes on: see
@@ -14,9 +15,6 @@ from pathlib import Path
 
 from ..errors import MeshError, ParameterError, TorchAKVFError
 from ..io import load_mesh, peek_face_count
-from ..mesh.coarse import DECIMATE_ABOVE
-from ..pipeline.runner import default_batch_faces
-from ..pipeline.batches import cut_by_budget
 from . import psb as P
 
 PROTOCOLS = ("by-segmentation", "by-model")
@@ -25,15 +23,13 @@ PROTOCOLS = ("by-segmentation", "by-model")
 DEFAULT_K_NO_GT = 6
 
 __all__ = ["PROTOCOLS", "DEFAULT_K_NO_GT", "PredictionPlan", "select_entries", "parse_ids",
-           "find_entries", "plan_meshes", "settings_guard", "make_batches", "balanced_batches", "mesh_work",
-           "solved_face_counts", "default_eval_batch_faces", "human_mode", "batches_per_worker"]
+           "find_entries", "plan_meshes", "human_mode"]
 
 
 def human_mode(counts) -> int:
     """Most common segment count (ties: the smaller)."""
     c = collections.Counter(int(v) for v in counts)
     return min(c, key=lambda v: (-c[v], v))
-
 
 
 @dataclass
@@ -154,7 +150,6 @@ def select_entries(entries, categories=None, ids=None, per_category=None) -> lis
 
 
 
-
 def find_entries(root: Path) -> tuple[list, list]:
     """(PSB entries, problem lines): :func:`torchakvf.evaluate.psb.find_psb_meshes`, except that
     a mesh file with an id outside 1..400 or a ``.seg`` in another mesh's folder is a problem
@@ -218,115 +213,3 @@ def plan_meshes(entries, out: Path, protocol: str, auto: bool, default_k: int) -
         else:
             plan.ks = [human_mode(counts)]
     return plans
-
-
-def settings_guard(out: Path, prediction_settings: dict) -> None:
-    """Refuse to mix predictions made with different settings in one folder (a corrupt
-    settings.json is an error naming it, not silently replaced)."""
-    path = out / "settings.json"
-    if path.is_file():
-        try:
-            old = json.loads(path.read_text()).get("prediction")
-        except (ValueError, AttributeError) as exc:
-            raise TorchAKVFError(f"{path}: corrupt settings file ({exc}); delete it (with the "
-                                 f"predictions it describes) or use another --out") from None
-        diff = [] if old is None else sorted(k for k in set(old) | set(prediction_settings)
-                                             if old.get(k) != prediction_settings.get(k))
-        if diff:  # a setting added later, absent from an old file, reads as its default None
-            raise TorchAKVFError(f"{out}: holds predictions made with other settings "
-                                 f"({', '.join(diff)} differ); use another --out or delete it")
-
-
-def default_eval_batch_faces(device, coarse_faces=None) -> int:
-    """The face budget of a batch by default: the corpus runner's for the device; on CPU with
-    decimation, one decimated mesh per batch (the cores are used by worker processes instead,
-    and a batch re-solves every mesh when one of them needs more eigenpairs)."""
-    if coarse_faces and str(device).startswith("cpu"):
-        return int(DECIMATE_ABOVE * coarse_faces)
-    return default_batch_faces(device)
-
-
-def solved_face_counts(faces_of: dict, coarse_faces) -> dict:
-    """{mesh id: faces of the mesh the solver sees}: the input's, or about ``coarse_faces`` for
-    a mesh that will be decimated (the face budget of a batch counts what is solved)."""
-    if not coarse_faces:
-        return dict(faces_of)
-    return {i: (f if f <= DECIMATE_ABOVE * coarse_faces else int(coarse_faces)) for i, f in faces_of.items()}
-
-
-#: Batches per worker on the CPU: as many as there are meshes (each mesh its own batch) where
-#: several workers share the meshes. A CPU batch is solved one mesh at a time inside, so its
-#: size gains nothing and only sets how finely the work is shared; coarser shares lose to the
-#: error of the work estimate. PSB 1-40 decimated, 2 workers, batched / one mesh per batch in
-#: wall time: 0.90 at a budget of 80,000 faces with one batch per worker
-#: (benchmarks/results/bench_budget_sweep_cpu_v4_base.md), 1.00 with 4 per worker
-#: (bench_budget_sweep_cpu_v4.md), then 0.96 at 20,000 faces in a later run with 4 per worker
-#: (bench_budget_sweep_cpu_v5_base.md): never better than one mesh per batch.
-CPU_BATCHES_PER_WORKER = None
-
-
-def batches_per_worker(device) -> int | None:
-    """:data:`CPU_BATCHES_PER_WORKER` on the CPU (None: one mesh per batch where there are
-    several workers); 1 elsewhere (on a GPU batching is the gain)."""
-    return CPU_BATCHES_PER_WORKER if str(device).startswith("cpu") else 1
-
-
-def make_batches(plans, faces_of: dict, budget: int, *, workers: int = 1, work_of: dict | None = None,
-                 per_worker: int | None = 1) -> list:
-    """Plans grouped into batches of at most ``budget`` faces (``faces_of``: by mesh id); a mesh
-    larger than the budget is a batch alone.
-
-    One worker: consecutive plans (the caller's order groups meshes alike, which keeps the
-    batch's padding small). Several workers, with ``work_of`` (estimated work by mesh id):
-    batches of equal work instead, at least one per worker, still under the budget: with as
-    few batches as workers, consecutive meshes sorted by their k's gave one worker the
-    meshes with the most k's (PSB 1-40 at a budget of 80,000 faces: 43.4 s against 33.1 s one
-    mesh per batch). With ``per_worker``, at least that many batches per worker (where there
-    are meshes enough), for a finer share of the work; None: one mesh per batch
-    (:func:`batches_per_worker`). Each mesh's answer depends on that mesh alone, so the grouping
-    changes no answer."""
-    consecutive = cut_by_budget(plans, lambda p: faces_of[p.mesh_id], budget)
-    if workers <= 1 or work_of is None or len(plans) <= 1:
-        return consecutive
-    wanted = len(plans) if per_worker is None else workers * max(1, int(per_worker))
-    count = max(len(consecutive), min(wanted, len(plans)))
-    return balanced_batches(plans, faces_of, budget, work_of, count)
-
-
-def balanced_batches(plans, faces_of: dict, budget: int, work_of: dict, count: int) -> list:
-    """``count`` batches (more where the budget needs them) of about equal work: the plans,
-    heaviest first, each into the lightest batch it fits in under ``budget`` faces (a new batch
-    where it fits in none). Each batch keeps the plans' given order; empty batches are dropped."""
-    index = {id(p): i for i, p in enumerate(plans)}
-    bins: list = [[] for _ in range(count)]
-    work, faces = [0.0] * count, [0] * count
-    for p in sorted(plans, key=lambda p: (-work_of[p.mesh_id], index[id(p)])):
-        f = faces_of[p.mesh_id]
-        fits = [j for j in range(len(bins)) if not bins[j] or faces[j] + f <= budget]
-        if not fits:
-            bins.append([]), work.append(0.0), faces.append(0)
-            fits = [len(bins) - 1]
-        j = min(fits, key=lambda j: (work[j], j))
-        bins[j].append(p)
-        work[j] += work_of[p.mesh_id]
-        faces[j] += f
-    return [sorted(b, key=lambda p: index[id(p)]) for b in bins if b]
-
-
-def mesh_work(faces_of: dict, ks_of: dict) -> dict:
-    """{mesh id: estimated work}: faces x (1 + k's to segment); the parts are cut on the
-    input's faces once per k (``faces_of``: input faces, ``ks_of``: k's still to segment)."""
-    return {i: faces_of[i] * (1 + ks_of[i]) for i in ks_of}
-
-
-def heaviest_first(batches: list, faces_of: dict, ks_of: dict) -> list:
-    """The batches in the order to hand them to workers: the most work first (longest
-    processing time first), ties in the given order. Work is estimated as Σ faces x (1 + k's)
-    over a batch's meshes (``faces_of``, ``ks_of``: input faces and k's still to segment, by
-    mesh id): the parts are cut on the input's faces once per k.
-
-    The batches themselves are not changed, so neither is any answer; with the heaviest last
-    (as sorted for batching), one worker finished a 41 s mesh alone at the end of the PSB run."""
-    per_mesh = mesh_work(faces_of, ks_of)
-    work = [sum(per_mesh[p.mesh_id] for p in b) for b in batches]
-    return [batches[i] for i in sorted(range(len(batches)), key=lambda i: -work[i])]

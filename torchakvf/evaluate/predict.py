@@ -1,6 +1,6 @@
 """Predicting one batch of PSB meshes: load, pack, one AKVF solve, every missing k (or the
 automatic-k scan), prediction and meta files. The work is
-:mod:`torchakvf.parts.engine`'s; this module adds the files, the timings and the resume logic.
+:mod:`torchakvf.parts`'; this module adds the files, the timings and the resume logic.
 """
 from __future__ import annotations
 
@@ -13,8 +13,10 @@ import numpy as np
 from ..io import load_mesh
 from ..io.outputs import atomic_write_bytes, write_seg
 from ..mesh import MeshBatch
-from ..parts.engine import (SPARE_FIELDS, SegmentOptions, default_n_fields, segment_rounds,
-                            solve_akvfs, solve_quality)
+from ..options import SPARE_FIELDS, SegmentOptions
+from ..parts.field_counts import default_n_fields
+from ..parts.rounds import segment_rounds
+from ..parts.solve import solve_akvfs, solve_quality
 from . import metrics as M
 from . import psb as P
 from .k_auto import RULES, pick_k, scan_k
@@ -30,7 +32,7 @@ class PredictSettings:
     n_fields : fields untangled per mesh (None: the engine's default per k)
     k_range, k_rule : the scan, with ``auto``
     coarse_faces : decimate meshes above about this many faces (None: full resolution)
-    options : the :class:`~torchakvf.parts.engine.SegmentOptions` (seed, remedy, solver, ...)
+    options : the :class:`~torchakvf.options.SegmentOptions` (seed, remedy, solver, ...)
     device : torch device of the computation
     """
 
@@ -138,12 +140,8 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None):
 def _scan_and_write(batch, fields, settings: PredictSettings, costs: list) -> list:
     """k auto: the scan of k_range on the batch's AKVFs; writes each mesh's chosen k and returns
     the meta entries ("auto": the choice, every rule's, and 1-RI per k where there is gt)."""
-    o = settings.options
-    scan = scan_k(fields, settings.k_range, rule=settings.k_rule, seed=o.seed, remedy=o.remedy,
-                  n_fields=settings.n_fields, keep=True, eps=o.eps, solver=o.solver, method=o.method,
-                  kmeans_restarts=o.kmeans_restarts, untangle_restarts=o.untangle_restarts,
-                  boundary=o.boundary, min_part_fraction=o.min_part_fraction, refine=o.refine,
-                  merge=o.merge)
+    scan = scan_k(fields, settings.k_range, settings.options, rule=settings.k_rule,
+                  n_fields=settings.n_fields, keep=True)
     extra = []
     for b, p in enumerate(batch):
         k = scan.chosen[b]

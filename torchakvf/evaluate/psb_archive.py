@@ -155,9 +155,20 @@ def convert_benchmark_layout(data_dir, out_dir, compress: bool = True,
     """
     data_dir, out_dir = Path(data_dir), Path(out_dir)
     withhold = _check_withhold(withhold)
-    suffix = ".gz" if compress else ""
     report = ConversionReport()
+    face_counts = _convert_meshes(data_dir, out_dir, compress, report)
+    if log:
+        log(f"converted {report.n_meshes} meshes")
+    _convert_segmentations(data_dir, out_dir, compress, withhold, face_counts, report)
+    if log:
+        log(f"converted {report.n_segmentations} human segmentations of "
+            f"{report.meshes_with_gt} meshes")
+    return report
 
+
+def _convert_meshes(data_dir: Path, out_dir: Path, compress: bool, report: ConversionReport) -> dict:
+    """Copy ``data/off`` into ``meshes/``; returns {mesh id: face count}."""
+    suffix = ".gz" if compress else ""
     face_counts: dict[int, int] = {}
     mesh_re = re.compile(r"^(\d+)\.off(\.gz)?$")
     for path in sorted((data_dir / "off").iterdir()):
@@ -173,9 +184,13 @@ def convert_benchmark_layout(data_dir, out_dir, compress: bool = True,
         report.n_meshes += 1
     if not face_counts:
         raise ArchiveError(f"{data_dir / 'off'}: no meshes (N.off) found")
-    if log:
-        log(f"converted {report.n_meshes} meshes")
+    return face_counts
 
+
+def _convert_segmentations(data_dir: Path, out_dir: Path, compress: bool, withhold: set,
+                           face_counts: dict, report: ConversionReport) -> None:
+    """Copy ``data/seg/Benchmark`` into ``gt/``, each checked against its mesh's face count."""
+    suffix = ".gz" if compress else ""
     seg_root = data_dir / "seg" / "Benchmark"
     seg_re = re.compile(r"^(\d+)_(\d+)\.seg(\.gz)?$")
     withheld = set()
@@ -209,10 +224,6 @@ def convert_benchmark_layout(data_dir, out_dir, compress: bool = True,
             report.n_segmentations += 1
         report.meshes_with_gt += 1
     report.withheld_meshes = sorted(withheld)
-    if log:
-        log(f"converted {report.n_segmentations} human segmentations of "
-            f"{report.meshes_with_gt} meshes")
-    return report
 
 
 # ---------------------------------------------------------------------------------------------

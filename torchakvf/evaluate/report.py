@@ -10,16 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import TorchAKVFError
-from ..io import load_mesh
 from ..io.outputs import atomic_write_bytes
-from ..pipeline.parallel import map_batches
 from . import psb as P
-from .gallery import write_gallery
-from .metrics import rand_index_error
+from .gallery import write_galleries
 from .score import METRIC_GROUPS, METRICS, mean_dicts
 
-__all__ = ["EvalSummary", "REFERENCES", "write_reports", "write_galleries"]
+__all__ = ["EvalSummary", "REFERENCES", "write_reports"]
 
 _SHORT = {"rand_index_error": "1-RI", "hamming_distance": "HD", "hamming_missing_rate": "Rm",
           "hamming_false_alarm_rate": "Rf", "gce": "GCE", "lce": "LCE", "cut_discrepancy": "CD"}
@@ -140,10 +136,16 @@ def _fmt(v, digits=4) -> str:
     return f"{v:.{digits}f}"
 
 
-def write_reports(out, rows_by_id, plans, protocol, groups, auto, wall, pred_settings,
-                  run_settings, plot, problems=(), workers: int = 1) -> EvalSummary:
+def write_reports(out, rows_by_id, plans, settings, groups, wall, recorded, *, plot,
+                  problems=()) -> EvalSummary:
     """Writes scores.csv, summary.md (and with ``plot`` rand_index.png and the galleries, drawn
-    in ``workers`` processes) from the rows so far."""
+    in ``settings.workers`` processes) from the rows so far.
+
+    settings : the run's :class:`~torchakvf.evaluate.settings.EvalSettings`
+    recorded : {"prediction": ..., "run": ...} as settings.json holds them
+    """
+    protocol, auto = settings.protocol, settings.auto
+    workers = 1 if settings.workers is None else int(settings.workers)
     rows = [rows_by_id[p.mesh_id] for p in plans if p.mesh_id in rows_by_id]
     cols = [c for g in groups for c in METRIC_GROUPS[g]]
     # scores.csv
@@ -169,7 +171,7 @@ def write_reports(out, rows_by_id, plans, protocol, groups, auto, wall, pred_set
     kstats = _k_auto_stats(rows) if auto else None
     summary = EvalSummary(rows=rows, per_category=per_cat, overall_meshes=overall_m,
                           overall_categories=overall_c, references=refs, counts=counts,
-                          settings={"prediction": pred_settings, "run": run_settings},
+                          settings=dict(recorded),
                           wall_seconds=wall, predict_seconds=float("nan"),
                           score_seconds=float("nan"), out_dir=out, k_auto=kstats,
                           problems=list(problems))
@@ -181,66 +183,17 @@ def write_reports(out, rows_by_id, plans, protocol, groups, auto, wall, pred_set
     return summary
 
 
-def _gallery_item(plan, row):
-    """(title, V, F, prediction, human, 1-RI) of one scored mesh: its first human segmentation
-    with a prediction at that human's segment count (by-segmentation), else the first human
-    beside the prediction at the mesh's own k (by-model, k auto)."""
-    ks = [k for k in row.ks if plan.pred_path(k).is_file()]
-    if not ks:
-        return None
-    humans = [P.read_seg(s) for s in plan.entry.seg_paths]
-    counts = [P.segment_count(h) for h in humans]
-    pick = next((i for i, c in enumerate(counts) if c in ks), 0)
-    k = counts[pick] if counts[pick] in ks else ks[0]
-    pred, human = P.read_seg(plan.pred_path(k)), humans[pick]
-    mesh = load_mesh(plan.entry.mesh_path)
-    if not (len(pred) == len(human) == mesh.n_faces):
-        return None
-    return (str(plan.mesh_id), mesh.vertices, mesh.faces, pred, human,
-            rand_index_error(pred, human))
-
-
-def write_galleries(out: Path, plans, rows, workers: int = 1) -> dict:
-    """``gallery/<Category>.png`` per category with scored meshes: each mesh's prediction next to
-    one human segmentation at the same k, with its 1-RI (:func:`~torchakvf.evaluate.gallery.
-    write_gallery`). Returns {category: path relative to ``out``}, in the plans' order.
-
-    workers : processes drawing categories side by side (rendering is CPU-bound numpy: on the
-        PSB about a third of an evaluation's wall time when drawn in this process alone)."""
-    by_id = {r.mesh_id: r for r in rows}
-    pairs: dict = {}
-    for p in plans:
-        r = by_id.get(p.mesh_id)
-        if r is not None and r.scored:
-            pairs.setdefault(r.category, []).append((p, r))
-    batches = [[(cat, ps)] for cat, ps in pairs.items()]
-    written, errors = {}, []
-    for res in map_batches(batches, _draw_galleries, (out,), workers=max(1, min(int(workers), len(batches)))):
-        if res.error is not None:
-            errors.append(res.error)
-        elif not res.split:
-            written.update(res.result)
-    if errors:
-        raise TorchAKVFError(f"{out / 'gallery'}: {len(errors)} gallery(ies) could not be drawn: {errors[0]}")
-    return {cat: written[cat] for cat in pairs if cat in written}
-
-
-def _draw_galleries(batch, out: Path) -> dict:
-    """{category: path relative to out} of the galleries of ``batch`` [(category, [(plan, row)])]
-    (a module-level function: it may run in a worker process)."""
-    written = {}
-    for cat, pairs in batch:
-        its = [it for it in (_gallery_item(p, r) for p, r in pairs) if it is not None]
-        if not its:
-            continue
-        rel = Path("gallery") / f"{cat}.png"
-        mean = float(np.mean([it[5] for it in its]))
-        write_gallery(out / rel, its, title=f"{cat}: prediction | human, 1-RI per mesh (mean {mean:.3f})")
-        written[cat] = rel.as_posix()
-    return written
-
-
 def _summary_md(s: EvalSummary, cats, cols, protocol, auto) -> str:
+    L = _header_lines(s, protocol, auto)
+    L += _rand_index_lines(s, cats)
+    L += _metric_lines(s, cats, cols)
+    if s.k_auto:
+        L += _k_auto_lines(s.k_auto)
+    L += _trouble_lines(s)
+    return "\n".join(L) + "\n"
+
+
+def _header_lines(s: EvalSummary, protocol, auto) -> list:
     L = []
     pred, run = s.settings["prediction"], s.settings["run"]
     n_ok = sum(r.scored for r in s.rows)
@@ -259,8 +212,12 @@ def _summary_md(s: EvalSummary, cats, cols, protocol, auto) -> str:
              f"{_fmt(s.overall_meshes.get('seconds'), 1)} s")
     L.append("- all values are dissimilarities (lower is better); 1-RI faces counted, "
              "Hamming area weighted, GCE/LCE faces counted, CD / average radius\n")
+    return L
 
-    L.append("## 1 - Rand Index per category\n")
+
+def _rand_index_lines(s: EvalSummary, cats) -> list:
+    n_ok = sum(r.scored for r in s.rows)
+    L = ["## 1 - Rand Index per category\n"]
     L.append("| category | meshes | torchakvf | Human | One segment | Every face |")
     L.append("|---|---:|---:|---:|---:|---:|")
     for c in cats:
@@ -279,8 +236,11 @@ def _summary_md(s: EvalSummary, cats, cols, protocol, auto) -> str:
         L.append(f"| {name} | {n_ok} | **{_fmt(ours.get('rand_index_error'))}** | "
                  + " | ".join(_fmt(s.references[n].get(key, {}).get("rand_index_error"))
                               for n in REFERENCES) + " |")
+    return L
 
-    L.append("\n## All metrics per category (torchakvf)\n")
+
+def _metric_lines(s: EvalSummary, cats, cols) -> list:
+    L = ["\n## All metrics per category (torchakvf)\n"]
     L.append("| category | " + " | ".join(_SHORT[c] for c in cols) + " | seconds |")
     L.append("|---|" + "---:|" * (len(cols) + 1))
     for c in cats:
@@ -304,22 +264,30 @@ def _summary_md(s: EvalSummary, cats, cols, protocol, auto) -> str:
              "not computed). \"One segment\" / \"Every face\": every face in one segment / each face "
              "its own segment, scored like a prediction (their cut discrepancy is undefined / "
              "trivial).")
+    return L
 
-    if s.k_auto:
-        L.append("\n## Automatic k\n")
-        L.append("| category | meshes | chosen = human mode | within 1 | mean k chosen | mean human "
-                 "mode | 1-RI (auto k) | 1-RI (k = human mode, same scan) | 1-RI (best k of scan) |")
-        L.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-        items = list(s.k_auto["per_category"].items()) + [("**overall**", s.k_auto["overall"])]
-        for c, v in items:
-            L.append(f"| {c} | {v['n']} | {_fmt(v['hit_rate'], 2)} | {_fmt(v['within_1'], 2)} | "
-                     f"{_fmt(v['mean_chosen'], 1)} | {_fmt(v['mean_mode'], 1)} | "
-                     f"{_fmt(v['rand_index_error'])} | {_fmt(v['rand_index_error_at_mode'])}"
-                     f" ({v['n_mode_in_range']}) | {_fmt(v['rand_index_error_best_k'])} |")
-        rules = s.k_auto["overall"].get("hit_rate_by_rule", {})
-        if rules:
-            L.append("\nHit rate (chosen = human mode) of each rule on the same scans: "
-                     + ", ".join(f"{r} {_fmt(v, 2)}" for r, v in rules.items()))
+
+def _k_auto_lines(k_auto: dict) -> list:
+    L = ["\n## Automatic k\n"]
+    L.append("| category | meshes | chosen = human mode | within 1 | mean k chosen | mean human "
+             "mode | 1-RI (auto k) | 1-RI (k = human mode, same scan) | 1-RI (best k of scan) |")
+    L.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    items = list(k_auto["per_category"].items()) + [("**overall**", k_auto["overall"])]
+    for c, v in items:
+        L.append(f"| {c} | {v['n']} | {_fmt(v['hit_rate'], 2)} | {_fmt(v['within_1'], 2)} | "
+                 f"{_fmt(v['mean_chosen'], 1)} | {_fmt(v['mean_mode'], 1)} | "
+                 f"{_fmt(v['rand_index_error'])} | {_fmt(v['rand_index_error_at_mode'])}"
+                 f" ({v['n_mode_in_range']}) | {_fmt(v['rand_index_error_best_k'])} |")
+    rules = k_auto["overall"].get("hit_rate_by_rule", {})
+    if rules:
+        L.append("\nHit rate (chosen = human mode) of each rule on the same scans: "
+                 + ", ".join(f"{r} {_fmt(v, 2)}" for r, v in rules.items()))
+    return L
+
+
+def _trouble_lines(s: EvalSummary) -> list:
+    """Failed meshes, unconverged eigensolves, galleries and input problems."""
+    L = []
     fails = [r for r in s.rows if r.status.startswith("failed")]
     if fails:
         L.append("\n## Failed meshes\n")
@@ -338,7 +306,7 @@ def _summary_md(s: EvalSummary, cats, cols, protocol, auto) -> str:
     if s.problems:
         L.append("\n## Input problems\n")
         L.extend(f"- {line}" for line in s.problems)
-    return "\n".join(L) + "\n"
+    return L
 
 
 def _plot(path: Path, s: EvalSummary, cats, protocol, auto) -> None:

@@ -74,7 +74,7 @@ class MeshScorer:
 
     def __init__(self, vertices, faces, groups):
         self.groups = groups
-        self.graph = M._EdgeGraph(vertices, faces) if "cd" in groups or "hamming" in groups else None
+        self.graph = M.EdgeGraph(vertices, faces) if "cd" in groups or "hamming" in groups else None
         self.areas = self.graph.face_areas if self.graph is not None else None
 
     def score(self, pred, gt) -> dict:

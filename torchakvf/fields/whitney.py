@@ -12,7 +12,7 @@ from ..operators.geometry import BatchGeometry
 def whitney_face_vectors(batch: MeshBatch, geo: BatchGeometry, forms: torch.Tensor) -> torch.Tensor:
     """Vectors at face barycenters of packed 1-forms.
 
-    X_f = (1/3) Σ_{e=(i->j) in f} w_e (∇l_j - ∇l_i)  (akvf-math.md, Sec. 2), exact for the
+    X_f = (1/3) Σ_{e=(i->j) in f} w_e (∇l_j - ∇l_i)  (docs/akvf_operator.md, Sec. 2.4), exact for the
     gradient of a linear function.
 
     forms : packed [ΣE, n] (edge values, edges oriented i -> j, i < j)
@@ -32,9 +32,8 @@ def _sparse_product(face_edges: torch.Tensor, coef: torch.Tensor, forms: torch.T
     """Σ_k coef[f, k, c] forms[face_edges[f, k]] as one sparse product ([3F, E] with 3 entries
     per row, times [E, n]), [F, n, 3].
 
-    On the CPU this is 2.2-2.7x faster than the einsum over the gathered [F, 3, n] values
-    (which runs as F tiny batched products): PSB 1 (9,408 faces, n = 32) 3.3 against 8.7 ms,
-    PSB 21 (30,396 faces) 16 against 36 ms, one thread. Equal up to the order of three sums."""
+    On the CPU this is 2-3x faster than the einsum over the gathered [F, 3, n] values (which
+    runs as F tiny batched products). Equal up to the order of three sums."""
     f = len(face_edges)
     rows = coef.transpose(1, 2).reshape(-1).numpy()             # row (f, c) holds its 3 edges
     cols = face_edges[:, None, :].expand(f, 3, 3).reshape(-1).numpy()

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..fields.untangle import DEFAULT_RESTARTS
+
 
 @dataclass
 class FaceFeatures:
@@ -33,15 +35,15 @@ def _on_input_faces(batch, b: int, values: np.ndarray) -> np.ndarray:
 
 
 def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = None,
-                  restarts: int = 8, tol: float = 1e-6) -> list[FaceFeatures]:
+                  restarts: int = DEFAULT_RESTARTS, tol: float = 1e-6) -> list[FaceFeatures]:
     """:class:`FaceFeatures` of every mesh of ``batch`` (a :class:`~torchakvf.MeshBatch`,
     optionally built with ``coarse_faces``: the fields are computed on the decimated mesh and
     reported on the input's faces). ``remedy`` defaults to the segmentation's
-    (:data:`torchakvf.parts.segment.DEFAULT_REMEDY`); the other arguments are
+    (:data:`torchakvf.operators.killing.DEFAULT_REMEDY`); the other arguments are
     :func:`~torchakvf.akvf`'s and :func:`~torchakvf.untangle`'s."""
     from ..fields import untangle
     from ..fields.akvf import akvf_falling_back
-    from ..parts.segment import DEFAULT_REMEDY
+    from ..operators.killing import DEFAULT_REMEDY
 
     fields, _ = akvf_falling_back(batch, n=n, seed=seed, tol=tol,
                                   remedy=DEFAULT_REMEDY if remedy is None else remedy)

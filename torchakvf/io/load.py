@@ -1,20 +1,21 @@
-"""Reading meshes from files, face order kept exactly as written."""
+"""Reading meshes from files, face order kept exactly as written: one face read per face the
+file declares, or a :class:`~torchakvf.errors.MeshError` saying why not."""
 from __future__ import annotations
 
 import gzip
-import io
 import os
-import re
 from pathlib import Path
-
-import numpy as np
 
 from ..errors import MeshError
 from ..mesh.mesh import Mesh
+from .gltf import parse_gltf
+from .obj import parse_obj
 from .off import parse_off
+from .ply import parse_ply
+from .stl import parse_stl
 
 #: Formats read (each optionally gzip-compressed, ``name.off.gz``).
-FORMATS = ("off", "obj", "ply", "stl")
+FORMATS = ("off", "obj", "ply", "stl", "glb", "gltf")
 
 
 def mesh_format(path: str | os.PathLike) -> tuple[str, bool]:
@@ -30,16 +31,11 @@ def mesh_format(path: str | os.PathLike) -> tuple[str, bool]:
     return ext, gz
 
 
-def load_mesh(path: str | os.PathLike) -> Mesh:
-    """Read a triangle mesh; the faces keep the file's order and count.
-
-    OFF files are parsed here (strictly: a polygon that is not a triangle is an error, not
-    silently split); OBJ, PLY and STL go through trimesh with ``process=False`` so nothing is
-    merged or reordered. Raises :class:`~torchakvf.errors.MeshError` naming the file and the
-    problem for missing, unreadable or malformed files.
-    """
+def read_mesh_bytes(path: str | os.PathLike) -> bytes:
+    """The (decompressed) bytes of a mesh file; MeshError for a missing, unreadable, empty or
+    badly compressed file."""
     name = str(path)
-    fmt, gz = mesh_format(path)
+    _, gz = mesh_format(path)
     try:
         raw = Path(path).read_bytes()
     except FileNotFoundError:
@@ -51,36 +47,38 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     if gz:
         try:
             raw = gzip.decompress(raw)
-        except (OSError, EOFError, gzip.BadGzipFile) as exc:
-            raise MeshError(name, f"not a valid gzip file ({exc})") from None
+        except (OSError, EOFError, gzip.BadGzipFile):
+            raise MeshError(name, "not a valid gzip file (corrupt or truncated)") from None
     if not raw.strip():
         raise MeshError(name, "file is empty")
+    return raw
+
+
+def load_mesh(path: str | os.PathLike) -> Mesh:
+    """Read a triangle mesh (OFF, OBJ, PLY, STL, glTF/GLB; optionally gzipped); the faces keep
+    the file's order and count.
+
+    Each format has a strict reader here (:mod:`.off`, :mod:`.obj`, :mod:`.ply`, :mod:`.stl`,
+    :mod:`.gltf`): header counts, line shapes and index ranges are checked, a polygon that is
+    not a triangle is refused rather than split, so a per-face label file always has one line
+    per face of the file. A glTF scene is one mesh, its meshes in world coordinates in the
+    order :mod:`.gltf` states. Raises :class:`~torchakvf.errors.MeshError` naming the file and
+    the problem (which line, face or index; truncated where).
+    """
+    name = str(path)
+    fmt, _ = mesh_format(path)
+    raw = read_mesh_bytes(path)
     if fmt == "off":
         vertices, faces = parse_off(raw, name)
+    elif fmt == "ply":
+        vertices, faces = parse_ply(raw, name)
+    elif fmt == "obj":
+        vertices, faces = parse_obj(raw, name)
+    elif fmt == "stl":
+        vertices, faces = parse_stl(raw, name)
     else:
-        vertices, faces = _load_with_trimesh(raw, fmt, name)
+        vertices, faces = parse_gltf(raw, name, folder=Path(path).parent)
     return Mesh(vertices, faces, name=name)
 
 
-_OBJ_FACE = re.compile(rb"^f\s+(.*)$", re.MULTILINE)
-
-
-def _load_with_trimesh(raw: bytes, fmt: str, name: str) -> tuple[np.ndarray, np.ndarray]:
-    import trimesh
-
-    if fmt == "obj":
-        # trimesh splits polygons silently; a per-face label file would then be misaligned.
-        for match in _OBJ_FACE.finditer(raw):
-            if len(match.group(1).split()) != 3:
-                raise MeshError(name, "has non-triangle faces (OBJ polygon with "
-                                      f"{len(match.group(1).split())} vertices); only triangle "
-                                      "meshes are supported")
-    try:
-        loaded = trimesh.load(io.BytesIO(raw), file_type=fmt, process=False, force="mesh")
-    except Exception as exc:  # trimesh raises many types on malformed input
-        raise MeshError(name, f"cannot parse as {fmt.upper()} ({type(exc).__name__}: {exc})") from None
-    vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))))
-    faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))))
-    if faces.ndim != 2 or len(faces) == 0 or len(vertices) == 0:
-        raise MeshError(name, f"no triangles found in this {fmt.upper()} file")
-    return vertices, faces
+__all__ = ["FORMATS", "mesh_format", "read_mesh_bytes", "load_mesh"]

@@ -51,10 +51,10 @@ def decode_off(raw: bytes, name: str) -> str:
 def parse_off(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     """Vertices [V, 3] float64 and triangles [F, 3] int64 of an ASCII OFF file's bytes, faces in
     file order. Strict: a polygon that is not a triangle is an error, not silently split."""
-    fast = _parse_plain_off(raw)
+    fast = parse_plain_off(raw)
     if fast is not None:
         return fast
-    return _parse_off_by_lines(raw, name)
+    return parse_off_by_lines(raw, name)
 
 
 #: Bytes the vectorized reader accepts: printable ASCII, tab, and the two line breaks.
@@ -64,8 +64,8 @@ _PLAIN[[9, 10, 13]] = True
 _HASH = ord("#")
 
 
-def _parse_plain_off(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
-    """The same arrays as :func:`_parse_off_by_lines`, read with numpy over the whole buffer
+def parse_plain_off(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
+    """The same arrays as :func:`parse_off_by_lines`, read with numpy over the whole buffer
     instead of a Python loop over lines (4-5x faster on PSB files); None for any file it does
     not take as is (a comment, another control byte, a header or a line that does not fit), which
     the line reader then parses or rejects with its message.
@@ -74,7 +74,7 @@ def _parse_plain_off(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
     starts binned by line), so every vertex line must hold >= 3 tokens (its first 3 are read)
     and every face line >= 4 with a leading ``3``, exactly as the line reader requires. numpy's
     bytes-to-number casts parse like Python's ``float``/``int``, so the values are identical;
-    so does its text reader (:func:`_read_sections`, correctly rounded), which takes the usual
+    so does its text reader (:func:`read_sections`, correctly rounded), which takes the usual
     file (3 numbers per vertex line, 4 per face line, plain decimals).
     """
     a = np.frombuffer(raw, dtype=np.uint8)
@@ -110,7 +110,7 @@ def _parse_plain_off(raw: bytes) -> tuple[np.ndarray, np.ndarray] | None:
         starts = np.r_[0, np.flatnonzero(newline) + 1]
         v0, f0 = starts[lines[used]], starts[lines[used + nv]]
         f1 = starts[lines[used + nv + nf - 1] + 1] if lines[used + nv + nf - 1] + 1 < len(starts) else len(a)
-        plain = _read_sections(raw, a, (v0, f0, f1), nv, nf)
+        plain = read_sections(raw, a, (v0, f0, f1), nv, nf)
         if plain is not None:
             return plain
     tok = np.array(raw.split())
@@ -131,7 +131,7 @@ _INTEGER = np.zeros(256, dtype=bool)
 _INTEGER[[ord(c) for c in "0123456789+- \t\n"]] = True
 
 
-def _read_sections(raw: bytes, a: np.ndarray, cuts: tuple, nv: int, nf: int):
+def read_sections(raw: bytes, a: np.ndarray, cuts: tuple, nv: int, nf: int):
     """(vertices [nv, 3], faces [nf, 3]) from the vertex lines raw[v0:f0] (3 numbers each) and
     the face lines raw[f0:f1] ("3 i j k" each) with numpy's text reader, or None where the
     bytes are not plain decimals or a line does not parse (the token reader decides then)."""
@@ -148,9 +148,11 @@ def _read_sections(raw: bytes, a: np.ndarray, cuts: tuple, nv: int, nf: int):
     return vertices, np.ascontiguousarray(faces[:, 1:])
 
 
-def _parse_off_by_lines(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`parse_off` line by line: the reference reader, and the one that words the errors."""
-    lines = data_lines(decode_off(raw, name))
+def parse_off_by_lines(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`parse_off` line by line: the reference reader, and the one that words the errors
+    (naming the vertex or face and its line in the file)."""
+    text = decode_off(raw, name)
+    lines = data_lines(text)
     nv, nf, used = off_counts(lines, name)
     rest = lines[used:]
     if nv <= 0 or nf <= 0:
@@ -158,30 +160,69 @@ def _parse_off_by_lines(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
     if len(rest) < nv + nf:
         raise MeshError(name, f"truncated: header announces {nv} vertices and {nf} faces, "
                               f"file has {len(rest)} data lines")
+
+    def where(kind: str, i: int) -> str:
+        return f"{kind} {i}, line {_file_line(text, used + (i if kind == 'vertex' else nv + i))}"
+
+    rows = [ln.split()[:3] for ln in rest[:nv]]
     try:
-        vertices = np.array([ln.split()[:3] for ln in rest[:nv]], dtype=np.float64)
+        vertices = np.array(rows, dtype=np.float64)
     except ValueError:
-        raise MeshError(name, "a vertex line does not hold 3 numbers") from None
-    if vertices.shape != (nv, 3):
-        raise MeshError(name, "a vertex line does not hold 3 numbers")
+        vertices = None
+    if vertices is None or vertices.shape != (nv, 3):
+        bad = next((i for i, r in enumerate(rows) if len(r) < 3 or not _all_floats(r)), 0)
+        raise MeshError(name, f"a vertex line does not hold 3 numbers ({where('vertex', bad)})")
     face_tokens = [ln.split() for ln in rest[nv:nv + nf]]
     sizes = np.array([len(t) for t in face_tokens])
-    try:
-        counts = np.array([int(t[0]) for t in face_tokens])
-    except ValueError:
-        raise MeshError(name, "a face line does not start with its vertex count") from None
+    counts = []
+    for f, t in enumerate(face_tokens):
+        try:
+            counts.append(int(t[0]))
+        except ValueError:
+            raise MeshError(name, "a face line does not start with its vertex count "
+                                  f"({where('face', f)})") from None
+    counts = np.array(counts)
     not_tri = np.flatnonzero(counts != 3)
     if len(not_tri):
         f = int(not_tri[0])
         raise MeshError(name, f"face {f} has {counts[f]} vertices; only triangle meshes are "
-                              f"supported ({len(not_tri)} non-triangle faces)")
+                              f"supported ({len(not_tri)} non-triangle faces; {where('face', f)})")
     if np.any(sizes < 4):
-        raise MeshError(name, f"face {int(np.flatnonzero(sizes < 4)[0])} lists fewer than 3 indices")
+        f = int(np.flatnonzero(sizes < 4)[0])
+        raise MeshError(name, f"face {f} lists fewer than 3 indices ({where('face', f)})")
     try:
         faces = np.array([t[1:4] for t in face_tokens], dtype=np.int64)
     except ValueError:
-        raise MeshError(name, "a face line holds a non-integer vertex index") from None
+        f = next((i for i, t in enumerate(face_tokens) if not all(_is_int(x) for x in t[1:4])), 0)
+        raise MeshError(name, f"a face line holds a non-integer vertex index ({where('face', f)})") from None
     return vertices, faces
+
+
+def _all_floats(tokens) -> bool:
+    try:
+        [float(t) for t in tokens]
+        return True
+    except ValueError:
+        return False
+
+
+def _is_int(token: str) -> bool:
+    try:
+        int(token)
+        return True
+    except ValueError:
+        return False
+
+
+def _file_line(text: str, index: int) -> int:
+    """The line number in the file (from 1) of data line ``index`` (:func:`data_lines`)."""
+    seen = -1
+    for number, line in enumerate(text.splitlines(), start=1):
+        if line.split("#", 1)[0].strip():
+            seen += 1
+            if seen == index:
+                return number
+    return number
 
 
 def off_face_count(head: bytes, name: str) -> int:

@@ -16,7 +16,7 @@ def safe_stem(name: str) -> str:
     """A file-name stem derived from an input path that cannot escape the output folder:
     the base name without mesh/.gz extensions, with anything but [A-Za-z0-9._-] replaced."""
     base = Path(str(name)).name
-    for ext in (".gz", ".off", ".obj", ".ply", ".stl"):
+    for ext in (".gz", ".off", ".obj", ".ply", ".stl", ".glb", ".gltf"):
         if base.lower().endswith(ext):
             base = base[: -len(ext)]
     stem = re.sub(r"[^A-Za-z0-9._-]", "_", base).lstrip(".")

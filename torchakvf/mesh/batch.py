@@ -235,8 +235,3 @@ def pad_packed(x: torch.Tensor, ptr: torch.Tensor, fill: float = 0.0
     mask = torch.zeros(b, n_max, dtype=torch.bool, device=x.device)
     mask[owner, pos] = True
     return padded, mask
-
-
-def unpad(padded: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Inverse of :func:`pad_packed`: [B, N_max, ...] + mask -> packed [ΣN, ...]."""
-    return padded[mask]

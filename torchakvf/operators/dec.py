@@ -1,6 +1,6 @@
 """Discrete exterior calculus operators over a packed batch, as block-diagonal torch sparse matrices.
 
-Conventions (../shared/design/akvf-math.md, Sec. 2): edge e = (i, j), i < j, oriented i -> j;
+Conventions (docs/akvf_operator.md, Sec. 2.1): edge e = (i, j), i < j, oriented i -> j;
 a 1-form is one value per edge, w_e = integral of w along e. Diagonal Hodge stars are returned
 as vectors. All quantities are on unit-area meshes (see :mod:`.geometry`).
 """

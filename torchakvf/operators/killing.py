@@ -1,7 +1,7 @@
 """The discrete Killing operator R on 1-forms, block-diagonal over a batch.
 
 ``w^T R w = (1/2) ∫ |L_X g|^2`` and ``w^T S1 w = ∫ |X|^2``; the AKVFs are the smallest
-eigenpairs of ``R w = λ S1 w``. Formulas from ../shared/design/akvf-math.md, Sec. 2:
+eigenpairs of ``R w = λ S1 w``. Formulas of docs/akvf_operator.md, Sec. 2:
 
     R = d1^T S2 d1 + 2 D^T S0^{-1} D - 2 S1 diag(K_e) - 2 sym(R_b)
 
@@ -26,14 +26,13 @@ from .geometry import BatchGeometry, batch_geometry
 REMEDIES = ("none", "clamp", "smooth")
 #: The remedy every entry point uses by default (akvf, segment, features, the CLI): "none"
 #: (the paper's operator) leaves badly shaped real meshes without a positive definite shift
-#: (PSB meshes 1 and 181 raise SolverError) or with eigenvalues far below zero; "smooth" solves
-#: them (README, "Choices worth knowing").
+#: or with eigenvalues far below zero; "smooth" solves them (see docs/design.md).
 DEFAULT_REMEDY = "smooth"
 #: Rings of curvature averaging per remedy.
 CURVATURE_RINGS = {"none": 0, "clamp": 0, "smooth": 4}
 
 #: Floor of the "none" formulation: the mass matrix must be positive definite, so star1 is
-#: floored at this fraction of the mesh's mean |star1| (akvf-math.md, pitfall 2).
+#: floored at this fraction of the mesh's mean |star1| (docs/akvf_operator.md, Sec. 4).
 MASS_FLOOR = 1e-8
 
 

@@ -1,11 +1,14 @@
 """Parts: labels with smooth boundaries, connecting regions, symmetry generators.
 
 :func:`segment` (one k per mesh) and :func:`segment_each_k` (every k of every mesh from one
-solve; :mod:`torchakvf.parts.engine`) are the entry points."""
+solve) are the entry points (:mod:`torchakvf.parts.segment`); their options are a
+:class:`~torchakvf.options.SegmentOptions`."""
+from ..options import DEFAULT_REMEDY, GraphCut, MergeWeights, SegmentOptions
 from .boundaries import RefinedMesh
-from .engine import DEFAULT_REMEDY, SegmentEachK, default_n_fields, segment_each_k
+from .field_counts import default_n_fields
 from .results import MeshSegmentation, Segmentation
-from .segment import SymmetryGenerator, segment
+from .segment import SegmentEachK, SymmetryGenerator, segment, segment_each_k
 
 __all__ = ["DEFAULT_REMEDY", "MeshSegmentation", "Segmentation", "SegmentEachK", "SymmetryGenerator",
-           "default_n_fields", "segment", "segment_each_k", "RefinedMesh"]
+           "SegmentOptions", "MergeWeights", "GraphCut", "default_n_fields", "segment", "segment_each_k",
+           "RefinedMesh"]

@@ -48,17 +48,17 @@ def remove_small_parts(labels: np.ndarray, adjacency: np.ndarray, face_area: np.
     if min_fraction <= 0:
         return labels
     threshold = min_fraction * face_area.sum()
-    out, moved = _small_pieces_pass(labels, adjacency, face_area, threshold, into_connecting, False)
+    out, moved = small_pieces_pass(labels, adjacency, face_area, threshold, into_connecting, False)
     if into_connecting:
         return out
     while moved:       # each pass that moves a piece leaves fewer small pieces: it ends
-        out, moved = _small_pieces_pass(out, adjacency, face_area, threshold, False, True)
+        out, moved = small_pieces_pass(out, adjacency, face_area, threshold, False, True)
     return out
 
 
-def _small_pieces_pass(labels: np.ndarray, adjacency: np.ndarray, face_area: np.ndarray,
-                       threshold: float, into_connecting: bool, large_only: bool
-                       ) -> tuple[np.ndarray, bool]:
+def small_pieces_pass(labels: np.ndarray, adjacency: np.ndarray, face_area: np.ndarray,
+                      threshold: float, into_connecting: bool, large_only: bool
+                      ) -> tuple[np.ndarray, bool]:
     """One pass of :func:`remove_small_parts` over the pieces of area below ``threshold``:
     (new labels, whether any piece moved). large_only: a small piece joins only labels of
     neighbouring pieces that are not small (edges between two small pieces are not counted)."""

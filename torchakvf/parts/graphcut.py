@@ -27,42 +27,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import ParameterError
+from ..options import EXPANSION_CYCLES, GraphCut
 from .boundaries import barycenter_values
 from .concavity import DualEdges, crease_weights
-
-
-#: Alpha-expansion cycles (each tries every label once; -1: until no expansion lowers the
-#: energy). 2 (issue 13): on 30 PSB meshes (2 per labelled category) 1-RI 0.1414 against 0.1413
-#: until convergence (1 cycle: 0.1415); the cycles past the second change little and cost as much.
-EXPANSION_CYCLES = 2
-
-
-@dataclass(frozen=True)
-class GraphCut:
-    """Parameters of :func:`graphcut_labels`: smoothness λ (dimensionless: edge lengths over
-    the mean length, areas over the mean area), concave-crease discount β, crease_angle
-    (radians) at which a crease counts fully, band (dual rings a boundary may move), cycles
-    (alpha-expansion cycles, :data:`EXPANSION_CYCLES`; -1: until no expansion lowers the energy).
-
-    Defaults: λ 10, β 10 chosen by 3-fold cross-validation across the labelled PSB categories
-    (every fold; λ in {0.3, 1, 3, 10}, β in {0, 10, 30}; benchmarks/results/quality_v2_graphcut*.md);
-    crease angle 45° and band 6 rings fixed beforehand, not tuned."""
-
-    smoothness: float = 10.0
-    beta: float = 10.0
-    crease_angle: float = np.pi / 4
-    band: int = 6
-    cycles: int = EXPANSION_CYCLES
-
-    def __post_init__(self):
-        if not self.smoothness >= 0 or not self.beta >= 0:
-            raise ParameterError(f"graph cut smoothness and beta must be >= 0, got {self.smoothness!r}, {self.beta!r}")
-        if not 0 < self.crease_angle <= np.pi:
-            raise ParameterError(f"graph cut crease_angle must be in (0, π], got {self.crease_angle!r}")
-        if not (isinstance(self.band, (int, np.integer)) and self.band >= 0):
-            raise ParameterError(f"graph cut band must be an integer >= 0, got {self.band!r}")
-        if not (isinstance(self.cycles, (int, np.integer)) and (self.cycles >= 1 or self.cycles == -1)):
-            raise ParameterError(f"graph cut cycles must be an integer >= 1, or -1 (until converged), got {self.cycles!r}")
 
 
 @dataclass(frozen=True)
@@ -171,8 +138,8 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
         energy is a sum over components, and a component's moves on its own labels are those
         of the whole problem restricted to it): an expansion builds a graph of every site, so
         k labels over all sites cost k times the sites per cycle, a band's boundary two or three.
-        Every site starts at its component's first label (gco starts at label 0); on 13 PSB
-        meshes (60 (mesh, k)) the labels are those of the whole problem solved at once.
+        Every site starts at its component's first label (gco starts at label 0), which gives
+        the labels of the whole problem solved at once (see docs/design.md).
     """
     unary = np.asarray(unary, dtype=np.float64)
     n, k = unary.shape
@@ -238,7 +205,7 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     cut_cost : [P] ``edge_weights(dual, opts)`` if at hand (it depends on the mesh alone).
     min_fraction : a part the cut would leave below this fraction of the labelled faces' area
         (having had at least that before) keeps its faces, as does a part the cut would empty
-        (the segmentation passes its part floor, :func:`~torchakvf.parts.engine.part_floor`).
+        (the segmentation passes its part floor, :func:`~torchakvf.parts.cut.part_floor`).
     """
     opts = GraphCut() if opts is None else opts
     labels = np.asarray(labels)
@@ -291,6 +258,15 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     new = own.copy()
     if len(idx):
         new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w, opts.cycles, allowed=allowed_cand[free_cand])
+    new = _restore_parts(own, new, area, k, min_fraction)
+    out = labels.copy()
+    out[sites] = new
+    return out
+
+
+def _restore_parts(own: np.ndarray, new: np.ndarray, area: np.ndarray, k: int, min_fraction: float) -> np.ndarray:
+    """The cut's labels new [S] of the sites (own [S] before it, area [S]), with the faces of
+    every part the cut emptied or left under ``min_fraction`` of the area given back."""
     # A part the cut emptied (a small part inside the band of its boundary, outweighed by its
     # cut length), or left below ``min_fraction`` of the area when it had that much, gets its
     # faces back: the cut moves boundaries, it does not change k (a dumbbell's handle, 8% of its
@@ -311,9 +287,7 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
         restored |= gone
         back = gone[own]
         new[back] = own[back]
-    out = labels.copy()
-    out[sites] = new
-    return out
+    return new
 
 
 __all__ = ["GraphCut", "CornerMeans", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]

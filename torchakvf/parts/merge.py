@@ -30,66 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._restarts import first_near_min
 from ..errors import ParameterError
+from ..restarts import first_near_min
+from ..options import MergeWeights
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
-
-
-@dataclass(frozen=True)
-class MergeWeights:
-    """Weights of the merge cost and the over-segmentation factor k' = ceil(ratio k).
-
-    Defaults (benchmarks/results/quality_v2.md): the terms by 3-fold cross-validation across
-    the 15 labelled PSB categories (59 meshes; every fold picked w_sym 1, w_cav 32, w_cvx 4 and
-    two of three the boundary-share term), then ratio, part-size prior and restarts checked on
-    two over-segmentations of the same meshes (k-means with 20 and with 5 restarts), because one
-    alone moves 1-RI by ~0.005: ratio 3 with these terms scored 0.1535 / 0.1552 against 0.1651 /
-    0.1562 for the former default terms (ratio 2 former default: 0.173); the k-means restarts
-    are SegmentOptions.kmeans_restarts (5 then; 3 since 2026-12-02, engine.KMEANS_RESTARTS_BY_METHOD,
-    benchmarks/results/quality_restarts_merge.md). ``size``
-    (share of the whole surface) and ``part_size`` never helped robustly; kept for ablations.
-
-    v3 (benchmarks/results/quality_v3.md): with the merge method's fields at 3k (engine.
-    FIELDS_PER_PART) and every mesh of 7 per category (101 meshes), w_cav 16 was chosen in every
-    cross-validation fold (32 before) and the boundary share at 0.25 (0.5 before; folds: 0.25,
-    0.25, 0); w_cvx 4 kept (folds: 4, 0, 8)."""
-
-    symmetry: float = 1.0
-    concavity: float = 16.0
-    size: float = 0.0
-    ratio: float = 3.0
-    part_size: float = 0.0
-    convexity: float = 4.0
-    cut: float = 0.25
-    crease_angle: float = math.pi
-    #: at most this many clusters beyond k (None: ceil(ratio k) at every k). 16: on the 15
-    #: labelled PSB categories (300 meshes) 1-RI 0.1625 against 0.1622 uncapped (within each
-    #: CV fold's held-out categories by <= 0.0006; cap 8: 0.1671), and 20% less prediction
-    #: compute (565 s against 709 s; the paper mode's 472 s), which keeps the merge method within
-    #: +20% of the paper mode's time: Human meshes ask for up to k = 60, i.e. 180 clusters uncapped.
-    extra_max: int | None = 16
-    #: a k below this is over-segmented as this k is (k' = ceil(ratio max(k, min_k)), and its
-    #: fields are those of max(k, min_k), engine.default_n_fields), so the k's of a mesh up to
-    #: min_k share one untangling and one k-means, merged down to each k. 1: every k its own.
-    #: 8 (with field counts rounded up to multiples of 8, engine.FIELDS_STEP): on the 300
-    #: labelled PSB meshes 1-RI 0.1471 against 0.1566 (min_k 1, no rounding); chosen on two
-    #: cross-validation folds of three (floors 1, 4-8; benchmarks/results/quality_field_counts.md).
-    min_k: int = 8
-
-    def __post_init__(self):
-        for name in ("symmetry", "concavity", "size", "part_size", "convexity", "cut"):
-            if not getattr(self, name) >= 0:
-                raise ParameterError(f"merge weight {name} must be >= 0, got {getattr(self, name)!r}")
-        if not self.ratio >= 1:
-            raise ParameterError(f"over-segmentation ratio must be >= 1, got {self.ratio!r}")
-        if not 0 < self.crease_angle <= math.pi:
-            raise ParameterError(f"crease_angle must be in (0, π] radians, got {self.crease_angle!r}")
-        if self.extra_max is not None and not (isinstance(self.extra_max, (int, np.integer))
-                                               and not isinstance(self.extra_max, bool) and self.extra_max >= 0):
-            raise ParameterError(f"extra_max must be None or an integer >= 0, got {self.extra_max!r}")
-        if not (isinstance(self.min_k, (int, np.integer)) and not isinstance(self.min_k, bool) and self.min_k >= 1):
-            raise ParameterError(f"min_k must be an integer >= 1, got {self.min_k!r}")
 
 
 def oversegment_k(k: int, ratio: float, n_faces: int, extra_max: int | None = None, min_k: int = 1) -> int:
@@ -210,7 +155,7 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
 
     Returns (part [K] -> new id in 0..k_out-1, in the order of the parts' smallest old id; the
     cost of each merge done). Ties, round-off ones included (within
-    :data:`~torchakvf._restarts.ROUND_OFF_TIE`, relative), go to the first pair in row-major
+    :data:`~torchakvf.restarts.ROUND_OFF_TIE`, relative), go to the first pair in row-major
     order, so the result is the same on any machine. The merged part keeps the smaller id;
     only its row of costs changes (the size term's total area does not change either).
     """

@@ -1,58 +1,44 @@
-"""One batch of a corpus run: plan the batches by faces, then load, compute and write one
-batch into per-mesh manifest records (:func:`run_batch`, shared by every executor).
+"""The batch planner: which meshes share a batch, for the corpus runner, the evaluation and
+the bench alike.
 
-A task (see :mod:`.features`, :mod:`.segment_task`) is a small object with ``name``,
-``params`` (a JSON-able dict), ``stages`` (the names of its timed compute stages),
-``output_paths(out_dir, stem)``, ``process(items, device) -> (outputs, stage_seconds)`` and
-``write(item, output, out_dir) -> written paths``. Optional hooks:
+A batch is packed into one :class:`~torchakvf.mesh.MeshBatch` and solved together; its face
+total stays under a budget (a mesh above the budget is a batch alone). Each mesh's answer
+depends on that mesh alone, so the grouping changes no answer, only the time:
 
-* ``check_size(path, faces)``: refuse a mesh up front (raise :class:`TorchAKVFError`), called
-  with the header's face count before loading and with the exact count after;
-* ``validate(item)``: per-mesh checks after loading and cleaning;
-* ``cache_lookup(item, out_dir) -> bool`` / ``cache_store(item, written)``;
-* ``manifest_fields(output) -> dict``: merged into the mesh's manifest record (e.g. whether
-  its eigensolve converged).
-
-Bugs are not bad meshes: an error of one mesh's *input* is recorded as ``failed`` and the run
-goes on, but a programming error (:func:`~.parallel.is_programming_error`) propagates with its
-traceback; so does a full output disk (:class:`~torchakvf.io.OutputSpaceError`, one line).
+* :func:`plan_batches`: corpus runs (``torchakvf segment``, ``features``): sorted by size,
+  consecutive meshes cut by the budget.
+* :func:`prediction_batches`: evaluation and bench predictions, whose meshes need different
+  numbers of k's: sorted by (k's, faces), balanced over several workers, heaviest first.
 """
 from __future__ import annotations
 
-import logging
-import time
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
-from ..io import OutputSpaceError, load_mesh
-from ..io.manifest import file_fingerprint
-from ..mesh import clean_mesh
-from .parallel import error_text, is_programming_error, map_batches
+from ..mesh.coarse import DECIMATE_ABOVE
 
-log = logging.getLogger("torchakvf.pipeline")
+__all__ = ["DEFAULT_BATCH_FACES", "default_batch_faces", "cut_by_budget", "plan_batches",
+           "solved_face_counts", "batches_per_worker", "make_batches", "balanced_batches",
+           "mesh_work", "heaviest_first", "prediction_batches"]
 
-
-@dataclass
-class Item:
-    """One input mesh as the runner tracks it. ``mesh`` (as read) and ``clean`` are set only
-    while its batch is processed."""
-
-    path: Path
-    key: str                  # resolved path: the manifest's identity of this input
-    stem: str
-    faces: int | None         # peeked face count (None: unknown)
-    mesh: object = None
-    clean: object = None
-    seconds: dict = field(default_factory=dict)
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def cost(self) -> int:
-        return self.faces if self.faces is not None else 0
+#: Default face budget per batch. On the CPU the padded batched work (every mesh iterates
+#: until the batch's slowest converges) costs more than it saves, so the budget only groups
+#: small meshes (a PSB-size mesh runs about alone); on CUDA batching amortizes kernel
+#: launches. See docs/design.md.
+DEFAULT_BATCH_FACES = {"cpu": 20_000, "cuda": 1_000_000}
 
 
-def cut_by_budget(items: Sequence, cost, budget: int) -> list[list]:
+def default_batch_faces(device, coarse_faces: int | None = None) -> int:
+    """The face budget of a batch by default: :data:`DEFAULT_BATCH_FACES` for the device; on
+    the CPU with decimation to about ``coarse_faces`` faces (evaluation, bench), one decimated
+    mesh per batch (the cores are used by worker processes instead, and a batch re-solves
+    every mesh when one of them needs more eigenpairs)."""
+    if coarse_faces and str(device).startswith("cpu"):
+        return int(DECIMATE_ABOVE * coarse_faces)
+    kind = str(device).split(":")[0]
+    return DEFAULT_BATCH_FACES.get(kind, DEFAULT_BATCH_FACES["cpu"])
+
+
+def cut_by_budget(items: Sequence, cost: Callable, budget: int) -> list[list]:
     """Consecutive ``items`` grouped into batches of at most ``budget`` (``cost(item)`` each, in
     faces); an item above the budget is a batch alone. The order is kept."""
     batches: list[list] = []
@@ -70,175 +56,96 @@ def cut_by_budget(items: Sequence, cost, budget: int) -> list[list]:
     return batches
 
 
-def plan_batches(items: Sequence[Item], batch_faces: int) -> list[list[Item]]:
-    """Sort by face count (then path) and cut into batches under ``batch_faces`` faces;
-    a mesh above the budget is a batch alone."""
+def plan_batches(items: Sequence, batch_faces: int) -> list[list]:
+    """A corpus run's batches: ``items`` (with ``.cost``, faces, and ``.key``) sorted by face
+    count (then key) and cut into batches under ``batch_faces`` faces."""
     return cut_by_budget(sorted(items, key=lambda it: (it.cost, it.key)), lambda it: it.cost, batch_faces)
 
 
-def base_record(item: Item, task, seed: int) -> dict:
-    from .. import __version__
-
-    rec = {"path": item.key, "stem": item.stem, "faces": item.faces, "status": None, "error": None,
-           "seconds": dict(item.seconds), "seed": seed, "version": __version__, "task": task.name,
-           "params": task.params}
-    if "input" in item.extra:
-        rec["input"] = item.extra["input"]
-    return rec
+def solved_face_counts(faces_of: dict, coarse_faces) -> dict:
+    """{mesh id: faces of the mesh the solver sees}: the input's, or about ``coarse_faces`` for
+    a mesh that will be decimated (the face budget of a batch counts what is solved)."""
+    if not coarse_faces:
+        return dict(faces_of)
+    return {i: (f if f <= DECIMATE_ABOVE * coarse_faces else int(coarse_faces)) for i, f in faces_of.items()}
 
 
-def failed_record(item: Item, task, seed: int, error: str) -> dict:
-    rec = base_record(item, task, seed)
-    rec.update(status="failed", error=error)
-    return rec
+def batches_per_worker(device) -> int | None:
+    """None on the CPU: one mesh per batch where several workers share the meshes (a CPU batch
+    is solved one mesh at a time inside, so its size gains nothing and only sets how finely the
+    work is shared; see docs/design.md); 1 elsewhere (on a GPU batching is the gain)."""
+    return None if str(device).startswith("cpu") else 1
 
 
-def _input_failure(exc: BaseException) -> str:
-    """The manifest text of one mesh's failure; a programming error, or an output folder that
-    is full, is no mesh's fault: re-raised, it ends the run."""
-    if is_programming_error(exc) or isinstance(exc, OutputSpaceError):
-        raise exc
-    return error_text(exc)
+def make_batches(plans, faces_of: dict, budget: int, *, workers: int = 1, work_of: dict | None = None,
+                 per_worker: int | None = 1) -> list:
+    """Plans (with ``.mesh_id``) grouped into batches of at most ``budget`` faces (``faces_of``:
+    by mesh id); a mesh larger than the budget is a batch alone.
+
+    One worker: consecutive plans (the caller's order groups meshes alike, which keeps the
+    batch's padding small). Several workers, with ``work_of`` (estimated work by mesh id):
+    batches of equal work instead, at least one per worker, still under the budget, so that no
+    worker is left with the meshes of the most k's. With ``per_worker``, at least that many
+    batches per worker (where there are meshes enough), for a finer share of the work; None:
+    one mesh per batch (:func:`batches_per_worker`)."""
+    consecutive = cut_by_budget(plans, lambda p: faces_of[p.mesh_id], budget)
+    if workers <= 1 or work_of is None or len(plans) <= 1:
+        return consecutive
+    wanted = len(plans) if per_worker is None else workers * max(1, int(per_worker))
+    count = max(len(consecutive), min(wanted, len(plans)))
+    return balanced_batches(plans, faces_of, budget, work_of, count)
 
 
-def _load(it: Item, task, out_dir: Path) -> bool:
-    """Load, clean and check one item (True), or find it in the task's cache (False)."""
-    t0 = time.perf_counter()
-    try:
-        it.extra["input"] = file_fingerprint(it.path)  # the content the outputs belong to
-    except OSError:
-        pass                                           # unreadable: load_mesh says why
-    check = getattr(task, "check_size", None)
-    if check is not None and it.faces is not None:
-        check(it.path, it.faces)                       # before paying for the load
-    lookup = getattr(task, "cache_lookup", None)
-    if lookup is not None and lookup(it, out_dir):
-        it.seconds = {"load": 0.0, "write": time.perf_counter() - t0}
-        return False
-    it.mesh = load_mesh(it.path)
-    it.faces = it.mesh.n_faces
-    if check is not None:
-        check(it.path, it.faces)
-    it.clean = clean_mesh(it.mesh)
-    validate = getattr(task, "validate", None)
-    if validate is not None:
-        validate(it)
-    it.seconds = {"load": time.perf_counter() - t0}
-    return True
+def balanced_batches(plans, faces_of: dict, budget: int, work_of: dict, count: int) -> list:
+    """``count`` batches (more where the budget needs them) of about equal work: the plans,
+    heaviest first, each into the lightest batch it fits in under ``budget`` faces (a new batch
+    where it fits in none). Each batch keeps the plans' given order; empty batches are dropped."""
+    index = {id(p): i for i, p in enumerate(plans)}
+    bins: list = [[] for _ in range(count)]
+    work, faces = [0.0] * count, [0] * count
+    for p in sorted(plans, key=lambda p: (-work_of[p.mesh_id], index[id(p)])):
+        f = faces_of[p.mesh_id]
+        fits = [j for j in range(len(bins)) if not bins[j] or faces[j] + f <= budget]
+        if not fits:
+            bins.append([]), work.append(0.0), faces.append(0)
+            fits = [len(bins) - 1]
+        j = min(fits, key=lambda j: (work[j], j))
+        bins[j].append(p)
+        work[j] += work_of[p.mesh_id]
+        faces[j] += f
+    return [sorted(b, key=lambda p: index[id(p)]) for b in bins if b]
 
 
-def require_edges(item: Item, n: int, what: str) -> None:
-    """A task's ``validate`` check: ``n`` fields need at least ``n`` edges on the cleaned mesh
-    (``what`` names the option in the error, e.g. ``"--n 32 fields asked for"``)."""
-    from ..errors import ParameterError
-    from ..mesh.batch import mesh_edges
-
-    n_edges = len(mesh_edges(item.clean.faces)[0])
-    if n > n_edges:
-        raise ParameterError(f"{item.path}: {what} but the mesh has only {n_edges} edges")
+def mesh_work(faces_of: dict, ks_of: dict) -> dict:
+    """{mesh id: estimated work}: faces x (1 + k's to segment); the parts are cut on the
+    input's faces once per k (``faces_of``: input faces, ``ks_of``: k's still to segment)."""
+    return {i: faces_of[i] * (1 + ks_of[i]) for i in ks_of}
 
 
-def output_record(rec: dict, task, out_dir: Path, stem: str) -> dict:
-    """Adds each output's fingerprint (name: size, sha256), which resume checks."""
-    rec["outputs"] = {p.name: file_fingerprint(p) for p in task.output_paths(out_dir, stem)}
-    return rec
+def heaviest_first(batches: list, faces_of: dict, ks_of: dict) -> list:
+    """The batches in the order to hand them to workers: the most work first (longest
+    processing time first, so that no worker finishes a long mesh alone at the end), ties in
+    the given order. Work is :func:`mesh_work` summed over a batch's meshes. The batches
+    themselves are not changed."""
+    per_mesh = mesh_work(faces_of, ks_of)
+    work = [sum(per_mesh[p.mesh_id] for p in b) for b in batches]
+    return [batches[i] for i in sorted(range(len(batches)), key=lambda i: -work[i])]
 
 
-def process_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> list[dict]:
-    """Load, compute and write one batch; returns one manifest record per item (any order).
+def prediction_batches(plans, faces_of: dict, ks_of: dict, budget: int, *, coarse_faces=None,
+                       workers: int = 1, device="cpu") -> list:
+    """The batches of an evaluation's (or the bench's) predictions, in the order to run them.
 
-    A mesh that fails to load, or to write, gets its ``failed`` record here; an error of the
-    batch's computation propagates (:func:`run_batch` then retries the meshes one by one).
-    Self-contained (plain inputs and outputs) so any executor can map it over batches.
-    """
-    records: list[dict] = []
-    ready: list[Item] = []
-    for it in items:
-        t0 = time.perf_counter()
-        try:
-            if _load(it, task, out_dir):
-                ready.append(it)
-                continue
-            rec = base_record(it, task, seed)
-            rec.update(status="ok", cached=True)
-            records.append(output_record(rec, task, out_dir, it.stem))
-        except Exception as exc:  # noqa: BLE001 - a bad input is recorded, a bug re-raised
-            error = _input_failure(exc)
-            log.debug("load of %s failed", it.path, exc_info=True)
-            it.seconds = {"load": time.perf_counter() - t0}
-            records.append(failed_record(it, task, seed, error))
-            it.mesh = it.clean = None
-    if ready:
-        records += _compute_and_write(ready, task, out_dir, device, seed)
-    return records
+    plans : objects with ``.mesh_id``
+    faces_of : {mesh id: input faces}; ks_of : {mesh id: number of k's still to segment}
+    budget : faces per batch, counted on the meshes as solved (decimated to about
+        ``coarse_faces`` faces where they will be)
 
-
-def _compute_and_write(items: list[Item], task, out_dir: Path, device, seed: int) -> list[dict]:
-    failure = None
-    try:
-        outputs, stage_s = task.process(items, device)
-    except Exception as exc:  # noqa: BLE001
-        if is_programming_error(exc):
-            raise
-        failure = exc
-    if failure is not None:
-        # Out of the except block, the traceback dropped: the failed batch's tensors are freed.
-        failure.__traceback__ = None
-        for it in items:
-            it.mesh = it.clean = None
-        _free_device_memory(device)
-        raise failure
-    total = sum(len(it.clean.faces) for it in items) or 1
-    recs = []
-    for it, out in zip(items, outputs):
-        share = len(it.clean.faces) / total
-        for stage in task.stages:
-            it.seconds[stage] = stage_s.get(stage, 0.0) * share
-        t0 = time.perf_counter()
-        try:
-            written = task.write(it, out, out_dir)
-            store = getattr(task, "cache_store", None)
-            if store is not None:
-                store(it, written)
-            it.seconds["write"] = time.perf_counter() - t0
-            rec = base_record(it, task, seed)
-            rec.update(status="ok")
-            fields = getattr(task, "manifest_fields", None)
-            if fields is not None:
-                rec.update(fields(out))
-            recs.append(output_record(rec, task, out_dir, it.stem))
-        except Exception as exc:  # noqa: BLE001
-            error = _input_failure(exc)
-            log.debug("writing %s failed", it.stem, exc_info=True)
-            it.seconds["write"] = time.perf_counter() - t0
-            recs.append(failed_record(it, task, seed, error))
-        it.mesh = it.clean = None
-    return recs
-
-
-def _free_device_memory(device) -> None:
-    if str(device).startswith("cuda"):
-        import torch
-
-        torch.cuda.empty_cache()
-
-
-def run_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> list[dict]:
-    """:func:`process_batch` through the shared split-and-retry of
-    :func:`~.parallel.map_batches`: when the batch's computation fails, its meshes are retried
-    one by one, so only the culprit fails. One record per item."""
-    records: list[dict] = []
-    for outcome in map_batches([items], process_batch, (task, out_dir, device, seed),
-                               fatal=(OutputSpaceError,)):
-        if outcome.split:
-            log.warning("batch of %d meshes failed (%s); retrying them one by one",
-                        len(outcome.batch), outcome.error)
-        elif outcome.error is not None:
-            records.append(failed_record(outcome.batch[0], task, seed, outcome.error))
-        else:
-            records += outcome.result
-    return records
-
-
-__all__ = ["Item", "plan_batches", "process_batch", "run_batch", "base_record", "failed_record",
-           "require_edges"]
+    Sorted by (k's, faces, id): a batch's meshes then need about the same number of
+    segmentation rounds and have similar sizes (little padding); then cut by
+    :func:`make_batches` and handed out :func:`heaviest_first`."""
+    order = sorted(plans, key=lambda p: (ks_of[p.mesh_id], faces_of[p.mesh_id], p.mesh_id))
+    solved = solved_face_counts(faces_of, coarse_faces)
+    batches = make_batches(order, solved, int(budget), workers=int(workers),
+                           work_of=mesh_work(faces_of, ks_of), per_worker=batches_per_worker(device))
+    return heaviest_first(batches, faces_of, ks_of)

@@ -2,7 +2,7 @@
 
 Each command function returns the exit code (0: every mesh ok, 1: some failed) and raises
 :class:`~torchakvf.errors.TorchAKVFError` for user errors, which the CLI prints as one line
-(exit 2). Numeric options are parsed here, not by argparse, so that a bad value is one line too.
+(exit 2); the values are checked by :mod:`.arguments`.
 """
 from __future__ import annotations
 
@@ -11,77 +11,11 @@ import logging
 from pathlib import Path
 
 from ..errors import TorchAKVFError
-from ..fields.akvf import KRYLOV_MIN_EDGES, SOLVERS
-from ..parts.engine import DEFAULT_METHOD, METHODS
+from ..options import DEFAULT_METHOD, METHODS
+from .arguments import (add_graph_cut_argument, add_method_argument, add_solver_argument, parse_device,
+                        parse_float, parse_int, parse_remedy, parse_seed)
 
 log = logging.getLogger("torchakvf")
-
-
-# ---- argument checks (one-line errors) ----------------------------------------------------
-
-#: Largest ``--seed``: every generator the package seeds (torch.Generator, numpy) takes it,
-#: and it fits the int64 a seed may be stored in.
-MAX_SEED = 2**63 - 1
-
-
-
-def add_graph_cut_argument(p: argparse.ArgumentParser) -> None:
-    """``--graph-cut on|off``: method merge's boundary graph cut (segment, eval)."""
-    p.add_argument("--graph-cut", default="on", choices=["on", "off"],
-                   help="method merge: re-decide the part boundaries by an alpha-expansion graph "
-                        "cut on the dual graph after merging (default on, cross-validated on the PSB)")
-
-
-def add_solver_argument(p: argparse.ArgumentParser, default) -> None:
-    """``--solver``, its choices those of :func:`torchakvf.akvf` (one list for every command)."""
-    p.add_argument("--solver", default=default, choices=list(SOLVERS),
-                   help="eigensolver of the AKVFs (default auto: on CPU ARPACK Lanczos below "
-                        f"{KRYLOV_MIN_EDGES} edges and block Krylov above, both on a CHOLMOD "
-                        "factor; LOBPCG on a GPU)")
-
-def _int(text, flag: str, minimum: int | None = None, maximum: int | None = None) -> int:
-    try:
-        value = int(str(text).strip())
-    except ValueError:
-        raise TorchAKVFError(f"{flag} must be an integer, got {text!r}") from None
-    if minimum is not None and value < minimum:
-        raise TorchAKVFError(f"{flag} must be an integer >= {minimum}, got {value}")
-    if maximum is not None and value > maximum:
-        raise TorchAKVFError(f"{flag} must be an integer <= {maximum}, got {value}")
-    return value
-
-
-def _seed(text) -> int:
-    return _int(text, "--seed", 0, MAX_SEED)
-
-
-def _float(text, flag: str, minimum: float | None = None, maximum: float | None = None,
-           why: str = "") -> float:
-    try:
-        value = float(str(text).strip())
-    except ValueError:
-        raise TorchAKVFError(f"{flag} must be a number, got {text!r}") from None
-    if value != value or (minimum is not None and value < minimum):
-        raise TorchAKVFError(f"{flag} must be a number >= {minimum}, got {text!r}")
-    if maximum is not None and value > maximum:
-        raise TorchAKVFError(f"{flag} must be a number <= {maximum}{why}, got {text!r}")
-    return value
-
-
-def _device(text: str, check_available: bool = True) -> str:
-    """``--device`` as a torch device string (:func:`torchakvf.devices.resolve_device`: one-line
-    errors for an unknown type, CUDA absent here, an index beyond the GPUs present)."""
-    from ..devices import resolve_device
-
-    return str(resolve_device(text, what="--device", check_available=check_available))
-
-
-def _remedy(text: str) -> str:
-    from ..operators.killing import REMEDIES
-
-    if text not in REMEDIES:
-        raise TorchAKVFError(f"--remedy must be one of {', '.join(REMEDIES)}, got {text!r}")
-    return text
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -103,13 +37,14 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def _ray_workers(args) -> int:
-    return _int(args.ray_workers, "--ray-workers", 0)
+    return parse_int(args.ray_workers, "--ray-workers", 0)
 
 
 def _run(args, task, device: str) -> int:
     from .inputs import discover_inputs
     from .outdir import check_output_dir
-    from .runner import default_batch_faces, failure_text, run_corpus
+    from .batches import default_batch_faces
+    from .runner import failure_text, run_corpus
 
     out = Path(args.out)
     ray_workers = _ray_workers(args)
@@ -118,7 +53,7 @@ def _run(args, task, device: str) -> int:
 
         if importlib.util.find_spec("ray") is None:
             raise TorchAKVFError("--ray-workers needs ray: pip install 'torchakvf[ray]'")
-    batch_faces = (_int(args.batch_faces, "--batch-faces", 1) if args.batch_faces is not None
+    batch_faces = (parse_int(args.batch_faces, "--batch-faces", 1) if args.batch_faces is not None
                    else default_batch_faces(device))
     paths = discover_inputs(args.inputs, exclude=out)
     check_output_dir(out)   # before any work: an unwritable --out is one line, not N failures
@@ -166,29 +101,31 @@ def _add_segment(sub) -> None:
                    help=f"solve on meshes decimated to about N faces and cut the parts on the "
                         f"originals (default {DEFAULT_COARSE_FACES}, measured on the PSB; 0: full "
                         "resolution)")
+    p.add_argument("--subdivide", action="store_true",
+                   help="subdivide a mesh with too few edges for its fields (a 12-face cube at -k 5) "
+                        "at its edge midpoints until it has enough; labels stay one per face of the file")
     add_solver_argument(p, default="auto")
     add_graph_cut_argument(p)
-    p.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS),
-                   help="segmentation method: merge (default: over-segment, then merge adjacent "
-                        "parts by symmetry and concavity) or paper (Solomon et al. 2011)")
+    add_method_argument(p, DEFAULT_METHOD, METHODS)
     p.set_defaults(func=run_segment)
 
 
 def run_segment(args) -> int:
     from ..mesh.coarse import DEFAULT_COARSE_FACES
-    from ..parts.segment import DEFAULT_REMEDY
+    from ..options import DEFAULT_REMEDY, SegmentOptions
     from .segment_task import SegmentTask, parse_formats
 
-    k = _int(args.k, "-k", 1)
-    n_fields = _int(args.n_fields, "--n-fields", 1) if args.n_fields is not None else None
+    k = parse_int(args.k, "-k", 1)
+    n_fields = parse_int(args.n_fields, "--n-fields", 1) if args.n_fields is not None else None
     coarse = (DEFAULT_COARSE_FACES if args.coarse_faces is None
-              else _int(args.coarse_faces, "--coarse-faces", 0))
-    eps = _float(args.eps, "--eps", 0.0, 2.0, " (a cosine distance never exceeds 2)")
-    task = SegmentTask(k, eps=eps, seed=_seed(args.seed),
-                       n_fields=n_fields, remedy=_remedy(args.remedy or DEFAULT_REMEDY),
-                       formats=parse_formats(args.formats), coarse_faces=coarse or None,
-                       solver=args.solver, method=args.method, graphcut=args.graph_cut == "on")
-    return _run(args, task, _device(args.device, check_available=not _ray_workers(args)))
+              else parse_int(args.coarse_faces, "--coarse-faces", 0))
+    eps = parse_float(args.eps, "--eps", 0.0, 2.0, " (a cosine distance never exceeds 2)")
+    options = SegmentOptions(eps=eps, seed=parse_seed(args.seed),
+                             remedy=parse_remedy(args.remedy or DEFAULT_REMEDY), solver=args.solver,
+                             method=args.method, graphcut=args.graph_cut == "on")
+    task = SegmentTask(k, options, n_fields=n_fields, coarse_faces=coarse or None,
+                       formats=parse_formats(args.formats), subdivide=args.subdivide)
+    return _run(args, task, parse_device(args.device, check_available=not _ray_workers(args)))
 
 
 # ---- features -----------------------------------------------------------------------------
@@ -213,15 +150,15 @@ def _add_features(sub) -> None:
 
 
 def run_features(args) -> int:
-    from ..parts.segment import DEFAULT_REMEDY
+    from ..options import DEFAULT_REMEDY
     from .features import FeaturesTask
 
-    n = _int(args.n, "--n", 1)
-    seed = _seed(args.seed)
-    remedy = _remedy(args.remedy or DEFAULT_REMEDY)
-    coarse = _int(args.coarse_faces, "--coarse-faces", 0) or None
-    max_faces = _int(args.max_faces, "--max-faces", 1) if args.max_faces is not None else None
-    device = _device(args.device, check_available=not _ray_workers(args))
+    n = parse_int(args.n, "--n", 1)
+    seed = parse_seed(args.seed)
+    remedy = parse_remedy(args.remedy or DEFAULT_REMEDY)
+    coarse = parse_int(args.coarse_faces, "--coarse-faces", 0) or None
+    max_faces = parse_int(args.max_faces, "--max-faces", 1) if args.max_faces is not None else None
+    device = parse_device(args.device, check_available=not _ray_workers(args))
     task = FeaturesTask(n, seed=seed, remedy=remedy, face_vectors=args.face_vectors, cache_dir=args.cache,
                         coarse_faces=coarse, max_faces=max_faces)
     return _run(args, task, device)
@@ -231,6 +168,6 @@ def run_features(args) -> int:
 
 def add_corpus_commands(subparsers) -> None:
     """Register ``segment`` and ``features`` on the CLI's subparsers (``bench`` is
-    :func:`torchakvf.evaluate.commands.add_bench_command`)."""
+    :func:`torchakvf.bench.command.add_bench_command`)."""
     _add_segment(subparsers)
     _add_features(subparsers)

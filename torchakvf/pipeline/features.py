@@ -36,14 +36,14 @@ import numpy as np
 
 from ..errors import ParameterError, TorchAKVFError
 from ..io import atomic_write_bytes, remove_stale_temp_files, write_npz
-from ..parts.segment import DEFAULT_REMEDY
+from ..fields.untangle import DEFAULT_RESTARTS
+from ..operators.killing import DEFAULT_REMEDY
 
 log = logging.getLogger("torchakvf.pipeline")
 
 #: Peak memory of a full-resolution ``features`` solve, per face and field, and the fixed part
-#: (bytes; CPU, float64). Measured with ``run_corpus`` in a fresh process (peak RSS, n=32,
-#: OMP_NUM_THREADS=1): icospheres of 5,120 and 20,480 faces took 115 and 374 MiB above the
-#: 263 MiB of the loaded package, 540 B per face-field; a 1.3M-face mesh is then ~22 GB.
+#: (bytes; CPU, float64): a linear fit of the peak resident size of solves on icospheres, so
+#: that a mesh too big for the machine is refused before it is loaded (see docs/design.md).
 BYTES_PER_FACE_FIELD = 540
 BYTES_FIXED = 300 * 2**20
 #: Face count to suggest for ``--coarse-faces`` when a mesh is refused.
@@ -69,7 +69,7 @@ class FeaturesTask:
     stages = ("akvf", "untangle")
 
     def __init__(self, n: int = 32, *, seed: int = 0, remedy: str = DEFAULT_REMEDY,
-                 untangle_restarts: int = 8, tol: float = 1e-6, face_vectors: bool = False,
+                 untangle_restarts: int = DEFAULT_RESTARTS, tol: float = 1e-6, face_vectors: bool = False,
                  cache_dir=None, coarse_faces: int | None = None, max_faces: int | None = None,
                  memory_bytes: int | None = None):
         """coarse_faces : solve meshes above 1.25x this many faces decimated to about this many
@@ -125,7 +125,7 @@ class FeaturesTask:
                                  f"more than the {self.memory_bytes / 2**30:.1f} GB of memory; {fix}")
 
     def validate(self, item) -> None:
-        from .batches import require_edges
+        from .execute import require_edges
 
         require_edges(item, self.n, f"--n {self.n} fields asked for")
 

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import logging
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from ..errors import TorchAKVFError
 from ..io import FORMATS, safe_stem
 
 _GLOB_CHARS = re.compile(r"[*?\[]")
+log = logging.getLogger("torchakvf.pipeline")
 
 
 def is_mesh_file(path: Path) -> bool:
@@ -23,16 +26,21 @@ def is_mesh_file(path: Path) -> bool:
     return "." in name and name.rsplit(".", 1)[-1] in FORMATS
 
 
-def discover_inputs(inputs, *, exclude: str | os.PathLike | None = None) -> list[Path]:
-    """Mesh files named by ``inputs``: files, folders (searched recursively for
-    .off/.obj/.ply/.stl, optionally .gz) and glob patterns (``**`` allowed).
+@dataclass(frozen=True)
+class SkippedFile:
+    """A file a folder or pattern named that the run does not read, and why."""
 
-    ``inputs`` is a list of strings (or an argparse namespace with ``.inputs``). Files under
-    ``exclude`` (the output folder) are skipped when scanning folders and globs. Raises
-    :class:`TorchAKVFError` naming the argument for a missing file, a file that is not a mesh,
-    or a folder/pattern without any mesh file. The result is deduplicated, in argument order
-    (folders and globs sorted).
-    """
+    path: Path
+    reason: str
+
+
+def _extensions() -> str:
+    return ", ".join("." + f for f in FORMATS) + " (optionally .gz)"
+
+
+def scan_inputs(inputs, *, exclude: str | os.PathLike | None = None) -> tuple[list[Path], list[SkippedFile]]:
+    """(the mesh files named by ``inputs``, every other file a folder or pattern holds, with
+    the reason it is skipped); see :func:`discover_inputs`."""
     if hasattr(inputs, "inputs"):
         inputs = inputs.inputs
     if isinstance(inputs, (str, os.PathLike)):
@@ -49,24 +57,34 @@ def discover_inputs(inputs, *, exclude: str | os.PathLike | None = None) -> list
         return rp == ex or ex in rp.parents
 
     found: list[Path] = []
+    skipped: list[SkippedFile] = []
+
+    def sort_out(arg: str, candidates, none_found: str) -> None:
+        hits = []
+        for q in candidates:
+            if not q.is_file():
+                continue
+            if excluded(q):
+                skipped.append(SkippedFile(q, "inside the output folder"))
+            elif not is_mesh_file(q):
+                skipped.append(SkippedFile(q, f"not a mesh file name (meshes are {_extensions()})"))
+            else:
+                hits.append(q)
+        if not hits:
+            raise TorchAKVFError(f"{arg}: {none_found} ({_extensions()})")
+        found.extend(hits)
+
     for arg in inputs:
         p = Path(arg).expanduser()
         if p.is_dir():
-            hits = sorted(q for q in p.rglob("*") if q.is_file() and is_mesh_file(q) and not excluded(q))
-            if not hits:
-                raise TorchAKVFError(f"{arg}: folder holds no mesh files (.{', .'.join(FORMATS)}, optionally .gz)")
-            found += hits
+            sort_out(arg, sorted(p.rglob("*")), "folder holds no mesh files")
         elif p.is_file():
             if not is_mesh_file(p):
-                raise TorchAKVFError(f"{arg}: not a mesh file name (expected .{', .'.join(FORMATS)}, "
-                                     "optionally .gz)")
+                raise TorchAKVFError(f"{arg}: not a mesh file name (expected {_extensions()})")
             found.append(p)
         elif _GLOB_CHARS.search(arg):
-            hits = sorted(Path(q) for q in glob.glob(os.path.expanduser(arg), recursive=True))
-            hits = [q for q in hits if q.is_file() and is_mesh_file(q) and not excluded(q)]
-            if not hits:
-                raise TorchAKVFError(f"{arg}: pattern matches no mesh files")
-            found += hits
+            sort_out(arg, sorted(Path(q) for q in glob.glob(os.path.expanduser(arg), recursive=True)),
+                     "pattern matches no mesh files")
         elif p.exists():
             raise TorchAKVFError(f"{arg}: not a regular file or folder")
         else:
@@ -77,7 +95,36 @@ def discover_inputs(inputs, *, exclude: str | os.PathLike | None = None) -> list
         if key not in seen:
             seen.add(key)
             out.append(q)
-    return out
+    return out, skipped
+
+
+def log_skipped(skipped: Sequence[SkippedFile]) -> None:
+    """One log line per skipped file (the output folder's own files in one line)."""
+    ours = [s for s in skipped if s.reason == "inside the output folder"]
+    for s in skipped:
+        if s.reason != "inside the output folder":
+            log.warning("skipped %s: %s", s.path, s.reason)
+    if ours:
+        log.info("skipped %d files inside the output folder", len(ours))
+
+
+def discover_inputs(inputs, *, exclude: str | os.PathLike | None = None,
+                    on_skipped: Callable[[list[SkippedFile]], None] | None = log_skipped) -> list[Path]:
+    """Mesh files named by ``inputs``: files, folders (searched recursively for the
+    :data:`~torchakvf.io.FORMATS` extensions, optionally .gz) and glob patterns (``**`` allowed).
+
+    ``inputs`` is a list of strings (or an argparse namespace with ``.inputs``). Files under
+    ``exclude`` (the output folder) are skipped when scanning folders and globs. Every file a
+    folder or pattern holds that is not read is passed to ``on_skipped`` with the reason
+    (default: one log line each, :func:`log_skipped`; None: not reported). Raises
+    :class:`TorchAKVFError` naming the argument for a missing file, a file that is not a mesh,
+    or a folder/pattern without any mesh file. The result is deduplicated, in argument order
+    (folders and globs sorted).
+    """
+    paths, skipped = scan_inputs(inputs, exclude=exclude)
+    if skipped and on_skipped is not None:
+        on_skipped(skipped)
+    return paths
 
 
 def assign_stems(paths: Sequence[Path], previous: dict[str, dict] | None = None) -> list[str]:
@@ -117,4 +164,4 @@ def assign_stems(paths: Sequence[Path], previous: dict[str, dict] | None = None)
     return stems  # type: ignore[return-value]
 
 
-__all__ = ["is_mesh_file", "discover_inputs", "assign_stems"]
+__all__ = ["is_mesh_file", "discover_inputs", "scan_inputs", "SkippedFile", "log_skipped", "assign_stems"]

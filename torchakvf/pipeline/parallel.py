@@ -21,14 +21,10 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, Callable
 
-#: Batches a worker runs before it is replaced by a fresh process (Python >= 3.11). A
-#: long-lived worker's resident memory grew with what it had served (on the whole PSB corpus a
-#: worker reached 2.4 GB on a mesh that peaks at 1.3 GB in a fresh process); workers now hand
-#: freed heap pages back after each batch (:func:`_release_freed_memory`), and a fresh process
-#: costs ~2.5 s of imports and first calls (at 25 batches: 15 of them on the PSB corpus, 5% of
-#: its CPU). 250 (was 100): no worker is replaced on the PSB corpus (190 batches each on 2 workers); the
-#: largest worker's peak went 519-525 -> 538-554 MiB over three runs each
-#: (benchmarks/results/bench_psb_full_v13_*.md).
+#: Batches a worker runs before it is replaced by a fresh process (Python >= 3.11): a backstop
+#: against resident memory growing with what a worker has served. Workers hand freed heap pages
+#: back after each batch (:func:`_release_freed_memory`) and a fresh process costs seconds of
+#: imports, so the limit is set above a PSB run's batches per worker (see docs/design.md).
 RECYCLE_AFTER = 250
 #: Thread-count variables of the BLAS/OpenMP runtimes and libigl a worker may load (set before its imports).
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "IGL_NUM_THREADS")

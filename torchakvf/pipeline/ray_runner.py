@@ -4,7 +4,7 @@ The driver does what :func:`~torchakvf.pipeline.run_corpus` does before and afte
 (resume check, size peek, face-budget batches, the manifest); the batches themselves are mapped
 with ``ray.data`` (``map_batches`` with a callable class on a fixed ``ActorPoolStrategy``) over
 ``workers`` warm actors, one per slot (e.g. one per GPU). Each actor runs the same
-:func:`~torchakvf.pipeline.batches.run_batch` and writes the outputs atomically into
+:func:`~torchakvf.pipeline.execute.run_batch` and writes the outputs atomically into
 ``out_dir``, a folder every worker can reach (one machine, or a shared file system on a
 cluster). Workers return the manifest records; the driver alone appends them to
 ``manifest.jsonl`` as they stream in, so the outputs, the manifest and resume are those of
@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ..errors import TorchAKVFError
 from ..progress import progress
-from .batches import Item, run_batch
+from .execute import Item, run_batch
 from .outdir import OutputLock, check_output_dir
 from .runner import RunSummary, plan_run, record_batch, recording
 

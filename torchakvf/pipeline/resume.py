@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..io.manifest import file_fingerprint, read_manifest
-from .batches import Item
+from .execute import Item
 from .inputs import assign_stems
 
 log = logging.getLogger("torchakvf.pipeline")

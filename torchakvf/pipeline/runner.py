@@ -15,7 +15,7 @@ What it guarantees:
   the killed run's temporary files. One run at a time holds an output folder (``.lock``).
 * **One bad mesh fails alone; a bug stops the run.** A mesh that cannot be loaded, cleaned or
   validated gets a ``failed`` line with its error; if a batch's computation raises, its meshes
-  are retried one by one so only the culprit fails (:mod:`.batches`). The run goes on; the
+  are retried one by one so only the culprit fails (:mod:`.execute`). The run goes on; the
   summary and the exit code say how many failed. A programming error (TypeError, IndexError,
   ...) is no bad mesh: it ends the run with its traceback, the manifest flushed.
 
@@ -37,27 +37,16 @@ from ..errors import TorchAKVFError
 from ..io import peek_face_count
 from ..io.manifest import MANIFEST, ManifestWriter, read_manifest
 from ..progress import progress as progress_report
-from .batches import Item, plan_batches, process_batch, run_batch
+from .batches import DEFAULT_BATCH_FACES, default_batch_faces, plan_batches
+from .execute import Item, process_batch, run_batch
 from .inputs import assign_stems, discover_inputs, is_mesh_file
 from .outdir import OutputLock, check_output_dir
 from .resume import prepare
 
 log = logging.getLogger("torchakvf.pipeline")
 
-#: Default face budget per batch. CPU, measured with ``torchakvf features --n 32`` on PSB meshes
-#: 1-20 (5k-32k faces, 404k in all; 2 busy cores, OMP_NUM_THREADS=1): one mesh per batch ran
-#: 968 faces/s (1.35 GB peak RSS), a 50k budget 746 faces/s, a 200k budget 267 faces/s (~6 GB):
-#: on CPU the padded batched work (every mesh iterates until the batch's slowest converges)
-#: costs more than it saves, so the budget only groups small meshes (20k: a PSB-size mesh runs
-#: about alone). CUDA: batching amortizes kernel launches; 1M faces is a guess, unmeasured here.
-DEFAULT_BATCH_FACES = {"cpu": 20_000, "cuda": 1_000_000}
 #: A batch of more faces than this gets a line of its own before it starts (it takes minutes).
 ANNOUNCE_FACES = 200_000
-
-
-def default_batch_faces(device) -> int:
-    kind = str(device).split(":")[0]
-    return DEFAULT_BATCH_FACES.get(kind, DEFAULT_BATCH_FACES["cpu"])
 
 
 def peek_faces(path: Path) -> int | None:

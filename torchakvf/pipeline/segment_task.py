@@ -8,16 +8,17 @@ converge is recorded so in the manifest (:meth:`SegmentTask.manifest_fields`).
 from __future__ import annotations
 
 import dataclasses
-
 import time
 from pathlib import Path
 
 from ..errors import ParameterError, TorchAKVFError
 from ..io import OUTPUT_FORMATS, write_segmentation
 from ..mesh import MeshBatch
-from .batches import require_edges
-from ..parts.engine import (DEFAULT_METHOD, DEFAULT_REMEDY, UNTANGLE_RESTARTS, SegmentOptions, akvf_count,
-                            merge_min_k, segment_each_k)
+from ..mesh.size_check import check_fields_fit
+from ..mesh.subdivide import levels_to_fit, subdivide
+from ..options import SegmentOptions, segment_options
+from ..parts.field_counts import akvf_count
+from ..parts.segment import segment_each_k
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -32,39 +33,56 @@ def parse_formats(text: str) -> tuple[str, ...]:
 
 
 class SegmentTask:
+    """k parts per mesh (see the module notes).
+
+    k : parts per mesh
+    options : the :class:`~torchakvf.options.SegmentOptions` (None: the defaults); ``refine``
+        is off whatever it says, since the task writes labels only
+    n_fields : fields untangled per mesh (None: segment's own choice, moved off degenerate
+        eigenvalue clusters, from AKVFs computed with spare fields so a cluster cut can be seen)
+    coarse_faces : solve on meshes decimated to about this many faces (None: full resolution);
+        the labels are cut on the input's faces either way (:mod:`torchakvf.mesh.coarse`)
+    formats : the outputs per mesh (:data:`torchakvf.io.OUTPUT_FORMATS`)
+    subdivide : subdivide a mesh with too few edges for its fields at its edge midpoints until
+        it has enough (:func:`~torchakvf.mesh.subdivide.subdivide`; labels stay one per face
+        of the file); False: such a mesh fails with what the user can do
+    overrides : SegmentOptions fields by name, e.g. ``SegmentTask(6, seed=1, method="paper")``
+    """
+
     name = "segment"
     stages = ("akvf", "untangle", "cluster")
 
-    def __init__(self, k: int, *, eps: float = 0.0, seed: int = 0, n_fields: int | None = None,
-                 remedy: str = DEFAULT_REMEDY, formats=OUTPUT_FORMATS, untangle_restarts: int = UNTANGLE_RESTARTS,
-                 kmeans_restarts: int | None = None, coarse_faces: int | None = None, solver: str = "auto",
-                 method: str = DEFAULT_METHOD, graphcut: bool = True):
-        self.k, self.eps, self.seed = int(k), float(eps), int(seed)
-        self.solver, self.method, self.graphcut = str(solver), str(method), bool(graphcut)
-        # one-line errors before any work; the options' merge weights and graph cut are
-        # recorded in params, so a run resumed under other defaults redoes its meshes
-        self.options = SegmentOptions(eps=self.eps, solver=self.solver, method=self.method,
-                                      graphcut=self.graphcut, kmeans_restarts=kmeans_restarts)
-        # None: segment's own choice (2k in [16, 32]; with method "merge" 3 max(k, 8) in multiples of 8; moved off
-        # degenerate eigenvalue clusters),
-        # from AKVFs computed with SPARE_FIELDS to spare so a cluster cut can be seen.
+    def __init__(self, k: int, options: SegmentOptions | None = None, *, n_fields: int | None = None,
+                 coarse_faces: int | None = None, formats=OUTPUT_FORMATS, subdivide: bool = False,
+                 **overrides):
+        self.k = int(k)
+        # one-line errors before any work
+        self.options = segment_options(options, **overrides).replace(refine=False)
         self.n_fields = int(n_fields) if n_fields is not None else None
-        self.n_akvf = self.n_fields if n_fields is not None else akvf_count([[self.k]], None, self.method, merge_min_k(self.options))
-        self.remedy, self.formats = remedy, tuple(formats)
-        self.untangle_restarts, self.kmeans_restarts = int(untangle_restarts), self.options.kmeans_restarts
-        # Solve on meshes decimated to about this many faces (None: full resolution); the
-        # labels are cut on the input's faces either way (torchakvf.mesh.coarse).
+        o = self.options
+        self.n_akvf = (self.n_fields if n_fields is not None
+                       else akvf_count([[self.k]], None, o.method, o.merge_min_k))
+        self.formats = tuple(formats)
         self.coarse_faces = int(coarse_faces) if coarse_faces else None
+        self.subdivide = bool(subdivide)
+
+    @property
+    def seed(self) -> int:
+        return self.options.seed
 
     @property
     def params(self) -> dict:
+        """What the manifest records: a run resumed under other options (merge weights and
+        graph cut included) redoes its meshes."""
+        o = self.options
         n_fields = self.n_fields if self.n_fields is not None else "auto"
-        return {"k": self.k, "eps": self.eps, "seed": self.seed, "n_fields": n_fields,
-                "remedy": self.remedy, "formats": list(self.formats),
-                "untangle_restarts": self.untangle_restarts, "kmeans_restarts": self.kmeans_restarts,
-                "coarse_faces": self.coarse_faces, "solver": self.solver, "method": self.method,
-                "merge": dataclasses.asdict(self.options.merge),
-                "graphcut": None if self.options.graphcut is None else dataclasses.asdict(self.options.graphcut)}
+        return {"k": self.k, "eps": float(o.eps), "seed": int(o.seed), "n_fields": n_fields,
+                "remedy": o.remedy, "formats": list(self.formats),
+                "untangle_restarts": int(o.untangle_restarts), "kmeans_restarts": o.kmeans_restarts,
+                "coarse_faces": self.coarse_faces, "subdivide": self.subdivide, "solver": o.solver,
+                "method": o.method,
+                "merge": dataclasses.asdict(o.merge),
+                "graphcut": None if o.graphcut is None else dataclasses.asdict(o.graphcut)}
 
     def output_paths(self, out_dir, stem: str) -> list[Path]:
         return [Path(out_dir) / f"{stem}.{fmt}" for fmt in self.formats]
@@ -73,23 +91,27 @@ class SegmentTask:
         n_faces = len(item.clean.faces)
         if self.k > n_faces:
             raise ParameterError(f"{item.path}: -k {self.k} is larger than the mesh's {n_faces} faces")
-        require_edges(item, self.n_akvf, f"{self.n_akvf} fields needed")
+        if self.subdivide:
+            # the eigensolvers need more edges than fields
+            levels = levels_to_fit(item.clean, self.n_akvf + 1)
+            if levels:
+                item.clean = subdivide(item.clean, levels)
+        opts = self.options
+        check_fields_fit(str(item.path), item.clean.faces, self.n_akvf, k=self.k,
+                         subdivide_hint="subdivide it (--subdivide)",
+                         fields_for_k=lambda j: akvf_count([[j]], self.n_fields, opts.method, opts.merge_min_k))
 
     def process(self, items, device):
         t0 = time.perf_counter()
         batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
                                       coarse_faces=self.coarse_faces)
         t_pack = time.perf_counter() - t0
-        res = segment_each_k(batch, self.k, eps=self.eps, seed=self.seed, n_fields=self.n_fields,
-                             remedy=self.remedy, solver=self.solver, method=self.method,
-                             untangle_restarts=self.untangle_restarts,
-                             kmeans_restarts=self.kmeans_restarts, refine=False, n_akvf=self.n_akvf,
-                             graphcut=self.graphcut)
+        res = segment_each_k(batch, self.k, self.options, n_fields=self.n_fields, n_akvf=self.n_akvf)
         seg = res.segmentation(self.k)
         # The untangled fields draw the PNG's generator arrows.
         vectors = [seg.face_vectors(b) if "png" in self.formats else None for b in range(len(items))]
         seconds = dict(res.seconds)
-        seconds["akvf"] += t_pack     # packing the batch is charged to the solve, as before
+        seconds["akvf"] += t_pack     # the manifest has no stage of its own for packing
         return list(zip(seg.meshes, vectors)), seconds
 
     @staticmethod

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from .shape import Shape
-from .revolution import _blob_profile, _revolve_profile, torus
+from .revolution import blob_profile, revolve_profile, torus
 
 
 def _blob_chain(name: str, blobs, neck: float, n_around: int) -> Shape:
     """Blobs along z joined by necks; part label = number of necks below the face centroid."""
-    z, r, neck_z = _blob_profile(blobs, neck)
-    vertices, faces = _revolve_profile(z, r, n_around, ring_z=neck_z)
+    z, r, neck_z = blob_profile(blobs, neck)
+    vertices, faces = revolve_profile(z, r, n_around, ring_z=neck_z)
     labels = np.searchsorted(neck_z, vertices[faces, 2].mean(axis=1)).astype(np.int64)
     return Shape(name, vertices, faces, labels, len(blobs))
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import Delaunay
 
-from .shape import Shape, _ROW
-from .revolution import _ring_counts
+from .shape import Shape, ROW_HEIGHT
+from .revolution import ring_counts
 
 
 def _planar_delaunay(xy: np.ndarray):
@@ -39,10 +39,10 @@ def flat_disk(radius: float = 1.0, n_boundary: int = 84) -> Shape:
         Open disk-like mesh (Euler characteristic 1) with normals along +z.
     """
     edge = 2 * np.pi * radius / n_boundary
-    n_rings = max(1, round(radius / (_ROW * edge)))
+    n_rings = max(1, round(radius / (ROW_HEIGHT * edge)))
     ring_r = radius * np.arange(1, n_rings + 1) / n_rings
     points = [np.zeros((1, 2))]
-    for i, (rho, n) in enumerate(zip(ring_r, _ring_counts(ring_r, edge))):
+    for i, (rho, n) in enumerate(zip(ring_r, ring_counts(ring_r, edge))):
         angle = (2 * np.arange(n) + i % 2) * np.pi / n
         points.append(rho * np.column_stack([np.cos(angle), np.sin(angle)]))
     vertices, faces = _planar_delaunay(np.vstack(points))

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from .shape import Shape, _ROW, _SYMMETRY
+from .shape import Shape, ROW_HEIGHT, RING_SYMMETRY
 
 
-def _ring_counts(r: np.ndarray, edge: float) -> np.ndarray:
+def ring_counts(r: np.ndarray, edge: float) -> np.ndarray:
     """Vertices per ring of radius ``r`` for a spacing close to ``edge`` (multiple of 6)."""
-    per_ring = np.rint(2 * np.pi * np.asarray(r) / (_SYMMETRY * edge)).astype(np.int64)
-    return _SYMMETRY * np.maximum(per_ring, 1)
+    per_ring = np.rint(2 * np.pi * np.asarray(r) / (RING_SYMMETRY * edge)).astype(np.int64)
+    return RING_SYMMETRY * np.maximum(per_ring, 1)
 
 
 def _stitch(a: np.ndarray, phase_a: int, b: np.ndarray, phase_b: int) -> np.ndarray:
@@ -77,7 +77,7 @@ def _revolve(profile_z, profile_r, edge: float, ends: str = "poles"):
         raise ValueError("ends='poles' needs a profile from axis to axis with a ring between")
     if np.any(r[rings] <= 0):
         raise ValueError("every ring except the poles must have a positive radius")
-    counts = _ring_counts(r, edge)
+    counts = ring_counts(r, edge)
     if ends == "poles":
         counts[[0, -1]] = 1
     phase = np.arange(len(z)) % 2                  # stagger consecutive rings by half a step
@@ -132,7 +132,7 @@ def _chain_r2(z, blobs, blends):
     return r2
 
 
-def _blob_profile(blobs, neck: float | None = None, n_dense: int = 20001):
+def blob_profile(blobs, neck: float | None = None, n_dense: int = 20001):
     """Dense smooth profile of blobs (sorted by ``center_z``) joined by necks.
 
     Each junction's blend width is solved for so that the narrowest radius between the
@@ -179,12 +179,12 @@ def _blob_profile(blobs, neck: float | None = None, n_dense: int = 20001):
     return z, r, np.asarray(neck_z)
 
 
-def _revolve_profile(z: np.ndarray, r: np.ndarray, n_around: int, ring_z=()):
+def revolve_profile(z: np.ndarray, r: np.ndarray, n_around: int, ring_z=()):
     """Mesh a dense pole-to-pole profile with ~``n_around`` vertices on its widest ring,
     with a ring exactly at each of the profile points at heights ``ring_z``."""
     edge = 2 * np.pi * r.max() / n_around
     breaks = np.searchsorted(z, ring_z)
-    ring_z, ring_r = _arclength_rings(z, r, _ROW * edge, breaks)
+    ring_z, ring_r = _arclength_rings(z, r, ROW_HEIGHT * edge, breaks)
     return _revolve(ring_z, ring_r, edge, ends="poles")
 
 
@@ -207,8 +207,8 @@ def ellipsoid_of_revolution(a: float = 1.0, c: float = 1.6, n_around: int = 60) 
         Closed genus-0 mesh centred at the origin, exactly invariant under rotations by
         60 degrees about z, with a vertex on each pole.
     """
-    z, r, _ = _blob_profile([(0.0, c, a)])
-    vertices, faces = _revolve_profile(z, r, n_around)
+    z, r, _ = blob_profile([(0.0, c, a)])
+    vertices, faces = revolve_profile(z, r, n_around)
     return Shape("ellipsoid_of_revolution", vertices, faces)
 
 
@@ -239,7 +239,7 @@ def torus(major: float = 1.0, minor: float = 0.4, n_major: int = 72,
         raise ValueError(f"need 0 < minor < major, got minor={minor}, major={major}")
     edge = 2 * np.pi * (major + minor) / n_major
     if n_minor is None:
-        n_minor = 2 * max(2, round(np.pi * minor / (_ROW * edge)))
+        n_minor = 2 * max(2, round(np.pi * minor / (ROW_HEIGHT * edge)))
     t = 2 * np.pi * np.arange(n_minor) / n_minor
     # counter-clockwise in the (r, z) half-plane: outside on the right
     vertices, faces = _revolve(minor * np.sin(t), major + minor * np.cos(t), edge, ends="loop")
@@ -267,7 +267,7 @@ def open_tube(radius: float = 1.0, length: float = 3.0, n_around: int = 48,
     """
     edge = 2 * np.pi * radius / n_around
     if n_rings is None:
-        n_rings = max(2, round(length / (_ROW * edge))) + 1
+        n_rings = max(2, round(length / (ROW_HEIGHT * edge))) + 1
     z = np.linspace(-length / 2, length / 2, n_rings)
     vertices, faces = _revolve(z, np.full(n_rings, radius), edge, ends="open")
     return Shape("open_tube", vertices, faces)
@@ -290,7 +290,7 @@ def capped_cylinder(radius: float = 1.0, height: float = 3.0, n_around: int = 48
         Closed genus-0 mesh with a vertex at the centre of each cap.
     """
     edge = 2 * np.pi * radius / n_around
-    step = _ROW * edge
+    step = ROW_HEIGHT * edge
     # each straight piece gets its own whole number of steps so rings sit on the rims
     n_cap = max(1, round(radius / step))
     n_side = max(1, round(height / step))

@@ -6,12 +6,12 @@ from dataclasses import dataclass
 import numpy as np
 
 
-# Ring vertex counts are multiples of this: exact 6-fold symmetry about z, and the ring
-# next to a pole is a hexagon whose fan triangles are near-equilateral.
-_SYMMETRY = 6
-# Height of an equilateral triangle with unit edge: the profile arc-length step per unit
-# of target edge length.
-_ROW = np.sqrt(3.0) / 2.0
+#: Ring vertex counts are multiples of this: exact 6-fold symmetry about z, and the ring
+#: next to a pole is a hexagon whose fan triangles are near-equilateral.
+RING_SYMMETRY = 6
+#: Height of an equilateral triangle with unit edge: the profile arc-length step per unit
+#: of target edge length.
+ROW_HEIGHT = np.sqrt(3.0) / 2.0
 
 
 @dataclass(eq=False)  # array fields: the generated element-wise __eq__ would be ambiguous

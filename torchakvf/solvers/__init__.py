@@ -1,10 +1,12 @@
 """Eigensolvers on one sparse Cholesky (CHOLMOD) shift-invert factor per mesh (for the batched
 LOBPCG on CUDA, one block-diagonal factor per batch): block Krylov (the CPU default), segmented
-LOBPCG (the default elsewhere) and ARPACK Lanczos."""
+LOBPCG (the default elsewhere) and ARPACK Lanczos; :class:`AKVFSolver` holds a batch's operator,
+factors, solver choice and fallbacks."""
 from .factor import BlockDiagonalFactor, ShiftedFactor
 from .krylov import block_krylov
 from .lobpcg import EigenResult, relative_residuals, segmented_lobpcg
 from .lanczos import shift_invert_lanczos
+from .akvf_solver import AKVFResult, AKVFSolver
 
-__all__ = ["BlockDiagonalFactor", "ShiftedFactor", "EigenResult", "block_krylov", "relative_residuals",
-           "segmented_lobpcg", "shift_invert_lanczos"]
+__all__ = ["AKVFResult", "AKVFSolver", "BlockDiagonalFactor", "ShiftedFactor", "EigenResult", "block_krylov",
+           "relative_residuals", "segmented_lobpcg", "shift_invert_lanczos"]

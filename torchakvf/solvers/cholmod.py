@@ -1,19 +1,16 @@
 """CHOLMOD's simplicial sparse Cholesky on the CPU, called through ctypes on the CHOLMOD that
 ``cholespy`` (already a dependency) ships inside its extension module.
 
-Why not cholespy's own constructor on the CPU (benchmarks/results/cholmod_ordering.md): it
-fixes CHOLMOD's ordering to NESDIS (METIS nested dissection with constrained minimum degree).
-On the Killing operator's edge graph (about 11 entries per row) that ordering takes most of
-the factor's time: 283 of 443 ms on PSB 21 (45,594 edges), 72 of 92 ms on PSB 1. AMD orders
-them in 33 and 9 ms; its factor has up to 1.2x the nonzeros and 1.8x the flops, and still the
-order plus the numeric factor cost 0.3-0.7x cholespy's constructor on PSB 1, 21, 121, 181, 301
-(its 4-column solves up to 1.3x slower). This module also:
+Why not cholespy's own constructor on the CPU (see docs/design.md): it fixes CHOLMOD's
+ordering to NESDIS (METIS nested dissection with constrained minimum degree). On the Killing
+operator's edge graph (about 11 entries per row) that ordering takes most of the factor's time;
+AMD orders it several times faster, and its order plus numeric factor cost 0.3-0.7x cholespy's
+constructor although its factor has more nonzeros. This module also:
 
 * computes the symbolic analysis once per mesh: a failed shift (R - σS1 not definite) costs a
   numeric refactorization only;
-* releases the GIL while CHOLMOD works (ctypes does, cholespy does not): two factors of PSB 21
-  on two threads took 0.72 s wall against 0.43 s for one (the pattern set-up holds the GIL, and
-  the factor is memory-bound);
+* releases the GIL while CHOLMOD works (ctypes does, cholespy does not), so two factors can
+  run on two threads;
 * solves on row-stacked right-hand sides ``[k, E]`` without transposing: that is the
   column-major layout CHOLMOD reads.
 
@@ -24,7 +21,7 @@ Safety: the structs below are CHOLMOD 3.0's (SuiteSparse 5.x, cholespy 2.x). :fu
 accepts the library only if SuiteSparse's version is 5.x *and* every default that
 ``cholmod_start`` writes reads back at the offset this layout gives it; after each analysis the
 factor's own header is checked too. Anything else (another cholespy build, no cholespy) makes
-:func:`library` return None, and the callers use cholespy's constructor as before.
+:func:`library` return None, and the callers use cholespy's constructor instead.
 """
 from __future__ import annotations
 

@@ -24,7 +24,7 @@ from . import cholmod
 
 #: Shifts tried in turn (λ·area units): R is only approximately PSD, so the shift must lie
 #: below its smallest eigenvalue for R - σ S1 to be positive definite. -1 suffices on good
-#: meshes; badly shaped real meshes go down to about -250 (akvf-math.md, pitfall 3).
+#: meshes; badly shaped real meshes go down to about -250 (docs/akvf_operator.md, Sec. 4).
 SHIFTS = (-1.0, -8.0, -64.0, -512.0, -4096.0, -32768.0)
 
 
@@ -68,9 +68,8 @@ class ShiftedFactor:
 
 #: Interior shift of the block Krylov solver per wanted eigenpair (λ·area units): σ = this · n.
 #: Unit-area PSB meshes have λ_n ≈ 8-9.5 n (n = 32: λ₃₂ 250-304), so σ = 5 n puts about 60% of
-#: the n wanted eigenvalues below it. Measured on PSB 1, 21 and 301 at full resolution (n = 32):
-#: 92-100 right-hand sides against 136-140 at σ = -1 for the same 32 pairs, eigenvalues equal to
-#: 1e-14, the Krylov stage 30-40% faster (benchmarks/results/interior_shift.md).
+#: the n wanted eigenvalues below it: about 30% fewer right-hand sides than at σ = -1 for the
+#: same pairs (see docs/design.md).
 INTERIOR_SHIFT_PER_PAIR = 5.0
 
 

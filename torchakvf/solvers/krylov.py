@@ -1,11 +1,11 @@
 """Block shift-invert Krylov: the smallest eigenpairs of ``R w = λ S1 w`` of each mesh from one
 CHOLMOD factor and block solves (several right-hand sides per triangular sweep).
 
-Why this and not ARPACK or LOBPCG (benchmarks/results/eigensolver_fullres.md):
+Why this and not ARPACK or LOBPCG (see docs/design.md):
 
 * A triangular solve with CHOLMOD is memory-bound: one sweep through the factor serves a block
-  of right-hand sides almost as fast as one (measured 2-3x cheaper per right-hand side at block
-  4-8 on PSB meshes). ARPACK applies the operator to one vector at a time.
+  of right-hand sides almost as fast as one (2-3x cheaper per right-hand side at block 4-8).
+  ARPACK applies the operator to one vector at a time.
 * LOBPCG solves for every unconverged column at every iteration (≈ 10 x 48 solves on a PSB
   mesh); a Krylov space keeps every solve it made (≈ 3 solves per eigenpair, like ARPACK).
 * Only the pairs that are asked for must converge (``need``): the extra pairs returned (room
@@ -36,23 +36,20 @@ from __future__ import annotations
 import logging
 import math
 
-import numpy as np
-import scipy.sparse as sp
 import torch
 
-from .._threads import single_threaded
-from ..errors import ParameterError, SolverError
+from ..threads import single_threaded
+from ..errors import FieldCountError, ParameterError
 from ..operators.killing import KillingSystem
 from .factor import contiguous_transpose, mesh_factor
+from .krylov_kernels import mm, orthonormal, project_out, rowdot, spmm, stiffness_matrix
 from .lobpcg import EigenResult
 
 log = logging.getLogger(__name__)
 
 #: Right-hand sides per block solve. CHOLMOD's simplicial solve sweeps the factor once per 4
-#: right-hand sides: measured on PSB 21 with cholespy, 4 columns cost 16.9 ms, 5-8 cost 30-37 ms,
-#: 1 costs 12 ms; with CHOLMOD called directly (:mod:`.cholmod`), 4 cost 12.8 ms, 5-8 cost
-#: 21-23 ms, 1 costs 8.1 ms. So 4 per step, the fewest solves per converged pair (136 against
-#: 156 at block 6 on PSB 21 and 301).
+#: right-hand sides (4 columns cost about 1.5x one, 5-8 about 2.7x), and 4 per step needs the
+#: fewest solves per converged pair (see docs/design.md).
 BLOCK = 4
 #: A block-p Krylov space holds at most p copies of a repeated eigenvalue (in exact arithmetic;
 #: the irreducible representations of the finite symmetry groups of a surface have dimension
@@ -66,8 +63,6 @@ _CROWDED = 1e-3
 #: A needed pair counts as converged when its estimated residual is below this fraction of tol
 #: (the estimate is exact up to round-off; the margin absorbs that round-off).
 _SAFETY = 0.9
-#: Relative S-norm below which a new direction is numerically inside the basis and dropped.
-_DEPENDENT = 1e-10
 #: Squared norm fraction left after one Gram-Schmidt pass below which a second pass is made.
 _REORTH = 0.5
 
@@ -108,7 +103,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
     sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
     for j, b in enumerate(meshes):
         if count > sizes[b]:
-            raise SolverError(f"{names[j]}: {count} fields asked for but the mesh has only "
+            raise FieldCountError(f"{names[j]}: {count} fields asked for but the mesh has only "
                               f"{sizes[b]} edges; ask for fewer fields")
     if grow and nb != 1:
         raise ParameterError(f"block_krylov(grow=True) solves one mesh at a time, got {nb}")
@@ -118,13 +113,13 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
         mass = system.mass[lo:hi].to(torch.float64)
         factor = factors[j] if factors is not None else mesh_factor(system, b, names[j])
-        stiff = _stiffness(r, c, v, size)
+        stiff = stiffness_matrix(r, c, v, size)
         dims = (lambda k: max_dim) if max_dim else (lambda k: max(10 * k, 240))
 
         def solve(factor):
             lam, x, res, k = _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed,
                                        block, dims, grow)
-            if block < WIDE_BLOCK and not bool(torch.isinf(res).all()) and _crowded(lam, block):
+            if block < WIDE_BLOCK and not bool(torch.isinf(res).all()) and crowded(lam, block):
                 log.info("%s: %d eigenvalues within %.0e of each other at block %d; solving again "
                          "at block %d", names[j], block, _CROWDED, block, WIDE_BLOCK)
                 lam, x, res, k2 = _one_mesh(stiff, mass, factor, count, need, skip_below, tol,
@@ -162,7 +157,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
                        shifts=torch.tensor(shifts, dtype=torch.float64, device=dev), converged=conv)
 
 
-def _crowded(lam: torch.Tensor, p: int) -> bool:
+def crowded(lam: torch.Tensor, p: int) -> bool:
     """Whether some p of the eigenvalues lam (ascending) lie within _CROWDED · max(|λ|, 1)."""
     if p < 2 or len(lam) < p:
         return False
@@ -184,9 +179,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
     """(λ [k], x [E, k], residuals [k], right-hand sides solved) for one mesh; k = count, or
     with ``grow`` as many as the needed pairs reach when spurious ones fill the room.
 
-    The basis is stored as rows (q [cap, E]; blocks [p, E]): the Gram-Schmidt products are
-    then plain row-major GEMMs, measured 2.6x faster than on column slices of an [E, cap]
-    array (they are memory-bound and dominate the cost after the solves)."""
+    The basis is stored as rows (q [cap, E]; blocks [p, E]; see :mod:`.krylov_kernels`)."""
     e = len(mass)
     dev, dt = mass.device, torch.float64
     sigma = factor.sigma
@@ -203,7 +196,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         return factor.solve_rows(rows * mass)
 
     start = torch.randn(e, p, generator=gen, dtype=dt).to(dev)
-    blk, _ = _orthonormal(apply_t(start.T), q[:0], mass)
+    blk, _ = orthonormal(apply_t(start.T), q[:0], mass)
     solved = p
     filled = prev = next_check = 0
     last = None                                        # (basis size, worst estimate) at last check
@@ -214,7 +207,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
                 break
             fresh = torch.randn(e, p, generator=gen, dtype=dt).to(dev).T
             fresh = fresh - (fresh * mass) @ q[:filled].T @ q[:filled]
-            blk, _ = _orthonormal(fresh, q[:filled], mass)
+            blk, _ = orthonormal(fresh, q[:filled], mass)
             if blk.shape[0] == 0:
                 break
         width = min(blk.shape[0], cap - filled)
@@ -234,20 +227,20 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         # basis twice instead of the four times of two full Gram-Schmidt passes.
         near = q[prev:filled]
         coef = torch.zeros(w.shape[0], filled, dtype=dt, device=dev)
-        local = _mm(w * mass, near.T)
-        w = w - _mm(local, near)
+        local = mm(w * mass, near.T)
+        w = w - mm(local, near)
         coef[:, prev:filled] = local
         wm = w * mass
         for _ in range(2):
-            before = _rowdot(wm, w)
-            w, again = _project_out(w, wm, basis)
+            before = rowdot(wm, w)
+            w, again = project_out(w, wm, basis)
             coef += again
             wm = w * mass
-            if bool((_rowdot(wm, w) > _REORTH * before).all()):
+            if bool((rowdot(wm, w) > _REORTH * before).all()):
                 break
         prev = s0
         hmat[:filled, s0:filled] = coef.T
-        blk, bmat = _orthonormal(w, basis, mass)          # w = bmatᵀ @ blk
+        blk, bmat = orthonormal(w, basis, mass)          # w = bmatᵀ @ blk
         if filled < max(k + p, next_check):
             continue
         # Ritz pairs of the current basis and their exact residual estimate.
@@ -259,7 +252,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
             # are upper bounds of the eigenvalues, so that count can only grow with the basis.
             if not grow:
                 y = y[:, :k]
-                x = _mm(y.T, q[:filled]).T
+                x = mm(y.T, q[:filled]).T
                 return lam[:k], x, torch.full((k,), float("inf"), dtype=dt, device=dev), solved
             k = nneed + (count - need)
             new_cap = min(max_dim(k), e)
@@ -273,8 +266,8 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         if blk.shape[0] == 0:
             est = torch.zeros_like(lam)
         else:
-            z = _spmm(stiff, blk) - sigma * mass * blk                       # ((R - σS) Q_next)ᵀ
-            gz = _mm(z * inv_s, z.T)
+            z = spmm(stiff, blk) - sigma * mass * blk                       # ((R - σS) Q_next)ᵀ
+            gz = mm(z * inv_s, z.T)
             u = bmat @ y[s0:filled]                                          # [p', k]
             est = (u * (gz @ u)).sum(0).clamp(min=0).sqrt() / theta.abs() / lam.abs().clamp(min=1.0)
         worst = float(est[:nneed].max())
@@ -311,41 +304,6 @@ def _ritz(m: torch.Tensor, count: int, sigma: float | None = None):
     return theta[order], y[:, order]
 
 
-def _orthonormal(w: torch.Tensor, basis: torch.Tensor, mass: torch.Tensor):
-    """S-orthonormal rows spanning w's [p, E] directions outside span(basis) [k, E], and b with
-    ``w ≈ bᵀ @ out`` (components inside span(basis) are assumed already removed).
-
-    Directions with relative S-norm below _DEPENDENT are dropped (out has p' <= p rows).
-    """
-    gram = _mm(w * mass, w.T)
-    gram = 0.5 * (gram + gram.T)
-    with single_threaded():
-        g, u = torch.linalg.eigh(gram)
-    top = float(g[-1].clamp(min=0))
-    keep = g > (_DEPENDENT ** 2) * max(top, 1e-300)
-    if top <= 0 or not bool(keep.any()):
-        return w[:0], w.new_zeros(0, w.shape[0])
-    g, u = g[keep], u[:, keep]
-    out = _mm((u * g.rsqrt()).T, w)               # [p', E], S-orthonormal up to round-off
-    if basis.shape[0] and int(keep.sum()) < len(keep):
-        # Dropped directions were mostly round-off; what is left of them must not come back.
-        out = out - _mm(_mm(out * mass, basis.T), basis)
-    # Re-normalize (Cholesky-QR on a nearly orthonormal block).
-    gram2 = _mm(out * mass, out.T)
-    gram2 = 0.5 * (gram2 + gram2.T)
-    with single_threaded():
-        chol = torch.linalg.cholesky(gram2)
-        # L⁻¹ out as a product with the p×p inverse: gram2 is within round-off of I, so L is
-        # as well conditioned, and a [p, p] x [p, E] product costs a third of the triangular
-        # solve on [p, E] (0.1 against 0.33 ms at E = 45594).
-        inverse = torch.linalg.solve_triangular(chol, torch.eye(len(chol), dtype=chol.dtype,
-                                                                device=chol.device), upper=False)
-    out = _mm(inverse, out)
-    # w = uᵀ-side: w = (√g u')ᵀ-combination of out0 = L out  =>  w ≈ (L diag(√g) uᵀ)ᵀ out.
-    bmat = chol.T @ (g.sqrt()[:, None] * u.T)
-    return out, bmat
-
-
 def _final(stiff, mass, basis, y):
     """Ritz vectors x = basisᵀ y ([E, k] from basis [m, E] and y [m, k]; S-orthonormal: the
     basis and the projection's eigenvectors are) with their Rayleigh quotients λ (ascending)
@@ -355,11 +313,11 @@ def _final(stiff, mass, basis, y):
 
     Worked on as rows (xr [k, E]): products and elementwise passes over row-major [k, E]
     arrays are several times faster here than over column slices of [E, k] ones."""
-    xr = _mm(y.T, basis)                                   # [k, E]
-    rx = _spmm(stiff, xr)                                  # (R x)ᵀ
+    xr = mm(y.T, basis)                                   # [k, E]
+    rx = spmm(stiff, xr)                                  # (R x)ᵀ
     xm = xr * mass
-    norm = _rowdot(xm, xr)
-    lam = _rowdot(xr, rx) / norm
+    norm = rowdot(xm, xr)
+    lam = rowdot(xr, rx) / norm
     order = torch.argsort(lam)
     if not bool((order == torch.arange(len(order), device=order.device)).all()):
         lam, xr, rx, xm, norm = lam[order], xr[order], rx[order], xm[order], norm[order]
@@ -368,64 +326,3 @@ def _final(stiff, mass, basis, y):
     res = rx.sub_(xm.mul_(lam[:, None]))                   # residual of the unnormalized x
     rel = (res.mul_(res).div_(mass).sum(1) / norm).sqrt() / lam.abs().clamp(min=1.0)
     return lam, contiguous_transpose(xr.mul_(norm.rsqrt()[:, None])), rel
-
-
-def _rowdot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """[k] row-wise dot products of [k, E] arrays. (Through a [k, E] temporary: torch.einsum
-    "ke,ke->k" avoids it but measured 4.5x slower for [4, 45594], 0.22 against 0.05 ms.)"""
-    return (a * b).sum(1)
-
-
-def _project_out(w: torch.Tensor, wm: torch.Tensor, basis: torch.Tensor, chunk: int = 8):
-    """One classical Gram-Schmidt pass: ``(w - c @ basis, c)`` with ``c = wm @ basisᵀ``
-    (w, wm = w·S [p, E]; basis [m, E]; c [p, m]).
-
-    Done CHUNK rows of the basis at a time, each chunk's coefficients and update back to back
-    while its rows are in cache: the basis is then read from memory once, not twice (it is
-    memory-bound: [136, 45594] is 50 MB). Measured for p = 4, one thread: E = 45594, m = 136:
-    6.4 ms against 12.1 for the two whole-basis products (chunks of 16: 7.9, 32: 10.5);
-    E = 14112, m = 136: 1.9 against 2.8; no loss at m = 32 (1.3 against 1.5). The coefficients
-    are those of the two whole products (each a dot of wm with one row)."""
-    m = basis.shape[0]
-    if m <= chunk:
-        c = _mm(wm, basis.T)
-        return w - _mm(c, basis), c
-    out = w.clone()
-    coef = w.new_empty(w.shape[0], m)
-    for s in range(0, m, chunk):
-        rows = basis[s:s + chunk]
-        c = _mm(wm, rows.T)
-        out.addmm_(c, rows, alpha=-1.0)
-        coef[:, s:s + chunk] = c
-    return out, coef
-
-
-def _stiffness(rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor, size: int):
-    """R of one mesh for :func:`_spmm` from its coalesced COO entries (sorted by row, then
-    column, as :meth:`KillingSystem.block` gives them): a scipy CSR matrix on CPU (built
-    without a sort), a torch CSR tensor elsewhere."""
-    vals = vals.to(torch.float64)
-    if rows.device.type == "cpu":
-        crow = torch.zeros(size + 1, dtype=torch.int64)
-        crow[1:] = torch.cumsum(torch.bincount(rows, minlength=size), 0)
-        return sp.csr_matrix((vals.numpy(), cols.numpy(), crow.numpy()), shape=(size, size))
-    return torch.sparse_coo_tensor(torch.stack([rows, cols]), vals, (size, size),
-                                   check_invariants=False).to_sparse_csr()
-
-
-def _spmm(stiff, rows: torch.Tensor) -> torch.Tensor:
-    """(R Xᵀ)ᵀ = X R for rows X [k, E] (R symmetric), as [k, E]."""
-    if isinstance(stiff, sp.spmatrix):
-        return torch.from_numpy(np.ascontiguousarray((stiff @ rows.numpy().T).T))
-    return torch.sparse.mm(stiff, rows.T).T.contiguous()
-
-
-def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """a @ b, through torch's BLAS, whose threads follow ``torch.set_num_threads``.
-
-    Not numpy's: the Gram-Schmidt shapes ([p, E] @ [E, m] and [p, m] @ [m, E], E ~ 10⁴-10⁵) are
-    memory-bound, and numpy's OpenBLAS runs them on every core by default, which on a 2-core
-    machine made the whole full-resolution solve 1.8x slower than on one thread (PSB 21: 2.35 s
-    against 1.32 s; benchmarks/results/eigensolver_threads.md). One thread each, torch's and
-    numpy's products take about the same time here."""
-    return a @ b

@@ -1,10 +1,10 @@
 """Alternative eigensolver: implicitly restarted Lanczos (ARPACK, via scipy ``eigsh``) in
 shift-invert mode on the same CHOLMOD factor the LOBPCG path uses. CPU only, one mesh at a time.
 
-Offered for comparison (``torchakvf.akvf(..., solver="lanczos")``; the CPU default before the
-block Krylov solver, and that solver's fallback): it needs fewer solves per eigenpair, but each
-is a single right-hand side, and with a loose tolerance Lanczos can drop copies of repeated
-eigenvalues, which a block method does not. See benchmarks/results/eigensolver_fullres.md.
+The CPU solver of small meshes (``solver="auto"``), the block Krylov solver's fallback, and
+offered by name (``torchakvf.akvf(..., solver="lanczos")``): it needs few solves per eigenpair,
+but each is a single right-hand side, and with a loose tolerance Lanczos can drop copies of
+repeated eigenvalues, which a block method does not (see docs/design.md).
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 import torch
 
-from ..errors import SolverError
+from ..errors import FieldCountError
 from ..operators.killing import KillingSystem
 from .factor import mesh_factor
 from .lobpcg import EigenResult, relative_residuals
@@ -32,7 +32,7 @@ def shift_invert_lanczos(system: KillingSystem, n: int, tol: float = 1e-6, seed:
     sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
     for b, e in enumerate(sizes):
         if n >= e:
-            raise SolverError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges "
+            raise FieldCountError(f"{names[b]}: {n} fields asked for but the mesh has only {e} edges "
                               "(Lanczos needs fewer fields than edges); ask for fewer fields")
     values, vectors, shifts, solves = [], [], [], []
     for b in range(nb):

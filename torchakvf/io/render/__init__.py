@@ -12,15 +12,12 @@ One job a module:
 * :mod:`~torchakvf.io.render.figures` - the PNG files: one mesh in one or two views
   (:func:`render_png`), a grid of meshes (:func:`contact_sheet`), streamlines drawn where visible.
 
-Every name is importable from ``torchakvf.io.render`` as before the split.
+Every public name is importable from ``torchakvf.io.render``.
 """
 from .camera import View, best_view, face_geometry, opposite_view, principal_axes, projected_area, view_aspect
 from .figures import DEFAULT_PIXELS, FLOW_COLOR, contact_sheet, new_figure, render_png, save_figure
 from .flow import generator_arrows, generator_streamlines
 from .raster import FILL_LIGHT, KEY_LIGHT, SUPERSAMPLE, Picture, rasterize, render_view, shade_faces
-
-# the names these helpers had before they were public (torchakvf.io.render was one module)
-_aspect, _figure, _save, _face_geometry = view_aspect, new_figure, save_figure, face_geometry
 
 __all__ = ["render_png", "contact_sheet", "generator_streamlines", "generator_arrows", "best_view",
            "principal_axes", "projected_area", "render_view", "rasterize", "View", "Picture",

@@ -8,6 +8,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ...errors import ParameterError
 from ..outputs import atomic_write_bytes
 from .camera import View, best_view, opposite_view, view_aspect
 from .flow import generator_streamlines
@@ -100,10 +101,10 @@ def render_png(path, vertices, faces, labels, title: str | None = None, arrows=N
     streamlines : optional precomputed output of :func:`generator_streamlines` instead;
     arrows : optional (bases [N, 3], vectors [N, 3]) from :func:`generator_arrows`;
     views : 1 (the view showing most area) or 2 (that view and the opposite side);
-    size : legacy figure size in inches (100 px each), overrides ``pixels`` when given.
+    size : figure width in inches at 100 px each (matplotlib's unit); overrides ``pixels``.
     """
     if views not in (1, 2):
-        raise ValueError(f"views must be 1 or 2, got {views!r}")
+        raise ParameterError(f"views must be 1 or 2, got {views!r}")
     if size is not None:
         pixels = max(int(size * 100), 200)
     vs = _views(vertices, faces, views)

@@ -1,0 +1,42 @@
+"""Cutting one mesh's parts (:mod:`torchakvf.parts.cut`): the kept over-segmentation serves only
+an identical clustering, and the part floor."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def test_cached_over_segmentation_serves_only_an_identical_clustering():
+    """The over-segmentation cut_parts keeps is reused only for equal features, centers and
+    labels and the same boundary options: one label changed, or another boundary rule, makes
+    a new one."""
+    from torchakvf.options import SegmentOptions
+    from torchakvf.parts.cut import OverSegmentation, over_settings, part_floor
+
+    rng = np.random.default_rng(3)
+    feats, centers, labels = rng.random((50, 4)), rng.random((3, 4)), rng.integers(0, 3, 50)
+    opts = SegmentOptions()
+    floor = part_floor(3, opts)
+    entry = OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy()),
+                              settings=over_settings(opts, floor),
+                              mesh=None, vdist=None, feats=None, labels=None, area=None, unit=None)
+    assert entry.made_from((feats, centers, labels), opts, floor)
+    moved = labels.copy()
+    moved[7] = (moved[7] + 1) % 3
+    assert not entry.made_from((feats, centers, moved), opts, floor)
+    assert not entry.made_from((feats, centers[:2], labels), opts, floor)
+    assert not entry.made_from((feats, centers, labels), SegmentOptions(boundary="faces"), floor)
+    wider = SegmentOptions(min_part_fraction=0.02)
+    assert not entry.made_from((feats, centers, labels), wider, part_floor(3, wider))
+    assert not entry.made_from((feats, centers, labels), opts, part_floor(40, opts))
+
+
+def test_part_floor_is_the_fraction_up_to_a_quarter_of_the_mean_part():
+    """min_part_fraction up to k = 25 at the default; beyond, a quarter of 1/k."""
+    from torchakvf.options import SegmentOptions
+    from torchakvf.parts.cut import part_floor
+
+    opts = SegmentOptions()
+    assert [part_floor(k, opts) for k in (1, 8, 25)] == [0.01, 0.01, 0.01]
+    assert part_floor(50, opts) == 0.005 and part_floor(100, opts) == 0.0025
+    assert part_floor(50, SegmentOptions(min_part_fraction=0.001)) == 0.001
+    assert part_floor(3, SegmentOptions(min_part_fraction=0.0)) == 0.0

@@ -1,0 +1,165 @@
+"""Shift-invert factors (torchakvf.solvers.factor): the block-diagonal factor of a batch, and
+the block Krylov solver's interior shift (InteriorFactor): the same eigenpairs as at a definite
+shift, and a fallback to the definite shift wherever its own check fails."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+import torch
+
+import torchakvf as ta
+from torchakvf import shapes
+from torchakvf.solvers import akvf_solver, cholmod
+from torchakvf.solvers.factor import INTERIOR_SHIFT_PER_PAIR, InteriorFactor
+
+from helpers.eigen_checks import batch_with_a_low_mesh
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
+
+needs_cholmod = pytest.mark.skipif(cholmod.library() is None,
+                                   reason="cholespy's library has no CHOLMOD 3.0 layout here; "
+                                          "interior shifts need CHOLMOD called directly")
+
+
+def test_block_diagonal_factor_is_each_mesh_own_factor():
+    """One factor of the block-diagonal batch: each mesh gets the shift its own ladder finds (a
+    trial at -1 fails because of one mesh, and the ladder runs per mesh), and the solve is each
+    block's exact solve: backward error at round-off level per mesh (a conditioning-free
+    check), and the same solution as the mesh's own factor within cond · eps."""
+    from torchakvf.solvers.factor import BlockDiagonalFactor, mesh_factor
+    system = batch_with_a_low_mesh()
+    block = BlockDiagonalFactor(system)
+    alone = [mesh_factor(system, b, f"mesh {b}") for b in range(system.n_meshes)]
+    assert block.sigma.tolist() == [f.sigma for f in alone] == [-1.0, -8.0, -1.0]
+    rhs = torch.randn(len(system.mass), 5, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    x = block.solve(rhs)
+    shifted = system.stiffness - torch.sparse_coo_tensor(
+        torch.arange(len(system.mass)).repeat(2, 1),
+        torch.repeat_interleave(block.sigma, system.edge_ptr[1:] - system.edge_ptr[:-1]) * system.mass,
+        system.stiffness.shape, check_invariants=False)
+    for b, f in enumerate(alone):
+        lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
+        a = shifted.to_dense()[lo:hi, lo:hi]          # small test meshes (< 1000 edges)
+        r = a @ x[lo:hi] - rhs[lo:hi]
+        backward = float(r.abs().max() / (a.abs().sum(1).max() * x[lo:hi].abs().max()))
+        assert backward < 1e-13, (b, backward)
+        cond = float(torch.linalg.cond(a))
+        gap = float((f.solve(rhs[lo:hi]) - x[lo:hi]).abs().max() / x[lo:hi].abs().max())
+        assert gap < 100 * cond * 2.2e-16, (b, gap, cond)
+
+
+def test_block_diagonal_factor_shifts_given_and_unsolvable():
+    from torchakvf.solvers.factor import BlockDiagonalFactor
+    system = batch_with_a_low_mesh()
+    assert BlockDiagonalFactor(system, shifts=[-2.0, -8.0, -1.0]).sigma.tolist() == [-2.0, -8.0, -1.0]
+    with pytest.raises(ta.SolverError) as exc:
+        BlockDiagonalFactor(system, names=["a", "b", "c"], shifts=[-1.0, -1.0, -1.0])
+    assert "a, b, c" in str(exc.value)
+    with pytest.raises(ta.ParameterError):
+        BlockDiagonalFactor(system, shifts=[-1.0])
+
+
+def table_mesh() -> ta.Mesh:
+    s = shapes.table()            # 6,480 edges: the Krylov solver's size, no symmetric repeats
+    return ta.Mesh(s.vertices, s.faces, "table")
+
+
+def definite_only(monkeypatch):
+    monkeypatch.setattr(akvf_solver, "interior_factor", lambda system, b, need, definite: definite())
+
+
+@needs_cholmod
+def test_akvf_at_the_interior_shift_equals_the_definite_shift(monkeypatch):
+    n = 16
+    mesh = table_mesh()
+    inner = ta.akvf(mesh, n=n)
+    assert akvf_solver.solver_for(torch.device("cpu"), len(inner.batch.edges)) == "krylov"
+    assert float(inner.shifts[0]) == INTERIOR_SHIFT_PER_PAIR * n
+    definite_only(monkeypatch)
+    outer = ta.akvf(mesh, n=n)
+    assert float(outer.shifts[0]) == -1.0
+    for r in (inner, outer):
+        assert bool(r.converged.all()) and float(r.residuals.max()) <= 1e-6
+    # Each eigenvalue is within r·max(|λ|, 1) of the true one (r <= 1e-6 its relative residual):
+    # the two solves agree to twice that; a missed or extra eigenvalue would be off by O(1).
+    lam_i, lam_o = inner.eigenvalues[0].numpy(), outer.eigenvalues[0].numpy()
+    np.testing.assert_array_less(np.abs(lam_i - lam_o), 2e-6 * np.maximum(np.abs(lam_o), 1.0))
+    # ... and the fewer right-hand sides are the point of it
+    assert int(inner.iterations[0]) < int(outer.iterations[0])
+
+
+@needs_cholmod
+@pytest.mark.parametrize("spoil", ["count", "floor"])
+def test_a_failed_check_solves_again_at_the_definite_shift(monkeypatch, caplog, spoil):
+    """If the pairs found below the interior shift are not the ν its factor counts (spoiled
+    here by a wrong count), or an eigenvalue lies at or below the last definite shift (spoiled
+    here by raising that floor), the mesh is solved again at the definite shift."""
+    n = 16
+    mesh = table_mesh()
+    definite_only(monkeypatch)
+    want = ta.akvf(mesh, n=n)
+    monkeypatch.undo()
+    real = akvf_solver.interior_factor
+
+    def spoiled(system, b, need, definite):
+        f = real(system, b, need, definite)
+        assert isinstance(f, InteriorFactor)
+        if spoil == "count":
+            f.below += 1
+        else:
+            f.floor = 1e9
+        return f
+
+    monkeypatch.setattr(akvf_solver, "interior_factor", spoiled)
+    with caplog.at_level(logging.INFO, logger="torchakvf.solvers.krylov"):
+        got = ta.akvf(mesh, n=n)
+    assert "solving again at a definite shift" in caplog.text
+    assert float(got.shifts[0]) == -1.0
+    np.testing.assert_array_equal(got.eigenvalues.numpy(), want.eigenvalues.numpy())
+    assert bool(got.converged.all())
+
+
+@needs_cholmod
+def test_no_definite_shift_still_raises(monkeypatch):
+    """A mesh with an eigenvalue below every definite shift raised a SolverError (so that a
+    decimated one is solved at full resolution): at the interior shift it still does."""
+    mesh = table_mesh()
+    real = akvf_solver.interior_factor
+
+    def no_definite(system, b, need, definite):
+        def raising():
+            raise ta.SolverError("mesh: no shift made R - σS1 positive definite")
+        f = real(system, b, need, raising)
+        f.floor = 1e9                     # every eigenvalue counts as below the last shift
+        return f
+
+    monkeypatch.setattr(akvf_solver, "interior_factor", no_definite)
+    with pytest.raises(ta.SolverError, match="no shift made"):
+        ta.akvf(mesh, n=16)
+
+
+@needs_cholmod
+@pytest.mark.parametrize("per_pair, need, sigma", [(5.0, 16, 80.0), (20.0, 6, 60.0), (20.0, 4, None)])
+def test_too_many_eigenvalues_below_halves_then_gives_up(monkeypatch, per_pair, need, sigma):
+    """interior_factor takes σ = per_pair · need where at most ``need`` eigenvalues lie below
+    it, else σ/2, else the definite factor. The table's eigenvalues (λ·area) start 24.3, 33.8,
+    33.8, 34.2, 34.4, 39.5, 65.0, 68.5, 80.5, ..., 121.2: 8 below 80 (accepted for need 16),
+    11 below 120 then 6 below 60 (need 6: the second try), 8 below 80 then 6 below 40 (need 4:
+    neither, the definite factor)."""
+    from torchakvf.operators.killing import killing_operator
+    from torchakvf.solvers import factor as factor_module
+    from torchakvf.solvers.factor import ShiftedFactor, interior_factor, mesh_factor
+
+    batch = ta.MeshBatch.from_meshes([table_mesh()])
+    system = killing_operator(batch)
+    lam = ta.akvf(batch, n=24).eigenvalues[0].numpy()
+    monkeypatch.setattr(factor_module, "INTERIOR_SHIFT_PER_PAIR", per_pair)
+    f = interior_factor(system, 0, need, lambda: mesh_factor(system, 0, "table"))
+    if sigma is None:
+        assert isinstance(f, ShiftedFactor) and f.sigma == -1.0
+        assert int((lam < per_pair * need).sum()) > need and int((lam < per_pair * need / 2).sum()) > need
+    else:
+        assert isinstance(f, InteriorFactor) and f.sigma == sigma
+        assert f.below == int((lam < sigma).sum()) <= need

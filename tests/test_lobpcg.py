@@ -1,0 +1,107 @@
+"""The segmented LOBPCG (torchakvf.solvers.lobpcg): a block-diagonal factor against per-mesh
+factors, locking (each mesh stops on its own), warm starts."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import torchakvf as ta
+from torchakvf import shapes
+
+from helpers.eigen_checks import PAPER, batch_with_a_low_mesh, clusters, mesh_of, s1_principal_cosines
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
+
+
+def test_lobpcg_block_factor_equals_per_mesh_factors():
+    """The batched LOBPCG preconditioned by one block-diagonal factor (the CUDA default) finds
+    the same eigenpairs as with one factor per mesh, within an iteration of the same count (the
+    two differ in the factors' round-off only): eigenvalues to 1e-9 relative (residuals < 1e-8,
+    squared over gaps of order 1), the same invariant subspaces, the same shifts."""
+    from torchakvf.solvers.lobpcg import segmented_lobpcg
+    system = batch_with_a_low_mesh()
+    per_mesh = segmented_lobpcg(system, 8, tol=1e-8, block_factor=False)
+    block = segmented_lobpcg(system, 8, tol=1e-8, block_factor=True)
+    assert bool(per_mesh.converged.all()) and bool(block.converged.all())
+    assert block.shifts.tolist() == per_mesh.shifts.tolist() == [-1.0, -8.0, -1.0]
+    # A residual that crosses tol within round-off of it may cross one iteration apart.
+    assert (block.iterations - per_mesh.iterations).abs().max() <= 1
+    torch.testing.assert_close(block.eigenvalues, per_mesh.eigenvalues, rtol=1e-9, atol=1e-9)
+    assert float(block.eigenvalues[1, 0]) < -1.0             # the lowered mesh's own spectrum
+    for b in range(system.n_meshes):
+        e0, e1 = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
+        lam = per_mesh.eigenvalues[b].numpy()
+        for start, stop in clusters(lam):
+            if stop == 8:
+                continue
+            cos = s1_principal_cosines(block.vectors[e0:e1, start:stop].numpy(),
+                                       per_mesh.vectors[e0:e1, start:stop].numpy(),
+                                       system.mass[e0:e1].numpy())
+            assert np.all(cos > 1 - 1e-6), (b, start, stop, cos)
+
+
+def test_lobpcg_locking_each_mesh_stops_on_its_own():
+    """Segmented LOBPCG on a batch whose meshes converge after different numbers of iterations:
+    a converged mesh leaves the iteration (the live meshes' R is rebuilt), and every mesh ends
+    with the eigenpairs it gets alone, within one iteration of its count alone. Alone and batched
+    differ only in the round-off of the padded products: a residual that lands within round-off
+    of tol can cross it one iteration earlier or later (which one depends on the CPU's and BLAS's
+    summation order), eigenvalues agree to 1e-9 relative (their residuals are below 1e-8, squared
+    over gaps of order 1), and the invariant subspaces are the same."""
+    from torchakvf.operators import killing_operator
+    from torchakvf.solvers.lobpcg import segmented_lobpcg
+    meshes = [mesh_of(shapes.icosphere(2)), mesh_of(shapes.dumbbell(n_around=24)),
+              mesh_of(shapes.open_tube(n_around=24)), mesh_of(shapes.ellipsoid(level=3))]
+    batch = ta.MeshBatch.from_meshes(meshes)
+    system = killing_operator(batch, remedy=PAPER)
+    both = segmented_lobpcg(system, 8, tol=1e-8)
+    assert bool(both.converged.all())
+    assert len(set(both.iterations.tolist())) > 1           # they did stop at different times
+    for b in range(len(meshes)):
+        one = killing_operator(batch.mesh(b), remedy=PAPER)
+        alone = segmented_lobpcg(one, 8, tol=1e-8)
+        assert abs(int(both.iterations[b]) - int(alone.iterations[0])) <= 1
+        torch.testing.assert_close(both.eigenvalues[b], alone.eigenvalues[0], rtol=1e-9, atol=1e-9)
+        e0, e1 = int(batch.edge_ptr[b]), int(batch.edge_ptr[b + 1])
+        lam = alone.eigenvalues[0].numpy()
+        for start, stop in clusters(lam):
+            if stop == 8:
+                continue
+            cos = s1_principal_cosines(both.vectors[e0:e1, start:stop].numpy(),
+                                       alone.vectors[:, start:stop].numpy(), one.mass.numpy())
+            assert np.all(cos > 1 - 1e-6), (b, start, stop, cos)
+
+
+def test_lobpcg_warm_start():
+    """``segmented_lobpcg(start=...)``: a mesh started from its own converged eigenvectors (the
+    n wanted and the guard ones) is done in at most one iteration with the same eigenvalues
+    (to 1e-9 relative: both sides' residuals are below 1e-8, squared over gaps of order 1);
+    a partial start (fewer columns, the rest random) gives the same eigenpairs too, and a mesh
+    given None keeps its random start; a start of the wrong shape (or count) is a
+    ParameterError naming the mesh."""
+    from torchakvf.operators import killing_operator
+    from torchakvf.solvers.lobpcg import segmented_lobpcg
+    meshes = [mesh_of(shapes.icosphere(2), "ico"), mesh_of(shapes.ellipsoid(level=3), "ell")]
+    system = killing_operator(ta.MeshBatch.from_meshes(meshes), remedy=PAPER)
+    n, guard = 8, 8
+    cold = segmented_lobpcg(system, n + guard, tol=1e-8, guard=guard)
+    assert bool(cold.converged.all())
+    e = system.edge_ptr.tolist()
+    full = [cold.vectors[e[b]:e[b + 1]] for b in range(2)]
+    ref = segmented_lobpcg(system, n, tol=1e-8, guard=guard)
+    warm = segmented_lobpcg(system, n, tol=1e-8, guard=guard, start=full)
+    assert bool(warm.converged.all()) and warm.iterations.max() <= 1 < ref.iterations.min()
+    torch.testing.assert_close(warm.eigenvalues, ref.eigenvalues, rtol=1e-9, atol=1e-9)
+    part = segmented_lobpcg(system, n, tol=1e-8, guard=guard, start=[full[0][:, :4], None])
+    assert bool(part.converged.all())
+    torch.testing.assert_close(part.eigenvalues, ref.eigenvalues, rtol=1e-9, atol=1e-9)
+    # Mesh 1 kept its random start: its iterations are ref's (within one: when mesh 0 leaves
+    # the iteration earlier, mesh 1's products run in a batch of one, other round-off).
+    assert abs(int(part.iterations[1]) - int(ref.iterations[1])) <= 1
+    with pytest.raises(ta.ParameterError, match="ell"):
+        segmented_lobpcg(system, n, guard=guard, start=[None, full[1][:-1]], names=["ico", "ell"])
+    with pytest.raises(ta.ParameterError, match="at most 16"):
+        segmented_lobpcg(system, n, guard=guard, start=[torch.cat([full[0], full[0][:, :1]], 1), None])
+    with pytest.raises(ta.ParameterError):
+        segmented_lobpcg(system, n, guard=guard, start=[None])

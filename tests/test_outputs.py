@@ -1,0 +1,36 @@
+"""Writing results: the .seg writer checks its labels and writes atomically."""
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pytest
+
+import torchakvf as ta
+
+
+def test_write_seg_is_checked(tmp_path):
+    for bad, problem in [(np.array([0.5, 1.0]), "must be integers"), (np.array([True]), "must be integers"),
+                         (np.zeros((2, 2), int), "1-D"), (np.array([], int), "non-empty")]:
+        with pytest.raises(ta.errors.ParameterError, match=problem) as info:
+            ta.io.write_seg(tmp_path / "x.seg", bad)
+        assert "x.seg" in str(info.value)
+    assert not (tmp_path / "x.seg").exists()
+    a = ta.io.write_seg(tmp_path / "a.seg.gz", np.array([3, 1, 2]))
+    b = ta.io.write_seg(tmp_path / "b.seg.gz", np.array([3, 1, 2], dtype=np.int32))
+    assert a.read_bytes() == b.read_bytes() and gzip.decompress(a.read_bytes()) == b"3\n1\n2\n"
+
+
+def test_write_seg_is_atomic(tmp_path, monkeypatch):
+    path = ta.io.write_seg(tmp_path / "x.seg", np.array([0, 1, 1]))
+
+    def fail(src, dst):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(ta.io.outputs.os, "replace", fail)
+    with pytest.raises(ta.errors.TorchAKVFError, match="x.seg: cannot write output"):
+        ta.io.write_seg(path, np.array([2, 2, 2]))
+    assert path.read_text() == "0\n1\n1\n"                       # the old file, whole
+    assert not list(tmp_path.glob(f".*{ta.io.TEMP_SUFFIX}"))     # no temp file left
+
+

@@ -1,0 +1,93 @@
+"""torchakvf.pipeline.commands: the ``segment`` and ``features`` commands (arguments, one-line
+errors, exit codes)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from torchakvf import shapes
+from helpers.faketask import assert_one_line_error
+from helpers.meshfiles import write_off
+from helpers.runs import by_stem, cli_run
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
+
+REPO = Path(__file__).resolve().parents[1]
+ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
+
+
+def test_segment_end_to_end(tmp_path, capsys):
+    s = shapes.dumbbell(n_around=18)
+    src = write_off(tmp_path / "in" / "dumb.off", s.vertices, s.faces)
+    out = tmp_path / "segs"
+    rc, stdout, err = cli_run(["segment", str(src), "-k", "2", "--out", str(out), "--n-fields", "8",
+                               "--formats", "seg,npz,ply"], capsys)
+    assert rc == 0, err
+    assert "1 ok, 0 failed" in stdout
+    labels = np.loadtxt(out / "dumb.seg", dtype=int)
+    assert labels.shape == (len(s.faces),) and set(labels.tolist()) == {0, 1}
+    # The two ends of the dumbbell, up to the label permutation (a constant labelling scores 0.5).
+    from torchakvf.evaluate.metrics import matched_agreement
+    assert matched_agreement(labels, s.part_labels) >= 0.95
+    assert (out / "dumb.ply").exists() and not (out / "dumb.png").exists()
+    rec = by_stem(out)["dumb"]
+    assert rec["status"] == "ok" and set(rec["seconds"]) == {"load", "akvf", "untangle", "cluster", "write"}
+    assert rec["params"]["solver"] == "auto" and rec["params"]["method"] == "merge"   # the defaults
+    rc, stdout, _ = cli_run(["segment", str(src), "-k", "2", "--out", str(out), "--n-fields", "8",
+                             "--formats", "seg,npz,ply"], capsys)
+    assert rc == 0 and "1 skipped" in stdout
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["segment", "{tmp}/nope.off", "-k", "2", "--out", "{tmp}/o"], "nope.off: file not found"),
+    (["segment", "{src}", "-k", "0", "--out", "{tmp}/o"], "-k must be an integer >= 1"),
+    (["segment", "{src}", "-k", "two", "--out", "{tmp}/o"], "-k must be an integer"),
+    (["segment", "{src}", "-k", "2", "--out", "{src}/sub"], "cannot create or write the output folder"),
+    (["segment", "{src}", "-k", "2", "--formats", "seg,gif", "--out", "{tmp}/o"], "unknown format 'gif'"),
+    (["features", "{src}", "--n", "-3", "--out", "{tmp}/o"], "--n must be an integer >= 1"),
+    (["features", "{src}", "--batch-faces", "lots", "--out", "{tmp}/o"], "--batch-faces must be an integer"),
+    # out-of-range values are argument errors, not per-mesh failures or silent nonsense
+    (["segment", "{src}", "-k", "2", "--eps", "2.5", "--out", "{tmp}/o"],
+     "--eps must be a number <= 2.0 (a cosine distance never exceeds 2)"),
+    (["segment", "{src}", "-k", "2", "--seed", str(2**64), "--out", "{tmp}/o"], "--seed must be an integer <= "),
+    (["features", "{src}", "--seed", str(2**70), "--out", "{tmp}/o"], "--seed must be an integer <= "),
+    (["features", "{src}", "--cache", "{src}/sub", "--out", "{tmp}/o"], "--cache {src}/sub: cannot create"),
+    (["features", "{src}", "--max-faces", "0", "--out", "{tmp}/o"], "--max-faces must be an integer >= 1"),
+    (["features", "{src}", "--coarse-faces", "x", "--out", "{tmp}/o"], "--coarse-faces must be an integer"),
+])
+def test_cli_user_errors_are_one_line(tmp_path, capsys, argv, message):
+    s = shapes.icosphere(1)
+    src = write_off(tmp_path / "m.off", s.vertices, s.faces)
+    argv = [a.format(tmp=tmp_path, src=src) for a in argv]
+    rc, out, err = cli_run(argv, capsys)
+    assert rc == 2
+    assert_one_line_error(err, message.format(src=src))
+    assert not (tmp_path / "o").exists()   # nothing created before the arguments are checked
+
+
+def test_cli_unwritable_out_in_subprocess(tmp_path):
+    """The same through a real process: one line on stderr, no traceback, exit 2."""
+    s = shapes.icosphere(1)
+    src = write_off(tmp_path / "m.off", s.vertices, s.faces)
+    proc = subprocess.run([sys.executable, "-m", "torchakvf.cli", "segment", str(src), "-k", "2",
+                           "--out", str(src / "sub")], capture_output=True, text=True, cwd=REPO,
+                          env=ENV)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"torchakvf: error: --out {src / 'sub'}: cannot create or write the output folder (Not a directory)"]
+
+
+def test_k_larger_than_faces_fails_that_mesh(tmp_path, capsys):
+    s = shapes.icosphere(1)   # 80 faces
+    src = write_off(tmp_path / "m.off", s.vertices, s.faces)
+    rc, out, err = cli_run(["segment", str(src), "-k", "100", "--out", str(tmp_path / "o")], capsys)
+    assert rc == 1
+    assert "0 ok, 1 failed" in out and "larger than the mesh's 80 faces" in out
+    rec = by_stem(tmp_path / "o")["m"]
+    assert rec["status"] == "failed" and "-k 100" in rec["error"]
+    assert "Traceback" not in err

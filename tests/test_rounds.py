@@ -1,0 +1,283 @@
+"""Rounds of a segmentation (:mod:`torchakvf.parts.rounds`): each mesh untangled once per field
+count and clustered once per (fields, clusters), k's below the merge floor sharing one k-means,
+per-mesh caches kept only while a later k shares them, warm-started rounds, and a mesh's
+segmentation in a batch bitwise that of the mesh alone."""
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pytest
+import torch
+
+import torchakvf as ta
+from torchakvf import options, shapes
+from torchakvf.cluster import spherical_kmeans
+from torchakvf.mesh.batch import pad_packed
+from torchakvf.options import SegmentOptions
+from torchakvf.parts import cut, field_counts, rounds, segment_each_k
+from torchakvf.parts.field_counts import akvf_count
+from torchakvf.parts.merge import MergeWeights
+from torchakvf.parts.rounds import previous_centroids, segment_rounds
+from torchakvf.restarts import best_restart
+
+
+def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
+    """Rounds in which one mesh's field count changes untangle that mesh alone, each (mesh, n)
+    once, and give the labels of untangling the whole batch at every round's counts."""
+    calls = []
+    real = rounds.orthomax_rotations
+
+    def spy(f, ns, **kw):
+        calls.append(dict(ns))
+        return real(f, ns, **kw)
+
+    monkeypatch.setattr(rounds, "orthomax_rotations", spy)
+    # every k its own field count (no floor, no rounding): mesh 0: n = 16, 16, 18, 21 (3k); mesh 1
+    # sits out rounds 3, 4
+    monkeypatch.setitem(options.FIELDS_STEP, "merge", 1)
+    ks = [[2, 3, 6, 7], [2, 3]]
+    opts = options.SegmentOptions(seed=0, refine=False, kmeans_restarts=4, untangle_restarts=2,
+                                 merge=MergeWeights(min_k=1))
+    made = list(rounds.segment_rounds(fields, ks, opts))
+    pairs = [(b, n) for c in calls for b, n in c.items()]
+    assert len(pairs) == len(set(pairs))                       # no (mesh, n) twice
+    assert {b for b, _ in pairs} == {0, 1} and sum(b == 1 for b, _ in pairs) == 1
+    assert len({id(r.untangled) for r in made[:2]}) == 1     # equal counts share one object
+    monkeypatch.setattr(rounds, "orthomax_rotations", real)
+    for rnd in made:
+        ns = field_counts.field_counts(fields, rnd.ks, min_k=1)
+        unt = ta.untangle(fields, n=ns, seed=0, restarts=2)
+        x, mask = pad_packed(unt.features.double(), fields.batch.face_ptr)
+        n_faces = (fields.batch.face_ptr[1:] - fields.batch.face_ptr[:-1]).tolist()
+        km_ks = [field_counts.cluster_count(rnd.ks[b], n_faces[b], opts) if b in rnd.active else 1 for b in range(2)]
+        km = spherical_kmeans(x, mask, km_ks, restarts=4, seed=0, max_iter=options.KMEANS_MAX_ITER)
+        for b in rnd.active:
+            assert rnd.untangled.n_fields[b] == ns[b]
+            ref = cut.cut_parts(fields.batch, fields, unt, km, b, rnd.ks[b], opts)
+            np.testing.assert_array_equal(rnd.meshes[b].labels, ref.labels)
+            assert rnd.meshes[b].cost == ref.cost
+
+
+def test_iteration_caps_are_recorded_options(fields):
+    """The k-means iteration cap and the graph cut's expansion cycles change the answer, so they
+    are options (validated) and land in each segmentation's params (resume compares them)."""
+    from torchakvf.parts.graphcut import GraphCut
+    with pytest.raises(ta.errors.ParameterError, match="kmeans_max_iter"):
+        options.SegmentOptions(kmeans_max_iter=0)
+    with pytest.raises(ta.errors.ParameterError, match="cycles"):
+        GraphCut(cycles=0)
+    opts = options.SegmentOptions(seed=0, refine=False, kmeans_max_iter=7, graphcut=GraphCut(cycles=3),
+                                 kmeans_seeded_restarts=1)
+    rnd = next(rounds.segment_rounds(fields, [[3], [3]], opts))
+    params = rnd.meshes[0].params
+    assert params["kmeans_max_iter"] == 7 and params["graphcut_cycles"] == 3.0
+    assert params["kmeans_seeded_restarts"] == 1
+    assert "kmeans_max_iter" in options.SegmentOptions.names()
+
+
+@pytest.fixture(scope="module")
+def blobs():
+    s = shapes.three_blobs(n_around=20)
+    return ta.akvf(ta.Mesh(s.vertices, s.faces), n=20, remedy="smooth")
+
+
+FAST = dict(seed=0, refine=False, kmeans_restarts=3, untangle_restarts=1)
+
+
+def _count_kmeans(monkeypatch):
+    calls = []
+    real = rounds.spherical_kmeans
+
+    def counted(x, mask, k, **kw):
+        calls.append(list(k) if not isinstance(k, int) else [k])
+        return real(x, mask, k, **kw)
+    monkeypatch.setattr(rounds, "spherical_kmeans", counted)
+    return calls
+
+
+def test_ks_below_the_floor_share_one_kmeans_and_equal_each_k_alone(blobs, monkeypatch):
+    merge = MergeWeights(min_k=4)
+    calls = _count_kmeans(monkeypatch)
+    res = segment_each_k(blobs, [[2, 3, 4, 5]], merge=merge, **FAST)
+    # k = 2, 3, 4 share (n 16, k' 12); k = 5 has its own k' = 15
+    assert calls == [[12], [15]]
+    assert {m.params["k_oversegment"] for m in res.meshes[0].values()} == {12, 15}
+    assert len({id(r.untangled) for r in res.rounds}) == 1
+    for k in (2, 3, 4, 5):
+        calls.clear()
+        alone = ta.segment(blobs, k=k, merge=merge, **FAST)[0]
+        assert len(calls) == 1
+        got = res.meshes[0][k]
+        assert len(np.unique(got.labels)) == k
+        np.testing.assert_array_equal(got.labels, alone.labels)
+        assert got.cost == alone.cost
+        assert got.params["merge_min_k"] == 4
+
+
+def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
+    ms = [ta.Mesh(s.vertices, s.faces) for s in (shapes.three_blobs(n_around=20), shapes.dumbbell())]
+    batch = ta.MeshBatch.from_meshes(ms)
+    fields = ta.akvf(batch, n=20, remedy="smooth")
+    merge = MergeWeights(min_k=3)
+    calls = _count_kmeans(monkeypatch)
+    ks = [[2, 3, 4], [3, 2]]
+    res = segment_each_k(fields, ks, merge=merge, **FAST)
+    # round 0: both new (one call per distinct field count); round 1: both reuse round 0's
+    # (k' 9 for k <= 3); round 2: mesh 0's k = 4 only
+    assert sorted(k for c in calls for k in c) == [9, 9, 12] and calls[-1] == [12]
+    for b, m in enumerate(ms):
+        one = ta.akvf(m, n=20, remedy="smooth")
+        for k in ks[b]:
+            alone = ta.segment(one, k=k, merge=merge, **FAST)[0]
+            np.testing.assert_array_equal(res.meshes[b][k].labels, alone.labels)
+            assert res.meshes[b][k].cost == pytest.approx(alone.cost, rel=1e-12, abs=1e-12)
+
+
+def test_reused_clustering_is_the_recomputed_one(blobs):
+    """A round served from the kept clustering equals k-means run again on its features."""
+    opts = options.SegmentOptions(merge=MergeWeights(min_k=4), **{k: v for k, v in FAST.items() if k != "untangle_restarts"})
+    made = list(rounds.segment_rounds(blobs, [[3, 2]], opts))
+    unt = made[1].untangled
+    from torchakvf.mesh.batch import pad_packed
+    xpad, mask = pad_packed(unt.features.double(), blobs.batch.face_ptr)
+    again = rounds.spherical_kmeans(xpad, mask, [12], restarts=3, seed=0, max_iter=opts.kmeans_max_iter)
+    clean = cut.cut_parts(blobs.batch, blobs, unt, again, 0, 2, opts)
+    np.testing.assert_array_equal(made[1].meshes[0].labels, clean.labels)
+    assert made[1].meshes[0].cost == clean.cost
+    assert torch.equal(torch.as_tensor(made[0].meshes[0].features), torch.as_tensor(clean.features))
+
+
+def test_segment_rounds_with_caches_kept_across_k_equal_one_k_at_a_time(monkeypatch):
+    """cut_parts keeps per-mesh arrays (dual edges, bending sums, cut costs) across the rounds
+    of one solve, and the over-segmentation carried to the mesh (boundaries, clean-up, region
+    graph) across the k's clustered alike: segmenting at k = 2, 3, 4 in one go (one k-means at
+    k' = 3 min_k, one over-segmentation) gives each k's labels and costs as a solve-free run at
+    that k alone (fresh caches)."""
+    pytest.importorskip("gco")
+
+    s = shapes.three_blobs(n_around=20)
+    batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="blobs")])
+    fields = ta.akvf(batch, n=24, remedy="smooth")
+    opts = SegmentOptions(refine=False)
+    made, real = [], cut.over_segmentation
+    monkeypatch.setattr(cut, "over_segmentation", lambda *a, **kw: made.append(a[3]) or real(*a, **kw))
+    together = {r.ks[0]: r.meshes[0] for r in segment_rounds(fields, [[2, 3, 4]], opts)}
+    assert len(made) == 1                       # the three k's shared one over-segmentation
+    assert len({seg.params["k_oversegment"] for seg in together.values()}) == 1
+    for k in (2, 3, 4):
+        alone = next(iter(segment_rounds(fields, [[k]], opts))).meshes[0]
+        np.testing.assert_array_equal(together[k].labels, alone.labels)
+        assert together[k].cost == alone.cost
+        assert together[k].params == alone.params
+
+
+def test_segment_rounds_drops_an_over_segmentation_no_later_k_shares(monkeypatch):
+    """A mesh's over-segmentation (fine-mesh arrays) is kept only while its next k clusters
+    alike: after k = 2 (k = 3 next, the same k-means) it stays, after k = 3 (k = 9 next, other
+    fields and clusters) and after a mesh's last k it goes."""
+    pytest.importorskip("gco")
+
+    s = shapes.three_blobs(n_around=20)
+    batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="a"), ta.Mesh(s.vertices, s.faces, name="b")])
+    fields = ta.akvf(batch, n=36, remedy="smooth")
+    opts = SegmentOptions(refine=False)
+    seen, real = [], rounds.cut_parts
+
+    def spy(*a):
+        out = real(*a)
+        seen.append((a[4], a[5], a[7]))          # mesh, k, its cache (as cut_parts leaves it)
+        return out
+
+    monkeypatch.setattr(rounds, "cut_parts", spy)
+    kept = []
+    for rnd in segment_rounds(fields, [[2, 3, 9], [5]], opts):
+        kept.append({(b, k): cache.over is not None for b, k, cache in seen})
+        seen.clear()
+    assert kept == [{(0, 2): True, (1, 5): False}, {(0, 3): False}, {(0, 9): False}]
+    round_ks, active, _, km_ks = rounds.round_plan(fields, [[2, 3, 9], [5]], 1, None, opts)
+    assert round_ks == [3, rounds.PAD_K] and active == [0]
+    assert km_ks[0] == rounds.cluster_count(2, len(s.faces), opts)      # k = 3 clusters as k = 2
+
+
+rounds_mod = importlib.import_module("torchakvf.parts.rounds")
+
+
+def test_previous_centroids_keeps_the_heaviest_clusters():
+    x = torch.tensor([[1.0, 0], [1, 0], [1, 0], [0, 1], [0, -1], [0, 0]], dtype=torch.float64)
+    mask = torch.tensor([True] * 5 + [False])
+    labels = torch.tensor([0, 0, 0, 2, 3, -1])
+    c = previous_centroids(x, mask, labels, 3)
+    assert torch.allclose(c, torch.tensor([[1.0, 0], [0, 1], [0, -1]], dtype=torch.float64))
+    c = previous_centroids(x, mask, labels, 1)
+    assert torch.allclose(c, torch.tensor([[1.0, 0]], dtype=torch.float64))
+
+
+@pytest.fixture(scope="module")
+def blob_fields():
+    s = shapes.three_blobs()
+    return ta.akvf(ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces)]), n=20, remedy="smooth")
+
+
+def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
+    calls = []
+    inner = rounds_mod.spherical_kmeans
+
+    def recording(*args, **kwargs):
+        km = inner(*args, **kwargs)
+        calls.append((kwargs.get("restarts"), kwargs.get("init"), km))
+        return km
+
+    monkeypatch.setattr(rounds_mod, "spherical_kmeans", recording)
+    # every k its own over-segmentation (min_k 1), so that every round clusters
+    opts = SegmentOptions(refine=False, kmeans_seeded_restarts=3, graphcut=None, merge=MergeWeights(min_k=1))
+    first = [r.meshes[0].labels.copy() for r in segment_rounds(blob_fields, [[2, 3, 4]], opts)]
+    assert [c[0] for c in calls] == [opts.kmeans_restarts, 3, 3]
+    assert calls[0][1] is None and all(c[1][0] is not None for c in calls[1:])
+    for restarts, init, km in calls[1:]:
+        assert float(km.cost[0]) == float(km.restart_costs[0, best_restart(km.restart_costs, largest=False)[0]])
+    second = [r.meshes[0].labels.copy() for r in segment_rounds(blob_fields, [[2, 3, 4]], opts)]
+    assert all((a == b).all() for a, b in zip(first, second))
+    # off: no init, kmeans_restarts every round
+    calls.clear()
+    list(segment_rounds(blob_fields, [[2, 3]], SegmentOptions(refine=False, graphcut=None, kmeans_seeded_restarts=0,
+                                                              merge=MergeWeights(min_k=1))))
+    assert [(c[0], c[1]) for c in calls] == [(SegmentOptions().kmeans_restarts, None)] * 2
+    assert SegmentOptions().kmeans_seeded_restarts == 0   # off by default
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """Three meshes solved in one batch and each alone, at enough fields for every k below."""
+    ms = [ta.Mesh(s.vertices, s.faces, name=s.name)
+          for s in (shapes.three_blobs(n_around=20), shapes.dumbbell(), shapes.sphere_with_two_ellipsoids())]
+    n = akvf_count([[9]])                       # 32 fields + spare: every k below fits
+    batch = ta.akvf(ta.MeshBatch.from_meshes(ms), n=n, remedy="smooth")
+    alone = [ta.akvf(m, n=n, remedy="smooth") for m in ms]
+    return ms, batch, alone
+
+
+def test_batched_rounds_equal_each_mesh_alone(solved):
+    """A mesh segmented in a batch gets the bits it gets alone (batching must not change
+    answers): meshes of one round at different field counts and cluster counts, so the round's
+    arrays are padded past each mesh's own."""
+    ms, batch, alone = solved
+    for b, f in enumerate(alone):   # the batched eigensolve's fields are each mesh's own
+        e0, e1 = int(batch.batch.edge_ptr[b]), int(batch.batch.edge_ptr[b + 1])
+        assert torch.equal(batch.forms[e0:e1], f.forms)
+    # round 0: n 32 / 24 / 24 and k' 27 / 24 / 24; round 1: mesh 1 sits out; round 2: mesh 0 alone
+    ks = [[9, 3, 10], [2], [5, 12]]
+    opts = SegmentOptions(seed=0, refine=False)
+    together = {}
+    for rnd in segment_rounds(batch, ks, opts):
+        assert rnd.untangled.n == max(int(v) for v in rnd.untangled.n_fields)
+        for b in rnd.active:
+            together[(b, rnd.ks[b])] = rnd.meshes[b]
+    for b, f in enumerate(alone):
+        for rnd in segment_rounds(f, [ks[b]], opts):
+            one, many = rnd.meshes[0], together[(b, rnd.ks[0])]
+            np.testing.assert_array_equal(many.labels, one.labels)
+            assert many.cost == one.cost
+            assert many.features.shape == one.features.shape
+            assert np.array_equal(many.features, one.features)
+            assert many.generators == one.generators     # from the untangled fields' energies

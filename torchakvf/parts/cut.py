@@ -1,0 +1,249 @@
+"""Cutting one mesh's parts from its clustering: boundaries, clean-up of small pieces, (method
+"merge") merging of adjacent parts and the graph cut, (ε > 0) the connecting region, symmetry
+generators -> :class:`~torchakvf.parts.results.MeshSegmentation`.
+
+A new stage of the method that works on one mesh's clustering (a merge of parts, a boundary
+refinement) goes in :func:`cut_parts`, and only there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..fields.akvf import AKVFResult
+from ..fields.untangle import UntangledFields
+from ..mesh import MeshBatch
+from ..options import PART_FLOOR_OF_MEAN, GraphCut, SegmentOptions
+from .boundaries import face_margins, isoline_face_labels, refine_along_isolines, vertex_distances
+from .concavity import DualEdges, dual_edges
+from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
+from .field_counts import cluster_count
+from .generators import part_generators
+from .pieces import limit_parts
+from .graphcut import CornerMeans, edge_weights, graphcut_labels
+from .merge import (RegionGraph, boundary_bends, merge_parts, merged_distances, next_merge_cost, partition_cost,
+                    region_graph, unit_rows)
+from .results import MeshSegmentation
+from .solve import solve_quality
+from .topology import face_adjacency
+
+
+@dataclass
+class OverSegmentation:
+    """One mesh's clustering carried to the mesh its parts are cut on, up to the merge: the
+    boundaries (isolines) and, with ε = 0, the clean-up of small pieces. It depends on the
+    clustering alone, not on k, so k's clustered alike (the merge method's k <= min_k, one
+    k-means) share it (:func:`cut_parts` keeps the last one in the :class:`MeshCache`).
+
+    source : (features [F_b, n], centers [k', n], labels [F_b]) as clustered, on the solved
+        mesh; settings : the options read here (:func:`over_settings`): an entry serves only
+        an identical clustering under the same options
+    mesh : the mesh the parts are cut on (the fine one when solved on a decimated mesh) and, on
+        it, vdist [V, k'] (each vertex's distance to each center), feats [F, n], labels [F]
+        (with ε = 0 cleaned of small pieces), area [F] (unit total), unit [F, n] (unit feature
+        rows; None with ε > 0)
+    graphs : the merge's region graph of ``labels`` by crease angle (made when first asked)
+    """
+
+    source: tuple
+    settings: tuple
+    mesh: object
+    vdist: np.ndarray
+    feats: np.ndarray
+    labels: np.ndarray
+    area: np.ndarray
+    unit: np.ndarray | None
+    graphs: dict[float, RegionGraph] = field(default_factory=dict)
+
+    def made_from(self, clustered: tuple, opts: SegmentOptions, floor: float) -> bool:
+        """Whether this entry is for exactly this clustering (equal arrays) and these options."""
+        return self.settings == over_settings(opts, floor) and all(
+            a.shape == c.shape and np.array_equal(a, c) for a, c in zip(self.source, clustered))
+
+
+@dataclass
+class MeshCache:
+    """What :func:`cut_parts` keeps for one mesh across the rounds of one solve: what depends on
+    the mesh alone is made once, not once per k, and what depends on its clustering alone once
+    per clustering.
+
+    adjacency : [P, 2] face pairs sharing an edge (of the mesh the parts are cut on)
+    dual : its dual edges; bends : {crease angle: :func:`~torchakvf.parts.merge.boundary_bends`}
+    cut_costs : {GraphCut: [P] dual-edge costs of the graph cut}
+    over : the last :class:`OverSegmentation` (ε = 0), for the next k clustered alike
+    """
+
+    adjacency: np.ndarray | None = None
+    dual: DualEdges | None = None
+    bends: dict[float, tuple] = field(default_factory=dict)
+    cut_costs: dict[GraphCut, np.ndarray] = field(default_factory=dict)
+    over: OverSegmentation | None = None
+
+
+def over_settings(opts: SegmentOptions, floor: float) -> tuple:
+    """The options an :class:`OverSegmentation` depends on besides its clustering (floor:
+    :func:`part_floor` of its k)."""
+    return (opts.boundary, opts.eps > 0, floor)
+
+
+def part_floor(k: int, opts: SegmentOptions) -> float:
+    """The area fraction below which pieces are cleaned away at k parts: ``min_part_fraction``,
+    at most :data:`~torchakvf.options.PART_FLOOR_OF_MEAN` / k (so the floor changes nothing up
+    to k = 25 at the default)."""
+    return min(float(opts.min_part_fraction), PART_FLOOR_OF_MEAN / max(int(k), 1))
+
+
+def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: tuple,
+                      opts: SegmentOptions, cache: MeshCache, floor: float) -> OverSegmentation:
+    """:class:`OverSegmentation` of mesh b from its clustering (features, centers, labels on
+    the solved mesh); sets the mesh's face adjacency in ``cache``."""
+    feats, centers, labels = clustered
+    clean = batch.meshes[b]
+    f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+    area = fields.system.geometry.face_area[f0:f1].detach().cpu().numpy()
+    vdist = vertex_distances(clean.vertices, clean.faces, feats, area, centers)
+    coarse = batch.coarse_of(b)
+    if coarse is not None:
+        # Solved on a decimated mesh: the distance fields are interpolated at the fine
+        # vertices, so boundaries (isolines) and everything after are cut on the fine mesh.
+        clean, vdist = coarse.fine, coarse.vertex_field(vdist)
+        feats, labels = coarse.face_values(feats), coarse.face_values(labels)
+        area = coarse.fine_area
+    if opts.boundary == "isoline":
+        labels = isoline_face_labels(clean.faces, vdist)
+    if cache.adjacency is None:
+        cache.adjacency = face_adjacency(clean.faces)
+    unit = None
+    if opts.eps == 0:
+        labels = remove_small_parts(labels, cache.adjacency, area, floor, into_connecting=False)
+        unit = unit_rows(feats)    # the merge, its cost and the next merge's all read them
+    for shared in (vdist, feats, labels, unit):
+        if shared is not None:     # read by every k that shares them: a write would be a bug
+            shared.flags.writeable = False
+    return OverSegmentation(source=tuple(np.array(a) for a in clustered), settings=over_settings(opts, floor),
+                            mesh=clean, vdist=vdist, feats=feats, labels=labels, area=area, unit=unit)
+
+
+@dataclass
+class CutParts:
+    """A mesh's labels [F] on the mesh they are cut on, the distance fields vdist [V, parts] the
+    refined cut follows, the clustering cost and (ε = 0) what merging two parts would cost."""
+
+    labels: np.ndarray
+    vdist: np.ndarray
+    cost: float
+    merge_next: float | None = None
+
+
+def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
+              opts: SegmentOptions, mesh_cache: MeshCache | None = None) -> MeshSegmentation:
+    """Mesh b's parts from its clustering: boundaries, (ε > 0) connecting region, clean-up of
+    small pieces and symmetry generators, on the input's faces.
+
+    batch : the batch that was solved (``fields.batch``); km : the
+    :class:`~torchakvf.cluster.spherical_kmeans.KMeansResult` of the round (with
+    :func:`~torchakvf.parts.field_counts.cluster_count` clusters for mesh b), k : mesh b's k in it.
+    mesh_cache : the :class:`MeshCache` kept for mesh b across the rounds of one solve.
+    """
+    cache = MeshCache() if mesh_cache is None else mesh_cache
+    unt = untangled
+    n_b = int(unt.n_fields[b])
+    f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+    k_cluster = cluster_count(k, f1 - f0, opts)
+    clustered = (unt.mesh_features(b).detach().cpu().numpy(),
+                 km.centers[b, :k_cluster, :n_b].detach().cpu().numpy(),
+                 km.labels[b, :f1 - f0].detach().cpu().numpy())
+    floor = part_floor(k, opts)
+    over = cache.over if opts.eps == 0 else None
+    if over is None or not over.made_from(clustered, opts, floor):
+        over = over_segmentation(batch, fields, b, clustered, opts, cache, floor)
+        if opts.eps == 0:
+            # k's clustered alike (the merge method's k <= min_k) share it; one entry, as the
+            # rounds visit a mesh's k's in order
+            cache.over = over
+    if opts.eps > 0:
+        cut = CutParts(labels=_discovery_labels(over, cache, opts, floor), vdist=over.vdist, cost=float(km.cost[b]))
+    else:
+        cut = _segmentation_labels(over, cache, opts, k, floor, float(km.cost[b]), f1 - f0)
+    clean, feats = over.mesh, over.feats
+    labels = limit_parts(cut.labels, clean.vertices, clean.faces, k)
+    gens = part_generators(labels, feats, over.area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
+    converged, residual = solve_quality(fields, b)
+    return MeshSegmentation(
+        name=clean.name, k=k, labels=clean.labels_to_input_faces(labels),
+        features=clean.to_input_faces(feats), eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
+        generators=gens,
+        refined=refine_along_isolines(clean.vertices, clean.faces, cut.vdist) if opts.refine else None,
+        cost=cut.cost, params=recorded_params(batch, b, k, n_b, k_cluster, floor, opts, cut.merge_next),
+        converged=converged, max_residual=residual)
+
+
+def _discovery_labels(over: OverSegmentation, cache: MeshCache, opts: SegmentOptions, floor: float) -> np.ndarray:
+    """Part discovery (ε > 0): the connecting region between the parts, small pieces made
+    connecting region."""
+    adjacency = cache.adjacency
+    labels = connecting_region(over.labels, face_margins(over.mesh.faces, over.vdist), opts.eps)
+    labels = absorb_single_neighbour_regions(labels, adjacency)
+    labels = remove_small_parts(labels, adjacency, over.area, floor, into_connecting=True)
+    return absorb_single_neighbour_regions(labels, adjacency)
+
+
+def _segmentation_labels(over: OverSegmentation, cache: MeshCache, opts: SegmentOptions, k: int, floor: float,
+                         cost: float, n_solved: int) -> CutParts:
+    """Plain segmentation (ε = 0): with method "merge", adjacent parts merged down to k and the
+    boundaries re-decided by the graph cut; the cost of the next merge either way.
+    n_solved : the faces of the solved mesh (the cost's unit)."""
+    clean, vdist, feats, labels, area, unit = over.mesh, over.vdist, over.feats, over.labels, over.area, over.unit
+    if cache.dual is None:
+        cache.dual = dual_edges(clean.vertices, clean.faces)
+    dual = cache.dual
+    crease = opts.merge.crease_angle
+    if crease not in cache.bends:
+        cache.bends[crease] = boundary_bends(dual, crease)
+    bends = cache.bends[crease]
+    if opts.merges_parts:
+        if crease not in over.graphs:
+            over.graphs[crease] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends)
+        merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
+                             dual=dual, unit=unit, bends=bends, graph=over.graphs[crease])
+        vdist = merged_distances(vdist, labels, merged)   # the refined cut follows the merged parts
+        labels = merged
+        # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
+        cost = partition_cost(labels, feats, unit=unit) * n_solved / len(labels)
+        if opts.graphcut is not None:
+            # data term: each face's distance to each part, the mean over its corners
+            # (made for the faces the cut reads: those near a boundary)
+            face_dist = CornerMeans(clean.faces, vdist)
+            if opts.graphcut not in cache.cut_costs:
+                cache.cut_costs[opts.graphcut] = edge_weights(dual, opts.graphcut)
+            labels = graphcut_labels(labels, face_dist, dual, area, opts.graphcut,
+                                     cut_cost=cache.cut_costs[opts.graphcut], min_fraction=floor)
+    # what merging two of these parts would cost (k auto's "merge" rule reads it)
+    merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends)
+    return CutParts(labels=labels, vdist=vdist, cost=cost, merge_next=merge_next)
+
+
+def recorded_params(batch: MeshBatch, b: int, k: int, n_fields: int, k_cluster: int, floor: float,
+                    opts: SegmentOptions, merge_next: float | None) -> dict:
+    """What a :class:`MeshSegmentation` records of how it was made (its ``params``)."""
+    coarse = batch.coarse_of(b)
+    params = dict(k=k, eps=opts.eps, seed=opts.seed, n_fields=n_fields, remedy=opts.remedy,
+                  boundary=opts.boundary, kmeans_restarts=opts.kmeans_restarts,
+                  kmeans_max_iter=opts.kmeans_max_iter, kmeans_seeded_restarts=opts.kmeans_seeded_restarts,
+                  untangle_restarts=opts.untangle_restarts, min_part_fraction=opts.min_part_fraction,
+                  part_floor=floor, coarse_faces=0 if coarse is None else len(coarse.coarse.faces),
+                  solver=opts.solver, method=opts.method)
+    if opts.graphcut is not None and opts.merges_parts:
+        params["graphcut"] = True
+        params.update({f"graphcut_{name}": float(v) for name, v in vars(opts.graphcut).items()})
+    if merge_next is not None:
+        params["merge_next"] = merge_next
+    if opts.merges_parts:
+        params["k_oversegment"] = k_cluster
+        params.update({f"merge_{name}": float(v) for name, v in vars(opts.merge).items() if v is not None})
+    return params
+
+
+__all__ = ["cut_parts", "MeshCache", "OverSegmentation", "CutParts", "over_segmentation", "over_settings",
+           "part_floor", "recorded_params"]

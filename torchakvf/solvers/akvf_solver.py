@@ -1,0 +1,415 @@
+"""The AKVF solver of a batch: its Killing operator, its factors, the solver choice per mesh and
+every fallback, kept together so that a second solve (another n, another seed) reuses them.
+
+Policy, in the order it applies:
+
+* **Which eigensolver** (:func:`solver_for`): on CPU block Krylov from
+  :data:`KRYLOV_MIN_EDGES` edges, ARPACK Lanczos below; the batched LOBPCG elsewhere.
+* **One mesh at a time on CPU** (:data:`ONE_MESH_AT_A_TIME_ON`): each mesh gets the bits it
+  gets alone; batched arrays are only larger there, not fewer operations.
+* **Spurious modes**: under a remedy, eigenpairs below :data:`SPURIOUS_BELOW` are skipped;
+  each mesh is solved with :data:`SPURIOUS_MARGIN` pairs of room, and again with more room
+  (at most :data:`SPURIOUS_SOLVES` solves in all) where it has more spurious modes than room.
+* **Krylov to Lanczos**: a mesh the block Krylov solver does not converge is solved by ARPACK
+  on its definite factor.
+* **Decimated to full resolution** (``full_resolution_fallback``): a decimated mesh that cannot
+  be solved is solved at full resolution instead (:attr:`AKVFSolver.fell_back`).
+"""
+from __future__ import annotations
+
+import itertools
+import numbers
+import sys
+import warnings
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+
+from ..errors import ConvergenceWarning, FieldCountError, ParameterError, SolverError
+from ..fields.akvf_result import AKVFResult
+from ..fields.whitney import whitney_face_vectors
+from ..mesh.batch import MeshBatch
+from ..mesh.clean import CleanMesh
+from ..mesh.mesh import Mesh
+from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
+from .factor import ShiftedFactor, interior_factor, mesh_factor
+from . import lobpcg
+from .krylov import block_krylov
+from .lanczos import shift_invert_lanczos
+from .lobpcg import EigenResult, segmented_lobpcg
+
+#: The eigensolvers a caller may ask for ("auto": :func:`solver_for` decides per mesh).
+SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
+
+#: Device types on which a batch is solved one mesh at a time (each mesh as a batch of its own,
+#: results concatenated: the bits of each mesh alone). The batch's arrays are only larger there,
+#: not fewer operations, and fresh memory is what they cost: on 16 PSB meshes at 4000 faces the
+#: batched stage took 1.35x the time of the same meshes one by one (see docs/design.md). The
+#: batched paths are the GPU's, whose caching allocator reuses memory.
+ONE_MESH_AT_A_TIME_ON = ("cpu",)
+
+#: Under a mesh-quality remedy, eigenpairs below this (λ·area) are spurious: a Killing energy is
+#: >= 0, and good meshes give at worst small negatives (-0.06 on a hemisphere); badly shaped
+#: vertices give modes localized on a few edges far below zero.
+SPURIOUS_BELOW = -1.0
+#: Extra eigenpairs computed to make room for spurious ones.
+SPURIOUS_MARGIN = 8
+#: Solves of a mesh at most under a remedy: the first, then again with more room while it has
+#: more spurious modes than room (each time what it was short of plus SPURIOUS_MARGIN).
+SPURIOUS_SOLVES = 4
+
+#: On CPU, "auto" solves meshes with at least this many edges with the block Krylov solver and
+#: smaller ones with ARPACK Lanczos (same factor): below it the Krylov solver's per-step dense
+#: work costs more than ARPACK's single-vector steps (wall time of the two on PSB meshes
+#: decimated as eval does, and on the built-in shapes: see docs/design.md).
+KRYLOV_MIN_EDGES = 4000
+
+
+def solver_for(device: torch.device, edges: int | None = None) -> str:
+    """The eigensolver "auto" picks for a mesh of ``edges`` edges on ``device``: on CPU the block
+    Krylov solver from :data:`KRYLOV_MIN_EDGES` edges on (and when ``edges`` is not given),
+    Lanczos below; the batched LOBPCG elsewhere.
+
+    All use the same CHOLMOD shift-invert factor (one per mesh). On CPU the block
+    shift-invert Krylov solver (:func:`~torchakvf.solvers.krylov.block_krylov`) keeps every
+    solve it makes, like ARPACK, but solves 4 right-hand sides per sweep through the factor and
+    converges only the n pairs asked for; on small meshes its per-step dense work costs more
+    than ARPACK's single-vector steps (see :data:`KRYLOV_MIN_EDGES`). LOBPCG's dense
+    Rayleigh-Ritz work (bases of 3·(n + guard) columns, every column solved each iteration) is
+    the slowest of the three on CPU. On a GPU the block method's batched dense work is what the
+    device is good at, and ARPACK does not run there.
+    """
+    if torch.device(device).type != "cpu":
+        return "lobpcg"
+    return "krylov" if edges is None or edges >= KRYLOV_MIN_EDGES else "lanczos"
+
+
+def as_batch(meshes, device=None, coarse_faces: int | None = None) -> MeshBatch:
+    """A :class:`MeshBatch` from a batch, a mesh or a list of meshes (``coarse_faces``: as in
+    :meth:`MeshBatch.from_meshes`; a batch given keeps its own)."""
+    if isinstance(meshes, MeshBatch):
+        return meshes if device is None else meshes.to(device)
+    if isinstance(meshes, (Mesh, CleanMesh)):
+        meshes = [meshes]
+    return MeshBatch.from_meshes(list(meshes), device=device or "cpu", coarse_faces=coarse_faces)
+
+
+def field_count(n) -> int:
+    """``n`` as an int, or a :class:`ParameterError` unless it is a positive integer (Python or
+    numpy)."""
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+        raise ParameterError(f"n must be a positive integer, got {n!r}")
+    return int(n)
+
+
+def remedy_advice(remedy: str, decimated: bool = False) -> str:
+    """What to try after a failed solve under ``remedy`` (never what was just tried)."""
+    if remedy != "smooth":
+        return f"it was solved with remedy={remedy!r}; try remedy='smooth' (the default)"
+    if decimated:
+        return ("it was solved decimated with remedy='smooth', the strongest remedy; solve it at "
+                "full resolution (akvf_falling_back does) or repair the input mesh")
+    return ("it was solved with remedy='smooth', the strongest remedy; repair the mesh (remesh "
+            "it, close its holes)")
+
+
+class _Pairs(NamedTuple):
+    """One mesh's eigenpairs as solved (room for spurious modes included)."""
+    values: torch.Tensor        # [k]
+    vectors: torch.Tensor       # [E, k]
+    residuals: torch.Tensor     # [k]
+    iterations: torch.Tensor    # []
+    shift: torch.Tensor         # []
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """What a solve asks for (the rest is the solver's)."""
+    n: int
+    tol: float
+    seed: int
+    max_iter: int
+
+
+class AKVFSolver:
+    """The approximate Killing vector fields of a batch, with everything a solve builds kept for
+    the next one: the batch's :class:`KillingSystem`, each mesh's shift-invert factors, the
+    eigensolver of each mesh and the fallbacks (module docstring).
+
+    meshes : MeshBatch, Mesh, or list of Mesh (a mesh is a batch of one)
+    remedy : mesh-quality remedy of the operator (:data:`torchakvf.operators.REMEDIES`, default
+        :data:`~torchakvf.operators.killing.DEFAULT_REMEDY`; "none" is the paper's operator);
+        any remedy but "none" also skips spurious eigenpairs below :data:`SPURIOUS_BELOW`
+    boundary_correction : use the open-mesh boundary terms
+    solver : "lobpcg" (segmented block solver over the batch, any device), "lanczos" (ARPACK
+        shift-invert, CPU, one mesh at a time), "krylov" (block shift-invert Krylov, one mesh at
+        a time) or "auto" (:func:`solver_for`, decided per mesh)
+    device : device of the batch built from Mesh inputs (a MeshBatch given is moved there)
+    full_resolution_fallback : on a :class:`SolverError`, find the decimated meshes
+        (``MeshBatch.from_meshes(coarse_faces=)``) that cannot be solved, each alone, and solve
+        the batch again with those at full resolution (:attr:`fell_back` lists them; ``batch``
+        is then the re-packed batch). A batch without decimated meshes raises either way.
+
+    ``solve(n, tol=, seed=, max_iter=)`` returns an :class:`AKVFResult`; a second call reuses
+    the operator and the factors (the Krylov solver's interior factor per n). The factors are
+    kept until the solver is dropped: one per mesh of the batch.
+    """
+
+    def __init__(self, meshes, *, remedy: str = DEFAULT_REMEDY, boundary_correction: bool = True,
+                 solver: str = "auto", device=None, full_resolution_fallback: bool = True):
+        if solver not in SOLVERS:
+            raise ParameterError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        if remedy not in REMEDIES:
+            raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
+        self.remedy, self.boundary_correction, self.solver = remedy, boundary_correction, solver
+        self.full_resolution_fallback = full_resolution_fallback
+        #: [(mesh index, error text)] of the meshes solved at full resolution because their
+        #: decimated version could not be solved
+        self.fell_back: list[tuple[int, str]] = []
+        self._use(as_batch(meshes, device=device))
+
+    def _use(self, batch: MeshBatch) -> None:
+        """Solve ``batch`` from now on (nothing built for another batch is kept)."""
+        self.batch = batch
+        self.edges: list[int] = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
+        #: the eigensolver of each mesh ("auto" decides per mesh, by its size)
+        self.solvers: list[str] = [solver_for(batch.device, e) if self.solver == "auto" else self.solver
+                                   for e in self.edges]
+        self._factors: dict[int, ShiftedFactor] = {}
+        self._interior: dict[tuple[int, int], object] = {}
+        self._system: KillingSystem | None = None
+        self._alone: list[AKVFSolver] | None = None
+        if len(batch) > 1 and batch.device.type in ONE_MESH_AT_A_TIME_ON:
+            self._alone = [AKVFSolver(batch.mesh(b), remedy=self.remedy, solver=self.solver,
+                                      boundary_correction=self.boundary_correction,
+                                      full_resolution_fallback=False) for b in range(len(batch))]
+        else:
+            self._system = killing_operator(batch, boundary_correction=self.boundary_correction,
+                                            remedy=self.remedy)
+
+    @property
+    def system(self) -> KillingSystem:
+        """The batch's :class:`KillingSystem` (solved one mesh at a time: its meshes' systems
+        concatenated)."""
+        if self._system is None:
+            self._system = KillingSystem.concatenate([s.system for s in self._alone], self.batch.edge_ptr)
+        return self._system
+
+    @property
+    def drops_spurious(self) -> bool:
+        """Whether spurious modes (below :data:`SPURIOUS_BELOW`) are skipped: under any remedy."""
+        return self.remedy != "none"
+
+    def solve(self, n: int = 32, *, tol: float = 1e-6, seed: int = 0, max_iter: int = 60) -> AKVFResult:
+        """The ``n`` smallest AKVFs of each mesh (see :func:`~torchakvf.fields.akvf.akvf` for
+        the parameters). A mesh that does not reach ``tol`` is flagged in
+        ``AKVFResult.converged`` and named in one :class:`ConvergenceWarning`."""
+        settings = _Settings(field_count(n), tol, seed, max_iter)
+        out = self._solve_falling_back(settings)
+        _warn_unconverged(self.batch.names, out.residuals, out.converged, tol)
+        return out
+
+    # -- the decimated -> full-resolution fallback ------------------------------------------
+
+    def _solve_falling_back(self, settings: _Settings) -> AKVFResult:
+        try:
+            return self._solve(settings)
+        except SolverError as exc:
+            decimated = [b for b in range(len(self.batch)) if self.batch.coarse_of(b) is not None]
+            if not self.full_resolution_fallback or not decimated:
+                raise
+            failed = self._failing(decimated, settings)
+            if not failed:   # no decimated mesh is to blame
+                raise exc
+        self.fell_back += failed
+        self._use(self.batch.at_full_resolution([b for b, _ in failed]))
+        return self._solve(settings)
+
+    def _failing(self, meshes: list[int], settings: _Settings) -> list[tuple[int, str]]:
+        """[(mesh, error text)] of ``meshes`` whose packed (decimated) mesh, solved alone,
+        raises a :class:`SolverError`."""
+        failed = []
+        for b in meshes:
+            alone = MeshBatch.from_meshes([self.batch.meshes[b]], device=self.batch.device,
+                                          dtype=self.batch.dtype)
+            try:
+                AKVFSolver(alone, remedy=self.remedy, boundary_correction=self.boundary_correction,
+                           solver=self.solver, full_resolution_fallback=False)._solve(settings)
+            except SolverError as exc:
+                failed.append((b, str(exc)))
+        return failed
+
+    # -- one solve of the current batch ------------------------------------------------------
+
+    def _solve(self, settings: _Settings) -> AKVFResult:
+        if self._alone is not None:
+            parts = [s._solve(settings) for s in self._alone]
+            return AKVFResult.concatenate(parts, self.batch, self.system)
+        pairs, counts = self._solve_with_room(settings)
+        return self._result(pairs, counts, settings)
+
+    def _solve_with_room(self, settings: _Settings) -> tuple[list[_Pairs], list[int]]:
+        """Each mesh's eigenpairs and how many were solved: n plus room for spurious modes
+        (capped below the mesh's edge count), solved again with more room where they
+        outnumber it."""
+        n = settings.n
+        counts = [n + (min(SPURIOUS_MARGIN, max(e - n - 1, 0)) if self.drops_spurious else 0)
+                  for e in self.edges]
+        pairs: list = [None] * len(self.batch)
+        todo = list(range(len(self.batch)))
+        for _ in range(SPURIOUS_SOLVES):
+            for group in self._groups(todo, counts):
+                eig = self._eigensolve(group, counts[group[0]], self.solvers[group[0]], settings)
+                vecs = self.batch.split(eig.vectors, self._group_ptr(group))
+                for j, b in enumerate(group):
+                    pairs[b] = _Pairs(eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j],
+                                      eig.shifts[j])
+                    counts[b] = max(counts[b], eig.eigenvalues.shape[1])
+            if not self.drops_spurious:
+                break
+            todo = self._short_of_room(todo, pairs, counts, n)
+            if not todo:
+                break
+        return pairs, counts
+
+    def _groups(self, todo: list[int], counts: list[int]) -> list[list[int]]:
+        """Meshes needing the same count from the same solver are solved together. The Krylov
+        solver works one mesh at a time and makes room for spurious modes itself (it returns
+        more pairs where they need it): each of its meshes is a group of one."""
+        others = [b for b in todo if self.solvers[b] != "krylov"]
+        return [[b] for b in todo if self.solvers[b] == "krylov"] + [
+            [b for b in others if (counts[b], self.solvers[b]) == key]
+            for key in sorted({(counts[b], self.solvers[b]) for b in others})]
+
+    def _short_of_room(self, todo: list[int], pairs: list[_Pairs], counts: list[int], n: int) -> list[int]:
+        """The meshes of ``todo`` with more spurious modes than room, their counts raised (in
+        place) to what they were short of plus SPURIOUS_MARGIN; their mates keep theirs."""
+        again = []
+        for b in todo:
+            spurious = int((pairs[b].values < SPURIOUS_BELOW).sum())
+            short = spurious - (counts[b] - n)
+            if short > 0 and counts[b] < self.edges[b] - 1:
+                counts[b] = min(counts[b] + short + SPURIOUS_MARGIN, self.edges[b] - 1)
+                again.append(b)
+        return again
+
+    def _group_ptr(self, group: list[int]) -> torch.Tensor:
+        """[len(group)+1] offsets of the group's meshes in a group's packed vectors."""
+        return torch.tensor([0] + list(itertools.accumulate(self.edges[b] for b in group)))
+
+    # -- the eigensolvers ---------------------------------------------------------------------
+
+    def _eigensolve(self, group: list[int], count: int, solver: str, settings: _Settings) -> EigenResult:
+        """``count`` eigenpairs of each mesh of ``group`` by ``solver``; a failure other than
+        too many fields gets advice on what to try next."""
+        try:
+            if solver == "lanczos":
+                return self._lanczos(group, count, settings)
+            if solver == "krylov":
+                return self._krylov(group, count, settings)
+            return self._lobpcg(group, count, settings)
+        except FieldCountError:
+            raise
+        except SolverError as exc:
+            decimated = any(self.batch.coarse_of(b) is not None for b in group)
+            raise SolverError(f"{exc}; {remedy_advice(self.remedy, decimated)}") from None
+
+    def _lanczos(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
+        # ARPACK needs CPU factors; on CPU they are kept for a re-solve with more room.
+        cpu = self.system.mass.device.type == "cpu"
+        return shift_invert_lanczos(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
+                                    names=self._names(group),
+                                    factors=[self.factor(b) for b in group] if cpu else None)
+
+    def _lobpcg(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
+        # Where LOBPCG takes one factor per mesh, the solver's own are passed (and kept); where
+        # it takes one block-diagonal factor of the batch (lobpcg.BLOCK_FACTOR_ON), it makes it.
+        per_mesh = self.batch.device.type not in lobpcg.BLOCK_FACTOR_ON
+        return segmented_lobpcg(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
+                                names=self._names(group), max_iter=settings.max_iter,
+                                factors=[self.factor(b) for b in group] if per_mesh else None)
+
+    def _krylov(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
+        """Only the n kept pairs (and the spurious ones below them) must converge; the room for
+        spurious modes is returned as it is. A mesh it does not converge (rare: seen on a mesh
+        with 33 spurious modes at shift -512, where the wanted pairs' 1/(λ - σ) all crowd
+        together) is solved by ARPACK on the definite factor."""
+        n = settings.n
+        eig = block_krylov(self.system, count, tol=settings.tol, seed=settings.seed, names=self._names(group),
+                           need=n, skip_below=SPURIOUS_BELOW if self.drops_spurious else None,
+                           factors=[self._interior_factor(b, n) for b in group], grow=len(group) == 1,
+                           meshes=group)
+        if len(group) == 1 and not bool(eig.converged[0]) and self.system.mass.device.type == "cpu":
+            k = min(eig.eigenvalues.shape[1], self.edges[group[0]] - 1)
+            eig = shift_invert_lanczos(self._subsystem(group), k, tol=settings.tol, seed=settings.seed,
+                                       names=self._names(group), factors=[self.factor(b) for b in group])
+        return eig
+
+    def factor(self, b: int) -> ShiftedFactor:
+        """Mesh b's positive definite shift-invert factor (made on first use, then kept)."""
+        if b not in self._factors:
+            self._factors[b] = mesh_factor(self.system, b, self.batch.names[b])
+        return self._factors[b]
+
+    def _interior_factor(self, b: int, need: int):
+        """Mesh b's factor for the Krylov solver at ``need`` wanted pairs (kept per need)."""
+        if (b, need) not in self._interior:
+            self._interior[b, need] = interior_factor(self.system, b, need, lambda: self.factor(b))
+        return self._interior[b, need]
+
+    def _subsystem(self, group: list[int]) -> KillingSystem:
+        return self.system if len(group) == len(self.batch) else self.system.select(group)
+
+    def _names(self, group: list[int]) -> list[str]:
+        return [self.batch.names[b] for b in group]
+
+    # -- the result ---------------------------------------------------------------------------
+
+    def _result(self, pairs: list[_Pairs], counts: list[int], settings: _Settings) -> AKVFResult:
+        """Per mesh, the first n eigenpairs that are not spurious (ascending order kept), their
+        Whitney vectors, in the batch's dtype."""
+        n = settings.n
+        lam, forms, res, dropped = [], [], [], []
+        for p in pairs:
+            spurious = p.values < SPURIOUS_BELOW if self.drops_spurious else torch.zeros_like(p.values, dtype=torch.bool)
+            keep = torch.argsort(spurious.to(torch.int8), stable=True)[:n]
+            # Column slices where the kept pairs lead (no spurious ones): a view, not a gather.
+            cols = slice(0, n) if bool((keep == torch.arange(len(keep), device=keep.device)).all()) else keep
+            lam.append(p.values[cols]), forms.append(p.vectors[:, cols]), res.append(p.residuals[cols])
+            dropped.append(int(spurious.sum()))
+        dev = self.batch.device
+        eigenvalues, residuals, forms = torch.stack(lam), torch.stack(res), torch.cat(forms)
+        fv = whitney_face_vectors(self.batch, self.system.geometry, forms)
+        out_dt = self.batch.dtype
+        return AKVFResult(eigenvalues=eigenvalues.to(out_dt), forms=forms.to(out_dt),
+                          face_vectors=fv.to(out_dt), residuals=residuals,
+                          iterations=torch.stack([p.iterations for p in pairs]).to(dev),
+                          shifts=torch.stack([p.shift for p in pairs]).to(dev),
+                          converged=(residuals <= settings.tol).all(dim=1),
+                          dropped=torch.tensor(dropped, dtype=torch.long, device=dev), batch=self.batch,
+                          system=self.system, solved=torch.tensor(counts, dtype=torch.long, device=dev))
+
+
+def _warn_unconverged(names: list, residuals: torch.Tensor, converged: torch.Tensor, tol: float) -> None:
+    """One :class:`ConvergenceWarning` naming every mesh of the batch that did not reach
+    ``tol``, attributed to the caller of :meth:`AKVFSolver.solve` or of its wrappers."""
+    if not bool(converged.all()):
+        bad = [f"{names[b]} (residual {float(residuals[b].max()):.1e})"
+               for b in torch.nonzero(~converged).reshape(-1).tolist()]
+        warnings.warn(f"AKVF eigensolve did not reach tol {tol:.0e} for {', '.join(bad)}; these "
+                      "meshes are flagged in AKVFResult.converged", ConvergenceWarning,
+                      stacklevel=_caller_level())
+
+
+#: Modules whose frames a warning skips to reach the caller: this one and its wrappers'.
+_WRAPPERS = (__name__, "torchakvf.fields.akvf")
+
+
+def _caller_level() -> int:
+    """``stacklevel`` for a warning issued in the caller of this function: the first frame
+    outside :data:`_WRAPPERS`."""
+    frame, level = sys._getframe(1), 1
+    while frame is not None and frame.f_globals.get("__name__") in _WRAPPERS:
+        frame, level = frame.f_back, level + 1
+    return level
