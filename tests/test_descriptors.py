@@ -8,13 +8,12 @@ import torch
 
 from torchakvf import Mesh, MeshBatch, akvf, load_mesh
 from torchakvf.errors import ParameterError
+from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.fields.descriptors import (BASE_COLUMNS, CONTRAST_RADII, DEFAULT_COUNTS, FaceDiffusion,
-                                          descriptor_block, descriptor_names, face_descriptors,
+                                          counts_for, descriptor_block, descriptor_names, face_descriptors,
                                           span_coherence)
 from torchakvf.fields.untangle import untangle
 from torchakvf.shapes import dumbbell, three_blobs
-
-from conftest import psb_root  # the one place that says where the PSB lives
 
 #: Columns that depend on the raw fields' span only (never on the untangling).
 SPAN_ONLY = ("log_density", "coherence")
@@ -136,9 +135,9 @@ def test_span_columns_repeat_where_the_optimum_is_not_unique():
     np.testing.assert_allclose(d1[:, span], d0[:, span], atol=1e-6)
 
 
-@pytest.mark.skipif(psb_root() is None, reason="PSB data not present")
+@pytest.mark.skipif(default_psb_root() is None, reason="PSB data not present")
 def test_psb_mesh_invariance():
-    fine = load_mesh(psb_root() / "meshes" / "1.off.gz")
+    fine = load_mesh(default_psb_root() / "meshes" / "1.off.gz")
     packed = MeshBatch.from_meshes([fine], coarse_faces=1500).meshes[0]
     mesh = Mesh(packed.vertices, packed.faces)
     counts = (8, 16)
@@ -156,6 +155,13 @@ def test_bad_counts_and_missing_diffusion(blobs):
     with pytest.raises(ParameterError, match="FaceDiffusion"):
         descriptor_block(np.ones((4, 3)), np.zeros(3), np.ones(4), None)
     assert face_descriptors(fields, 8, radii=())[0].shape[1] == len(BASE_COLUMNS)
+
+
+def test_counts_for_a_field_count(blobs):
+    assert counts_for(32) == DEFAULT_COUNTS and counts_for(20) == (8, 16, 20)
+    assert counts_for(8) == (8,) and counts_for(4) == (4,) and counts_for(1) == ()
+    fields = akvf(MeshBatch.from_meshes([blobs]), n=8, seed=0)
+    assert face_descriptors(fields, counts_for(1))[0].shape == (len(blobs.faces), 0)
 
 
 def test_device_and_dtype_follow_the_fields(blobs):

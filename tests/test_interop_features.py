@@ -21,6 +21,10 @@ def test_face_features_on_input_faces_of_a_decimated_mesh():
     # every input face carries the values of the coarse face under it: at most n_coarse rows
     assert len(np.unique(coarse.features, axis=0)) <= n_coarse
     assert np.all(coarse.features.sum(axis=1) > 0)
+    # the order-free descriptors, on the same input faces (N = 8 fields: one count, 11 columns)
+    assert coarse.descriptors.shape == (len(s.faces), len(coarse.descriptor_names)) == (len(s.faces), 11)
+    assert coarse.descriptor_names[0] == "share1@8" and np.isfinite(coarse.descriptors).all()
+    assert len(np.unique(coarse.descriptors, axis=0)) <= n_coarse
     # both resolutions find the sphere's three rotations (λ·area near 0, a gap after them)
     for ff in (full, coarse):
         assert np.all(np.abs(ff.eigenvalues[:3]) < 1.0) and ff.eigenvalues[3] > 10.0

@@ -35,6 +35,7 @@ def test_pyg_transform_round_trip():
     assert out.akvf_face_features.shape == (len(s.faces), N)
     assert out.akvf_face_features.dtype == torch.float32
     assert out.akvf_eigenvalues.shape == (1, N) and out.akvf_norms.shape == (len(s.faces), N)
+    assert out.akvf_descriptors.shape == (len(s.faces), 11) and out.akvf_descriptors.dtype == torch.float32
     # a sphere: three rotations (λ·area ~ 0; 0.12 at this resolution), then a gap
     lam = out.akvf_eigenvalues[0].double()
     assert torch.all(lam[:3].abs() < 0.3) and lam[3] > 10.0

@@ -22,7 +22,7 @@ from ..io.manifest import MANIFEST, read_manifest
 from ..mesh.batch import owner_index
 
 #: Per-face arrays of a feature file, packed along faces by :func:`collate_packed`.
-FACE_KEYS = ("features", "akvf_norms", "face_vectors")
+FACE_KEYS = ("features", "akvf_norms", "descriptors", "face_vectors")
 
 
 #: Arrays every feature file holds (``face_vectors`` only with ``--face-vectors``).
@@ -75,6 +75,11 @@ def _shape_problem(z: dict) -> str | None:
         if key in z and z[key].shape != shape:
             return f"{key} has shape {list(z[key].shape)} beside faces {list(f.shape)} and {n} fields " \
                    f"(expected {list(shape)})"
+    d = z.get("descriptors")
+    if d is not None and (d.ndim != 2 or d.shape[0] != len(f)):
+        return f"descriptors have shape {list(d.shape)} beside faces {list(f.shape)} (expected [{len(f)}, d])"
+    if d is not None and "descriptor_names" in z and z["descriptor_names"].shape != (d.shape[1],):
+        return f"{z['descriptor_names'].size} descriptor names for {d.shape[1]} descriptor columns"
     return None
 
 
@@ -84,8 +89,10 @@ class FeatureDataset(Dataset):
 
     Item ``i`` is a dict: ``vertices`` [V, 3] float32, ``faces`` [F, 3] int64, ``features``
     [F, n] float32, ``akvf_norms`` [F, n] float32, ``eigenvalues`` [n] float64, ``residuals``
-    [n] float64, ``face_vectors`` [F, n, 3] (when the file has them), ``name`` (the stem), and
-    ``params`` (dict).
+    [n] float64, ``descriptors`` [F, d] float32 and ``descriptor_names`` (list of d) when the
+    file has them (files written by ``features`` since it writes them; docs/descriptors.md),
+    ``face_vectors`` [F, n, 3] (when the file has them), ``name`` (the stem), and ``params``
+    (dict).
     """
 
     def __init__(self, root, *, transform=None):
@@ -120,6 +127,9 @@ class FeatureDataset(Dataset):
             "name": path.stem,
             "params": _params(path, z),
         }
+        if "descriptors" in z:
+            item["descriptors"] = torch.from_numpy(np.ascontiguousarray(z["descriptors"], dtype=np.float32))
+            item["descriptor_names"] = [str(c) for c in z["descriptor_names"]] if "descriptor_names" in z else []
         if "face_vectors" in z:
             item["face_vectors"] = torch.from_numpy(np.ascontiguousarray(z["face_vectors"], dtype=np.float32))
         return self.transform(item) if self.transform is not None else item
@@ -138,8 +148,8 @@ def collate_packed(items: list[dict]) -> dict:
     """Pack a list of items into one batch (the packed layout of :class:`torchakvf.MeshBatch`):
 
     ``vertices`` [ΣV, 3], ``faces`` [ΣF, 3] with *global* vertex indices (mesh b's shifted by
-    ``vert_ptr[b]``), ``features``/``akvf_norms`` [ΣF, n] (``face_vectors`` [ΣF, n, 3] when
-    every item has them), ``vert_ptr``/``face_ptr`` [B+1] int64 offsets, ``face_to_mesh`` [ΣF],
+    ``vert_ptr[b]``), ``features``/``akvf_norms`` [ΣF, n] (``descriptors`` [ΣF, d] and
+    ``face_vectors`` [ΣF, n, 3] when every item has them), ``vert_ptr``/``face_ptr`` [B+1] int64 offsets, ``face_to_mesh`` [ΣF],
     ``eigenvalues``/``residuals`` [B, n], ``names`` list of B.
     """
     if not items:

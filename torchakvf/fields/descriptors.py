@@ -60,8 +60,8 @@ import torch
 from ..errors import ParameterError
 from ..mesh.batch import mesh_edges
 from ..mesh.clean import face_areas
-from .akvf import AKVFResult
-from .untangle import UntangledFields, untangle
+from .akvf_result import AKVFResult
+from .untangle import DEFAULT_RESTARTS, UntangledFields, untangle
 
 #: Field counts the descriptors are computed at by default: a few large primitives (8), the
 #: segmentation's usual range (16) and finer ones (32).
@@ -189,11 +189,19 @@ def span_coherence(vectors: np.ndarray, diffusion: FaceDiffusion,
     return np.clip(out, 0.0, 1.0)
 
 
+def counts_for(n: int) -> tuple[int, ...]:
+    """The field counts to describe a mesh solved with ``n`` fields: those of
+    :data:`DEFAULT_COUNTS` below n, and n itself (e.g. 32 -> (8, 16, 32), 20 -> (8, 16, 20));
+    none for a single field (one field has no membership to describe)."""
+    n = int(n)
+    return tuple(c for c in DEFAULT_COUNTS if c < n) + (n,) if n >= 2 else ()
+
+
 def _counts(counts, available: int) -> list[int]:
     if isinstance(counts, numbers.Integral):
         counts = [counts]
     out = [int(c) for c in counts]
-    if not out or min(out) < 2 or max(out) > available:
+    if out and (min(out) < 2 or max(out) > available):
         raise ParameterError(f"descriptor field counts must be 2..{available} (the fields "
                              f"computed), got {list(counts)!r}")
     return out
@@ -201,12 +209,13 @@ def _counts(counts, available: int) -> list[int]:
 
 def face_descriptors(fields: AKVFResult, counts: Sequence[int] | int = DEFAULT_COUNTS, *,
                      untangled: Mapping[int, UntangledFields] | None = None,
-                     radii: Sequence[float] = CONTRAST_RADII, restarts: int = 8, seed: int = 0,
+                     radii: Sequence[float] = CONTRAST_RADII, restarts: int = DEFAULT_RESTARTS, seed: int = 0,
                      tol: float = 1e-6) -> list[torch.Tensor]:
     """Order-, sign- and motion-invariant per-face descriptors of every mesh of a batch.
 
     fields : the batch's AKVFs (at least ``max(counts)`` of them)
     counts : field counts to untangle at; each gives the columns of :func:`descriptor_block`
+        and :func:`span_coherence` (none: [F_b, 0] tensors)
     untangled : already untangled fields by count (reused instead of untangling again)
     restarts, seed, tol : :func:`~torchakvf.untangle`'s, for the counts not given
     Returns one [F_b, d] tensor per mesh, on the faces of the packed mesh
@@ -224,7 +233,7 @@ def face_descriptors(fields: AKVFResult, counts: Sequence[int] | int = DEFAULT_C
         area = face_areas(np.asarray(mesh.vertices, dtype=np.float64), mesh.faces)
         f0, f1 = int(fields.batch.face_ptr[b]), int(fields.batch.face_ptr[b + 1])
         vectors = fields.face_vectors[f0:f1].detach().cpu().to(torch.float64).numpy()
-        blocks = []
+        blocks = [np.zeros((len(mesh.faces), 0))]
         for n in counts:
             blocks.append(descriptor_block(untangled[n].mesh_features(b).detach().cpu().numpy()[:, :n],
                                            untangled[n].energies[b, :n].detach().cpu().numpy(),
@@ -237,4 +246,4 @@ def face_descriptors(fields: AKVFResult, counts: Sequence[int] | int = DEFAULT_C
 
 
 __all__ = ["DEFAULT_COUNTS", "CONTRAST_RADII", "BASE_COLUMNS", "FaceDiffusion", "descriptor_block",
-           "descriptor_names", "face_descriptors", "span_coherence"]
+           "counts_for", "descriptor_names", "face_descriptors", "span_coherence"]

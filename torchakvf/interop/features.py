@@ -19,12 +19,17 @@ class FaceFeatures:
     akvf_norms : [F, n] |X_i(f)| of the raw AKVFs
     eigenvalues : [n] Killing eigenvalues λ·area of the raw AKVFs, ascending
     energies : [n] Killing energy λ·area of each untangled field
+    descriptors : [F, d] per-face descriptors that mean the same on every mesh (invariant to
+        the fields' order and sign; :mod:`torchakvf.fields.descriptors`, docs/descriptors.md)
+    descriptor_names : the d column names, e.g. ``"share1@8"``
     """
 
     features: np.ndarray
     akvf_norms: np.ndarray
     eigenvalues: np.ndarray
     energies: np.ndarray
+    descriptors: np.ndarray
+    descriptor_names: list
 
 
 def _on_input_faces(batch, b: int, values: np.ndarray) -> np.ndarray:
@@ -43,11 +48,14 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
     :func:`~torchakvf.akvf`'s and :func:`~torchakvf.untangle`'s."""
     from ..fields import untangle
     from ..fields.akvf import akvf_falling_back
+    from ..fields.descriptors import counts_for, descriptor_names, face_descriptors
     from ..operators.killing import DEFAULT_REMEDY
 
     fields, _ = akvf_falling_back(batch, n=n, seed=seed, tol=tol,
                                   remedy=DEFAULT_REMEDY if remedy is None else remedy)
     unt = untangle(fields, seed=seed, restarts=restarts)
+    counts = counts_for(n)
+    desc = face_descriptors(fields, counts, untangled={n: unt}, seed=seed, restarts=restarts)
     batch = fields.batch              # the fallback may have re-packed meshes at full resolution
     raw = fields.face_vectors.norm(dim=-1)
     out = []
@@ -57,7 +65,9 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
             features=_on_input_faces(batch, b, unt.mesh_features(b).detach().cpu().numpy()),
             akvf_norms=_on_input_faces(batch, b, raw[f0:f1].detach().cpu().numpy()),
             eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
-            energies=unt.energies[b].detach().cpu().numpy()))
+            energies=unt.energies[b].detach().cpu().numpy(),
+            descriptors=_on_input_faces(batch, b, desc[b].detach().cpu().numpy()),
+            descriptor_names=descriptor_names(counts)))
     return out
 
 

@@ -3,7 +3,7 @@
     from torch_geometric.datasets import FAUST            # any dataset with pos and face
     from torchakvf.interop.pyg import AKVFFeatures
     ds = FAUST(root, pre_transform=AKVFFeatures(n=32, coarse_faces=4000))
-    data = ds[0]; data.akvf_face_features                 # [F, 32]
+    data = ds[0]; data.akvf_descriptors                   # [F, 33], the same columns on every mesh
 
 Needs ``torch_geometric`` (``pip install torchakvf[pyg]``). Used as a ``pre_transform``, the
 features are computed once and stored with the processed dataset.
@@ -27,6 +27,9 @@ class AKVFFeatures(BaseTransform):
 
     * ``akvf_face_features`` [F, n]: |X_i(f)| of the untangled fields, in ``face``'s order
       (0 on faces dropped as degenerate);
+    * ``akvf_descriptors`` [F, d]: per-face descriptors invariant to the fields' order and
+      sign, comparable across meshes (the columns a per-face model should take; names in
+      :func:`torchakvf.fields.descriptors.descriptor_names`, docs/descriptors.md);
     * ``akvf_eigenvalues`` [1, n]: Killing eigenvalues λ·area, ascending (graph-level, so a
       ``Batch`` of B meshes holds [B, n]);
     * with ``raw_norms=True`` also ``akvf_norms`` [F, n], the raw AKVFs' norms.
@@ -58,6 +61,7 @@ class AKVFFeatures(BaseTransform):
         ff = face_features(batch, self.n, seed=self.seed, remedy=self.remedy,
                            restarts=self.restarts, tol=self.tol)[0]
         data.akvf_face_features = as_tensor_like(ff.features, pos)
+        data.akvf_descriptors = as_tensor_like(ff.descriptors, pos)
         data.akvf_eigenvalues = as_tensor_like(ff.eigenvalues, pos)[None, :]
         if self.raw_norms:
             data.akvf_norms = as_tensor_like(ff.akvf_norms, pos)

@@ -13,6 +13,9 @@ array is in the input file's face order, zeros on faces dropped as degenerate):
 ``residuals``          float64 [n]     relative residual of each eigenpair
 ``converged``          bool ()         every residual at most the solver tolerance (also in the
                                        manifest record, with ``max_residual``)
+``descriptors``        float32 [F, d]  per-face descriptors invariant to the fields' order and sign,
+                                       the same columns on every mesh (docs/descriptors.md)
+``descriptor_names``   str [d]         their column names, e.g. ``share1@8``
 ``face_vectors``       float32 [F,n,3] untangled Whitney vectors (only with ``--face-vectors``)
 ``params_json``        str ()          the parameters and torchakvf version, as JSON
 =====================  ==============  ==========================================================
@@ -36,6 +39,7 @@ import numpy as np
 
 from ..errors import ParameterError, TorchAKVFError
 from ..io import atomic_write_bytes, remove_stale_temp_files, write_npz
+from ..fields.descriptors import counts_for
 from ..fields.untangle import DEFAULT_RESTARTS
 from ..operators.killing import DEFAULT_REMEDY
 
@@ -92,7 +96,8 @@ class FeaturesTask:
     def params(self) -> dict:
         return {"n": self.n, "seed": self.seed, "remedy": self.remedy,
                 "untangle_restarts": self.untangle_restarts, "tol": self.tol,
-                "face_vectors": self.face_vectors, "coarse_faces": self.coarse_faces}
+                "face_vectors": self.face_vectors, "coarse_faces": self.coarse_faces,
+                "descriptor_counts": list(counts_for(self.n))}
 
     def output_paths(self, out_dir, stem: str) -> list[Path]:
         return [Path(out_dir) / f"{stem}.npz"]
@@ -131,6 +136,7 @@ class FeaturesTask:
 
     def process(self, items, device):
         from ..fields import akvf, untangle
+        from ..fields.descriptors import descriptor_names, face_descriptors
         from ..mesh import MeshBatch
 
         t0 = time.perf_counter()
@@ -139,6 +145,10 @@ class FeaturesTask:
         fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol)
         t1 = time.perf_counter()
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
+        counts = counts_for(self.n)
+        desc = face_descriptors(fields, counts, untangled={self.n: unt}, seed=self.seed,
+                                restarts=self.untangle_restarts)
+        names = np.array(descriptor_names(counts))
         raw_norms = fields.face_vectors.norm(dim=-1)
         outs = []
         for b, it in enumerate(items):
@@ -154,6 +164,8 @@ class FeaturesTask:
             out = {
                 "akvf_norms": on_input(raw_norms[f0:f1]),
                 "features": on_input(unt.mesh_features(b)),
+                "descriptors": on_input(desc[b]),
+                "descriptor_names": names,
                 "eigenvalues": fields.eigenvalues[b].cpu().numpy().astype(np.float64),
                 "residuals": residuals,
                 "converged": np.bool_(bool(np.all(residuals <= self.tol))),
