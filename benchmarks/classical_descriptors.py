@@ -12,6 +12,9 @@ Groups (each a [F, k] float array; per-vertex quantities are averaged over a fac
   [log λ_1, log λ_max], σ = 2 steps, normalized per energy.
 * ``sdf`` [F, 2]: shape diameter function (Shapiro et al. 2008, libigl + Embree, 32 rays in
   the inward cone per face): log(sdf) at unit area and log(sdf / its area-weighted median).
+  libigl draws the ray directions from the C library's unseeded generator, so this group alone
+  is not bit-reproducible (a rerun moved a few faces of PSB 121 by up to 0.7 in log sdf); the
+  other groups are. (trimesh's ray casting would need rtree or embreex, not installed here.)
 
 HKS and WKS use the first :data:`SPECTRUM` eigenpairs of the cotan Laplace-Beltrami operator
 with a lumped mass matrix (scipy ``eigsh``, shift-invert); the first 32 non-zero eigenvalues
