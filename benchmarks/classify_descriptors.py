@@ -48,7 +48,6 @@ log = logging.getLogger("classify_descriptors")
 def weighted_quantiles(x: np.ndarray, w: np.ndarray, qs) -> np.ndarray:
     """[len(qs), k] area-weighted quantiles of each column of x [F, k]."""
     out = np.empty((len(qs), x.shape[1]))
-    cw = None
     for j in range(x.shape[1]):
         order = np.argsort(x[:, j])
         cw = np.cumsum(w[order]) / w.sum()
