@@ -3,10 +3,10 @@
 The untangled fields of a mesh have no order and no sign (any permutation and sign flip of the
 columns of the orthomax rotation is as good), so their per-face norms φ_i(f) = |X_i(f)| cannot
 be fed to a learning model column by column. Everything here is a function of the *set*
-{(φ_i(f), energy_i, support_i)} over the fields i, hence invariant to their order and sign;
-everything is intrinsic and computed in the unit-area frame, hence invariant to rigid motions
-and scale; and each column is one number per face, so a renumbering of the vertices or faces
-only permutes the rows.
+{(φ_i(f), energy_i, support_i)} over the fields i, or of the span of the fields, hence
+invariant to their order and sign; everything is intrinsic or rotation-covariant and computed
+in the unit-area frame, hence invariant to rigid motions and scale; and each column is one
+number per face, so a renumbering of the vertices or faces only permutes the rows.
 
 For each field count n of ``counts`` (the first n AKVFs, untangled), with the membership
 p_i(f) = φ_i(f)² / Σ_j φ_j(f)² of face f in field i (a distribution over the n fields):
@@ -66,7 +66,8 @@ from .untangle import DEFAULT_RESTARTS, UntangledFields, untangle
 #: Field counts the descriptors are computed at by default: a few large primitives (8), the
 #: segmentation's usual range (16) and finer ones (32).
 DEFAULT_COUNTS = (8, 16, 32)
-#: Heat-diffusion radii (lengths on the mesh scaled to unit area) of the contrast columns: about
+#: Heat-diffusion radii (lengths on the mesh scaled to unit area) of the contrast and coherence
+#: columns: about
 #: 3 and 10 face widths of a mesh decimated to 4000 faces.
 CONTRAST_RADII = (0.05, 0.15)
 #: Per-count columns other than the contrasts, in output order.
