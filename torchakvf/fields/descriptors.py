@@ -67,8 +67,7 @@ from .untangle import DEFAULT_RESTARTS, UntangledFields, untangle
 #: segmentation's usual range (16) and finer ones (32).
 DEFAULT_COUNTS = (8, 16, 32)
 #: Heat-diffusion radii (lengths on the mesh scaled to unit area) of the contrast and coherence
-#: columns: about
-#: 3 and 10 face widths of a mesh decimated to 4000 faces.
+#: columns: about 3 and 10 face widths of a mesh decimated to 4000 faces.
 CONTRAST_RADII = (0.05, 0.15)
 #: Per-count columns other than the contrasts, in output order.
 BASE_COLUMNS = ("share1", "share2", "share3", "entropy", "log_density", "energy", "part_area")
