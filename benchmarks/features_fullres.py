@@ -54,7 +54,7 @@ def cpu_timed(fn, *a, **k):
 
 
 def ta_side(mesh, n):
-    return face_features(ta.MeshBatch.from_meshes([mesh]), n=n, restarts=8)[0]
+    return face_features(ta.MeshBatch.from_meshes([mesh]), n=n, restarts=8, descriptors=False)[0]
 
 
 def main(argv=None) -> int:

@@ -25,6 +25,9 @@ def test_face_features_on_input_faces_of_a_decimated_mesh():
     assert coarse.descriptors.shape == (len(s.faces), len(coarse.descriptor_names)) == (len(s.faces), 11)
     assert coarse.descriptor_names[0] == "share1@8" and np.isfinite(coarse.descriptors).all()
     assert len(np.unique(coarse.descriptors, axis=0)) <= n_coarse
+    bare = face_features(batch, N, descriptors=False)[0]
+    assert bare.descriptors is None and bare.descriptor_names == []
+    np.testing.assert_array_equal(bare.features, coarse.features)
     # both resolutions find the sphere's three rotations (λ·area near 0, a gap after them)
     for ff in (full, coarse):
         assert np.all(np.abs(ff.eigenvalues[:3]) < 1.0) and ff.eigenvalues[3] > 10.0
