@@ -41,7 +41,6 @@ comparison) is not run.
 """
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import platform
@@ -60,13 +59,12 @@ import torchakvf as ta
 from torchakvf import scipy_reference as ref
 from torchakvf import shapes
 from torchakvf.fields.akvf import KRYLOV_MIN_EDGES, solver_for
-from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
 from torchakvf.mesh.coarse import coarse_mesh
 from torchakvf.solvers import cholmod
 from torchakvf.solvers.factor import mesh_factor
-from timing import write_report
+from timing import psb_parser, write_report
 
 REPO = Path(__file__).resolve().parents[1]
 IDS = [1, 21, 121, 181, 301]
@@ -175,11 +173,7 @@ def gap_bound(lam_ref: np.ndarray, res: np.ndarray, n: int) -> float:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--psb", type=Path, default=default_psb_root())
-    p.add_argument("--ids", type=int, nargs="+", default=IDS)
-    p.add_argument("--n", type=int, default=32)
-    p.add_argument("--repeat", type=int, default=2, help="rounds, best kept (default 2)")
+    p = psb_parser(__doc__.split("\n")[0], IDS, REPO / "benchmarks" / "results" / "akvf_fullres.md")
     p.add_argument("--decimate", type=int, default=4000,
                    help="also time coarse_mesh(cleaned mesh, faces) alone (0: skip; default 4000)")
     p.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
@@ -193,7 +187,6 @@ def main(argv=None) -> int:
     p.add_argument("--fresh", type=int, default=2,
                    help="fresh processes per side for the batched row (default 2; 0: only the "
                         "in-process figure, e.g. on a GPU machine's short budget)")
-    p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "akvf_fullres.md")
     args = p.parse_args(argv)
     dev = torch.device(args.device)
     if dev.type == "cuda" and args.clock != "wall":

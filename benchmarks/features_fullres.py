@@ -25,7 +25,6 @@ Usage::
 """
 from __future__ import annotations
 
-import argparse
 import platform
 import sys
 import time
@@ -40,8 +39,8 @@ sys.path.insert(0, str(REPO))
 
 import torchakvf as ta  # noqa: E402
 from torchakvf import scipy_reference as ref  # noqa: E402
-from torchakvf.evaluate.psb import default_psb_root  # noqa: E402
 from torchakvf.interop import face_features  # noqa: E402
+from timing import psb_parser  # noqa: E402
 from torchakvf.mesh.clean import clean_mesh  # noqa: E402
 
 IDS = [1, 21, 121, 181, 301]
@@ -58,12 +57,7 @@ def ta_side(mesh, n):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--psb", type=Path, default=default_psb_root())
-    p.add_argument("--ids", type=int, nargs="+", default=IDS)
-    p.add_argument("--n", type=int, default=32)
-    p.add_argument("--repeat", type=int, default=2, help="rounds, best kept (default 2)")
-    p.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "features_fullres.md")
+    p = psb_parser(__doc__.split("\n")[0], IDS, REPO / "benchmarks" / "results" / "features_fullres.md")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     if args.psb is None or not args.psb.is_dir():

@@ -11,6 +11,21 @@ import warnings
 from pathlib import Path
 
 
+def psb_parser(description: str, ids, out: Path):
+    """The full-resolution benchmarks' common command line: --psb, --ids, --n, --repeat, --out."""
+    import argparse
+
+    from torchakvf.evaluate.psb import default_psb_root
+
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--psb", type=Path, default=default_psb_root())
+    p.add_argument("--ids", type=int, nargs="+", default=list(ids))
+    p.add_argument("--n", type=int, default=32)
+    p.add_argument("--repeat", type=int, default=2, help="rounds, best kept (default 2)")
+    p.add_argument("--out", type=Path, default=out)
+    return p
+
+
 def best_of(fn, repeat: int, clock=time.perf_counter):
     """(seconds of the fastest of ``repeat`` calls of ``fn()`` on ``clock``, the last call's
     result). ``clock=time.process_time`` times this process's CPU alone, which the other jobs

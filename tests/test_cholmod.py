@@ -114,8 +114,8 @@ def test_shifted_factor_same_shift_and_solution_on_both_paths():
         before = ShiftedFactor(torch.from_numpy(rows), torch.from_numpy(cols), vals, mass)
     assert cholmod.library() is not None
     assert direct.sigma == before.sigma == -8.0
-    assert isinstance(direct._solver, cholmod.CholmodFactor)
-    assert not isinstance(before._solver, cholmod.CholmodFactor)
+    assert isinstance(direct.backend, cholmod.CholmodFactor)
+    assert not isinstance(before.backend, cholmod.CholmodFactor)
     rhs = torch.from_numpy(rng.standard_normal((n, 3)))
     want = np.linalg.solve(dense + 8.0 * np.eye(n), rhs.numpy())     # condition (58 / 3) ~ 20
     for f in (direct, before):

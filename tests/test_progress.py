@@ -19,7 +19,7 @@ def test_non_terminal_stream_gives_throttled_log_lines(caplog, monkeypatch):
     stream = io.StringIO()
     with caplog.at_level(logging.INFO, logger="torchakvf.progress"):
         with P.progress(total=5, desc="eval", unit="meshes", stream=stream) as bar:
-            assert bar._bar is None
+            assert bar.bar is None
             for i in range(5):
                 bar.update(1, note=f"mesh {i}")
             bar.write("a whole line")
@@ -36,15 +36,15 @@ def test_terminal_stream_gets_a_tqdm_bar(caplog):
     stream = _FakeTTY()
     with caplog.at_level(logging.INFO, logger="torchakvf.progress"):
         with P.progress(total=4, desc="features", unit="meshes", stream=stream) as bar:
-            assert bar._bar is not None
+            assert bar.bar is not None
             bar.update(3, note="three")
-            assert bar._bar.n == 3                              # the bar counts what was done
+            assert bar.bar.n == 3                              # the bar counts what was done
             bar.write("between bars")
     out = stream.getvalue()
     assert "features" in out and "between bars\n" in out
     assert "0/4" in out                                        # tqdm drew its bar on the stream
     assert not [r for r in caplog.records if r.name == "torchakvf.progress"]   # no log lines
-    assert bar._bar is None                                    # closed on exit
+    assert bar.bar is None                                    # closed on exit
 
 
 def test_disabled_reports_nothing(caplog):

@@ -61,7 +61,7 @@ BAD_FILES = {
     "cut_ascii": ("c.stl", _ascii(_FACET)[:-40], r"truncated: the file ends inside line 6 \(facet 0\)"),
     "cut_at_line_end": ("ce.stl", _ascii(_FACET)[:-45], r"truncated: the file ends inside facet 0 \(line 2\)"),
     "no_endsolid": ("n.stl", "solid t\n" + _FACET, r"truncated: the file ends inside a solid, after 1 facets"),
-    "word": ("w.stl", _ascii(_FACET.replace("vertex 1 0 0", "vertex 1 x 0")), r"facet 0: vertex coordinate 'x' is not a number"),
+    "word": ("w.stl", _ascii(_FACET.replace("vertex 1 0 0", "vertex 1 x 0")), r"facet 0: 'x' is not a number"),
     "stray_line": ("s.stl", _ascii(_FACET.replace(" endloop", " color 1\n endloop")),
                    r"line 7: 'color 1' where the STL grammar expects 'endloop' or 'vertex' \(facet 0\)"),
     "short_vertex": ("sv.stl", _ascii(_FACET.replace("vertex 1 0 0", "vertex 1 0")), r"line 5: vertex of facet 0 does not hold 3"),

@@ -37,6 +37,11 @@ class Progress:
             self._bar = tqdm(total=self.total, desc=desc, unit=unit, file=self._stream,
                              dynamic_ncols=True, leave=False, unit_scale=self.total > 10_000)
 
+    @property
+    def bar(self):
+        """The terminal's tqdm bar while it is open, else None (a log line every few seconds)."""
+        return self._bar
+
     def update(self, n: int = 1, note: str = "") -> None:
         """Adds ``n`` units done; ``note`` says what was just finished."""
         self.done += int(n)

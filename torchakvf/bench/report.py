@@ -67,7 +67,7 @@ def _f(v, digits=2) -> str:
 _DESCRIPTIONS = {
     "batched": "torchakvf, harness path, batches of <= {bf} faces, every selected mesh",
     "one_at_a_time": "torchakvf, harness path, face budget 1 (one mesh per batch), baseline subset",
-    "scipy": ("torchakvf/scipy_reference.py: eigsh once per mesh + numpy untangle + numpy k-means "
+    "scipy": ("torchakvf/scipy_reference/: eigsh once per mesh + numpy untangle + numpy k-means "
               "per k (load and clean-up: torchakvf's)"),
     "batched_subset": "torchakvf, batches of <= {bf} faces, the meshes compared with the baselines",
 }

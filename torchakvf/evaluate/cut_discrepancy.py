@@ -13,17 +13,7 @@ from .metric_inputs import as_mesh, check_face_count, label_pair
 
 
 def mesh_face_areas(vertices, faces) -> np.ndarray:
-    """Area of every triangle.
-
-    Parameters
-    ----------
-    vertices : array [V, 3], float
-    faces : array [F, 3], int
-
-    Returns
-    -------
-    array [F], float64
-    """
+    """[F] float64 area of every triangle of ``vertices`` [V, 3] float, ``faces`` [F, 3] int."""
     v, f = as_mesh(vertices, faces)
     return triangle_areas(v, f)
 

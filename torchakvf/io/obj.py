@@ -15,6 +15,7 @@ import re
 import numpy as np
 
 from ..errors import MeshError
+from .tokens import as_float_array
 
 _KEYWORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 _CORNER = re.compile(r"([+-]?\d+)(?:/([+-]?\d*)(?:/([+-]?\d*))?)?\Z")
@@ -83,16 +84,7 @@ def parse_obj(raw: bytes, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _vertices(rows: list[list[str]], name: str) -> np.ndarray:
-    try:
-        return np.array(rows, dtype=np.float64)
-    except (ValueError, OverflowError):
-        for i, row in enumerate(rows):
-            for t in row:
-                try:
-                    float(t)
-                except ValueError:
-                    raise MeshError(name, f"vertex {i + 1}: {t!r} is not a number") from None
-        raise
+    return as_float_array(rows, name, "vertex", first=1)
 
 
 def _faces(corners: list[list[str]], where: list, counts: dict, name: str) -> np.ndarray:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import MeshError
+from .tokens import as_float_array
 
 HEADER_BYTES = 84
 TRIANGLE_BYTES = 50
@@ -141,17 +142,7 @@ def read_ascii_lines(text: str, name: str) -> np.ndarray:
                                  else f"a solid, after {len(corners)} facets, without 'endsolid'"))
     if not corners:
         raise MeshError(name, "no triangles found in this STL file (no facets)")
-    try:
-        return np.array(corners, dtype=np.float64)
-    except ValueError:
-        for f, facet in enumerate(corners):
-            for corner in facet:
-                for t in corner:
-                    try:
-                        float(t)
-                    except ValueError:
-                        raise MeshError(name, f"facet {f}: vertex coordinate {t!r} is not a number") from None
-        raise
+    return as_float_array(corners, name, "facet")
 
 
 #: The keywords each state of the ASCII grammar takes, and the state each keyword leads to.

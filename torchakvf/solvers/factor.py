@@ -36,6 +36,12 @@ class ShiftedFactor:
     ``solve(rhs)`` returns (R_b - σ S1_b)^{-1} rhs for rhs [E, k] on the factor's device.
     """
 
+    @property
+    def backend(self):
+        """The factorization object that solves: a :class:`~torchakvf.solvers.cholmod.CholmodFactor`
+        on the CPU where the CHOLMOD library loads, else cholespy's."""
+        return self._solver
+
     def __init__(self, rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor,
                  mass: torch.Tensor, name: str = "mesh", shifts=None):
         shifts = SHIFTS if shifts is None else tuple(shifts)
