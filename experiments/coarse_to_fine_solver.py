@@ -8,7 +8,7 @@ Per PSB mesh (cleaned, full resolution), one thread, process CPU time:
 2. **The coarse stage** a refinement would pay first: ``coarse_mesh(mesh, --coarse)``
    (decimation + surface map), ``ta.akvf`` on it with n + 16 fields, and the prolongation
    ``P`` [E_fine, E_coarse]: each fine edge i->j takes the coarse Whitney field at its midpoint
-   (located on the coarse surface) dotted with p_j - p_i (akvf-math.md, Sec. 2).
+   (located on the coarse surface) dotted with p_j - p_i (docs/akvf_operator.md, Sec. 2).
 3. **How good the prolonged fields are**: cosines of the S1-principal angles between their span
    and the fine eigenvectors (first 8, 16, 24, 32), and their Rayleigh quotients after a
    Rayleigh-Ritz on the fine (R, S1).
