@@ -13,7 +13,7 @@ unit area). Label = category, known from the mesh id (no segmentation is read). 
   (lumped mass), log;
 * **AKVF pooled + spectrum + ShapeDNA**;
 * **AKVF histograms** (spectrum + area-weighted histograms of the untangled φ at 32 fields,
-  ``classify_psb.py``'s descriptor, recomputed from the same cache) and a **trivial** descriptor
+  the earlier AKVF histogram descriptor (Killing spectrum + histograms of the untangled features), recomputed from the same cache) and a **trivial** descriptor
   (log face/vertex counts, extent ratios, components).
 
 Model: multinomial logistic regression (L2 1e-2, full-batch L-BFGS in torch) on standardized
@@ -73,7 +73,7 @@ def shapedna(d: dict) -> np.ndarray:
 
 
 def histograms(d: dict) -> np.ndarray:
-    """``classify_psb.py``'s AKVF descriptor: spectrum + histograms of φ at 32 fields."""
+    """The earlier AKVF descriptor: spectrum + histograms of φ at 32 fields."""
     phi = d["phi32"].astype(np.float64)
     a = d["area"] / d["area"].sum()
     rel = phi / np.maximum(phi.max(axis=0, keepdims=True), 1e-300)
@@ -90,7 +90,7 @@ ROWS = {
     "AKVF pooled + Killing spectrum": lambda d: np.concatenate([pooled(d), spectrum(d)]),
     "ShapeDNA (cotan Laplacian spectrum)": shapedna,
     "AKVF pooled + spectrum + ShapeDNA": lambda d: np.concatenate([pooled(d), spectrum(d), shapedna(d)]),
-    "AKVF histograms (classify_psb.py's descriptor)": histograms,
+    "AKVF histograms (the earlier descriptor)": histograms,
     "trivial (counts, extents)": lambda d: d["trivial"],
 }
 
