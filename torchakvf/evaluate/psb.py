@@ -1,6 +1,6 @@
 """Access to the Princeton Segmentation Benchmark (PSB) data set on disk.
 
-Layout (as prepared by ``datasets_scripts/prepare_psb.py``; see ``/work/shared/psb/README.md``)::
+Layout (as prepared by ``datasets_scripts/prepare_psb.py``; see the README beside the data, e.g. ``../shared/psb/README.md``)::
 
     <root>/meshes/N.off[.gz]        N = 1..400 (Spring, 261..280, is not in the benchmark)
     <root>/gt/N/N_k.seg[.gz]        human segmentation k of mesh N, k = 0, 1, ...
