@@ -20,12 +20,11 @@ Model: multinomial logistic regression (L2 1e-2, full-batch L-BFGS in torch) on 
 descriptors (training-fold statistics); stratified 5-fold cross-validation, seed 0; accuracy
 mean ± std over the folds. Run::
 
-    PYTHONPATH=$PWD nice -n 5 python benchmarks/classify_descriptors.py --cache /work/features_cache \\
+    PYTHONPATH=$PWD nice -n 5 python benchmarks/classify_descriptors.py --cache DIR \\
         --out benchmarks/results/classify_descriptors
 """
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
@@ -136,11 +135,8 @@ def cross_validate(x: np.ndarray, y: np.ndarray, folds: np.ndarray) -> list[floa
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--psb", default="/work/shared/psb")
-    ap.add_argument("--cache", default="/work/features_cache")
+    ap = descriptor_pass.cache_parser(__doc__.split("\n")[0])
     ap.add_argument("--out", default="benchmarks/results/classify_descriptors")
-    ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(args.threads)

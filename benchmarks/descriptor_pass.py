@@ -17,7 +17,7 @@ a mesh whose decimated solve fails is solved at full resolution, as segmentation
 Meshes with human segmentations are visited first, category-interleaved (1st mesh of every
 category, then the 2nd, ...), so a pass stopped early covers every category about equally. Run::
 
-    PYTHONPATH=$PWD nice -n 5 python benchmarks/descriptor_pass.py --cache /work/features_cache
+    PYTHONPATH=$PWD nice -n 5 python benchmarks/descriptor_pass.py --cache DIR
 """
 from __future__ import annotations
 
@@ -185,11 +185,20 @@ def load_all(psb: str, cache: Path, compute: bool = True,
     return data, missing
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--psb", default="/work/shared/psb")
-    ap.add_argument("--cache", default="/work/features_cache")
+def cache_parser(description: str) -> argparse.ArgumentParser:
+    """The descriptor benchmarks' common command line: --psb, --cache (required), --threads."""
+    from torchakvf.evaluate.psb import default_psb_root
+
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--psb", default=default_psb_root(),
+                    help="the PSB folder (default: $TORCHAKVF_PSB, else ../shared/psb)")
+    ap.add_argument("--cache", required=True, help="folder of the cached per-mesh descriptors")
     ap.add_argument("--threads", type=int, default=1)
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = cache_parser(__doc__.split("\n")[0])
     ap.add_argument("--reverse", action="store_true",
                     help="visit the meshes in the opposite order (a second worker on the same cache)")
     args = ap.parse_args(argv)

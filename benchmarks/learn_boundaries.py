@@ -21,12 +21,11 @@ stopping, no per-fold choices.
 
 Run (descriptors cached by ``descriptor_pass.py`` first)::
 
-    PYTHONPATH=$PWD nice -n 5 python benchmarks/learn_boundaries.py --cache /work/features_cache \\
+    PYTHONPATH=$PWD nice -n 5 python benchmarks/learn_boundaries.py --cache DIR \\
         --out benchmarks/results/learn_boundaries
 """
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
@@ -162,11 +161,8 @@ def report(result: dict) -> list[str]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--psb", default="/work/shared/psb")
-    ap.add_argument("--cache", default="/work/features_cache")
+    ap = descriptor_pass.cache_parser(__doc__.split("\n")[0])
     ap.add_argument("--out", default="benchmarks/results/learn_boundaries")
-    ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--rows", default=None, help="comma-separated row indices (default: all)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
