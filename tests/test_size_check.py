@@ -26,3 +26,9 @@ def test_a_cube_asked_for_too_many_fields():
                          subdivide_hint="use --subdivide")
     with pytest.raises(ParameterError, match=r"too few for 30 fields"):
         check_fields_fit("cube.off", np.asarray(box.faces), 30)
+
+
+def test_the_features_command_names_its_own_option():
+    box = trimesh.creation.box()
+    with pytest.raises(ParameterError, match=r"too few for 32 fields: .* edges; use a smaller --n or subdivide it"):
+        check_fields_fit("cube.off", box.faces, 32, fewer_hint="use a smaller --n")

@@ -12,19 +12,22 @@ from .clean import undirected_edges
 
 def check_fields_fit(name: str, faces: np.ndarray, n_fields: int, *, k: int | None = None,
                      fields_for_k: Callable[[int], int] | None = None,
-                     subdivide_hint: str = "subdivide it (torchakvf.mesh.subdivide)") -> None:
+                     subdivide_hint: str = "subdivide it (torchakvf.mesh.subdivide)",
+                     fewer_hint: str = "use a smaller k") -> None:
     """Raise :class:`ParameterError` with what the user can do when ``faces`` [F, 3] (the
     cleaned mesh's) have no more edges than ``n_fields`` (the eigensolvers need fewer fields than edges).
 
     k : the parts asked for, named in the message; fields_for_k : the field count each k
         needs, to name the largest k this mesh can take; subdivide_hint : how the user asks
-        for a subdivision (the library's function by default; a command names its option).
+        for a subdivision (the library's function by default; a command names its option);
+        fewer_hint : how the user asks for fewer fields (a smaller k by default; the features
+        command's ``--n``).
     """
     n_edges = len(undirected_edges(np.asarray(faces)).unique)
     if n_fields < n_edges:
         return
     what = f"k={k} (needs {n_fields} fields)" if k is not None else f"{n_fields} fields"
-    remedy = f"use a smaller k or {subdivide_hint}"
+    remedy = f"{fewer_hint} or {subdivide_hint}"
     if k is not None and fields_for_k is not None:
         fit = [j for j in range(1, int(k)) if fields_for_k(j) < n_edges]
         remedy = f"use k <= {max(fit)} or {subdivide_hint}" if fit else subdivide_hint

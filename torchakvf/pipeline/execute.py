@@ -102,18 +102,6 @@ def _load(it: Item, task, out_dir: Path) -> bool:
     return True
 
 
-def require_edges(item: Item, n: int, what: str) -> None:
-    """A task's ``validate`` check: ``n`` fields need more than ``n`` edges on the cleaned mesh,
-    as the eigensolvers do (``what`` names the option in the error, e.g. ``"--n 32 fields asked for"``)."""
-    from ..errors import ParameterError
-    from ..mesh.batch import mesh_edges
-
-    n_edges = len(mesh_edges(item.clean.faces)[0])
-    if n >= n_edges:
-        raise ParameterError(f"{item.path}: {what} but the mesh has only {n_edges} edges "
-                             "(it takes fewer fields than it has edges)")
-
-
 def output_record(rec: dict, task, out_dir: Path, stem: str) -> dict:
     """Adds each output's fingerprint (name: size, sha256), which resume checks."""
     rec["outputs"] = {p.name: file_fingerprint(p) for p in task.output_paths(out_dir, stem)}
@@ -216,5 +204,4 @@ def run_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> list
     return records
 
 
-__all__ = ["Item", "process_batch", "run_batch", "base_record", "failed_record",
-           "require_edges"]
+__all__ = ["Item", "process_batch", "run_batch", "base_record", "failed_record"]

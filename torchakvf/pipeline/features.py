@@ -130,9 +130,9 @@ class FeaturesTask:
                                  f"more than the {self.memory_bytes / 2**30:.1f} GB of memory; {fix}")
 
     def validate(self, item) -> None:
-        from .execute import require_edges
+        from ..mesh.size_check import check_fields_fit
 
-        require_edges(item, self.n, f"--n {self.n} fields asked for")
+        check_fields_fit(str(item.path), item.clean.faces, self.n, fewer_hint="use a smaller --n")
 
     def process(self, items, device):
         from ..fields import akvf, untangle
