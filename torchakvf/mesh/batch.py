@@ -17,7 +17,7 @@ import torch
 
 from ..devices import resolve_device
 from ..errors import MeshError, ParameterError
-from .clean import CleanMesh, clean_mesh
+from .clean import CleanMesh, clean_mesh, undirected_edges
 from .coarse import CoarseMesh, coarse_mesh
 from .mesh import Mesh
 
@@ -39,15 +39,9 @@ def mesh_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     face_edges : [F, 3] int64, edge k of face (v0, v1, v2) joins v_k -> v_{k+1}
     face_edge_sign : [F, 3] float64, +1 where v_k -> v_{k+1} agrees with the edge's orientation
     """
-    tail = faces
-    head = np.roll(faces, -1, axis=1)
-    lo, hi = np.minimum(tail, head), np.maximum(tail, head)
-    n = int(faces.max()) + 1
-    key = (lo * n + hi).ravel()
-    ukey, inverse = np.unique(key, return_inverse=True)
-    edges = np.stack([ukey // n, ukey % n], axis=1)
-    sign = np.where(tail < head, 1.0, -1.0)
-    return edges, inverse.reshape(-1, 3), sign
+    table = undirected_edges(faces)     # half-edge k of face f is row 3f + k
+    sign = np.where(faces < np.roll(faces, -1, axis=1), 1.0, -1.0)
+    return table.unique, table.inverse.reshape(-1, 3), sign
 
 
 @dataclass
