@@ -193,6 +193,10 @@ class SegmentOptions:
     #: the eigensolver of the AKVFs: "auto" (each mesh's fastest), "lanczos", "krylov" or
     #: "lobpcg" (:func:`torchakvf.fields.akvf.akvf`)
     solver: str = "auto"
+    #: solve each batch's AKVFs as one batch, as on an accelerator (True), or one mesh at a time
+    #: (False); None: the device's way (one at a time on the CPU, as one elsewhere; see
+    #: :class:`~torchakvf.solvers.AKVFSolver`). Labels agree either way up to round-off.
+    batched: bool | None = None
     #: the segmentation method, one of :data:`METHODS`; default :data:`DEFAULT_METHOD`
     method: str = DEFAULT_METHOD
     #: the merge cost and over-segmentation of method "merge" (:class:`MergeWeights`; None: the

@@ -14,7 +14,7 @@ from .akvf_result import AKVFResult
 
 def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str = DEFAULT_REMEDY,
          boundary_correction: bool = True, max_iter: int = 60, solver: str = "auto",
-         device=None, **removed) -> AKVFResult:
+         device=None, batched: bool | None = None, **removed) -> AKVFResult:
     """The n smallest approximate Killing vector fields of each mesh.
 
     Parameters
@@ -38,6 +38,9 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
         :data:`KRYLOV_MIN_EDGES` edges, Lanczos below)
     device : device of the batch built from Mesh inputs (a MeshBatch given is moved there);
         default: the batch's own, "cpu" for meshes
+    batched : solve the batch as one, as on an accelerator (True), or one mesh at a time
+        (False); default: one at a time on the CPU, as one elsewhere (see
+        :class:`~torchakvf.solvers.akvf_solver.AKVFSolver`)
 
     Work runs on the batch's device; the operator and solve are float64 whatever the
     coordinates' dtype, and results are returned in the batch's dtype.
@@ -55,7 +58,7 @@ def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str =
     if removed:
         raise TypeError(f"akvf() got an unexpected keyword argument {next(iter(removed))!r}")
     return AKVFSolver(meshes, remedy=remedy, boundary_correction=boundary_correction, solver=solver,
-                      device=device, full_resolution_fallback=False).solve(n, tol=tol, seed=seed,
+                      device=device, batched=batched, full_resolution_fallback=False).solve(n, tol=tol, seed=seed,
                                                                             max_iter=max_iter)
 
 

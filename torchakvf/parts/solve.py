@@ -15,7 +15,8 @@ def solve_akvfs(batch: MeshBatch, n: int, opts: SegmentOptions) -> tuple[AKVFRes
     """The n smallest AKVFs of every mesh of the batch, once for every k: (result, [(mesh index,
     why it was solved at full resolution)]), by an :class:`~torchakvf.solvers.AKVFSolver` that
     solves at full resolution a decimated mesh that cannot be solved (``fell_back``)."""
-    solver = AKVFSolver(batch, remedy=opts.remedy, solver=opts.solver, full_resolution_fallback=True)
+    solver = AKVFSolver(batch, remedy=opts.remedy, solver=opts.solver, batched=opts.batched,
+                        full_resolution_fallback=True)
     return solver.solve(int(n), tol=AKVF_TOL, seed=opts.seed), solver.fell_back
 
 

@@ -66,7 +66,13 @@ SPURIOUS_SOLVES = 4
 KRYLOV_MIN_EDGES = 4000
 
 
-def solver_for(device: torch.device, edges: int | None = None) -> str:
+def batched_by_default(device) -> bool:
+    """Whether a batch on ``device`` is solved as one batch when the caller does not say:
+    everywhere but on the device types of :data:`ONE_MESH_AT_A_TIME_ON`."""
+    return torch.device(device).type not in ONE_MESH_AT_A_TIME_ON
+
+
+def solver_for(device: torch.device, edges: int | None = None, batched: bool | None = None) -> str:
     """The eigensolver "auto" picks for a mesh of ``edges`` edges on ``device``: on CPU the block
     Krylov solver from :data:`KRYLOV_MIN_EDGES` edges on (and when ``edges`` is not given),
     Lanczos below; the batched LOBPCG elsewhere.
@@ -78,9 +84,10 @@ def solver_for(device: torch.device, edges: int | None = None) -> str:
     than ARPACK's single-vector steps (see :data:`KRYLOV_MIN_EDGES`). LOBPCG's dense
     Rayleigh-Ritz work (bases of 3·(n + guard) columns, every column solved each iteration) is
     the slowest of the three on CPU. On a GPU the block method's batched dense work is what the
-    device is good at, and ARPACK does not run there.
+    device is good at, and ARPACK does not run there. A batch solved as one (``batched``) takes
+    the batched LOBPCG on any device: the accelerator's path.
     """
-    if torch.device(device).type != "cpu":
+    if torch.device(device).type != "cpu" or batched:
         return "lobpcg"
     return "krylov" if edges is None or edges >= KRYLOV_MIN_EDGES else "lanczos"
 
@@ -146,6 +153,10 @@ class AKVFSolver:
         shift-invert, CPU, one mesh at a time), "krylov" (block shift-invert Krylov, one mesh at
         a time) or "auto" (:func:`solver_for`, decided per mesh)
     device : device of the batch built from Mesh inputs (a MeshBatch given is moved there)
+    batched : solve the batch as one (one operator, the batched LOBPCG for "auto"), as on an
+        accelerator, or one mesh at a time (each mesh as a batch of its own); default
+        (None): :func:`batched_by_default` for the batch's device (one at a time on the CPU).
+        ``batched=True`` on the CPU runs the accelerator's path there.
     full_resolution_fallback : on a :class:`SolverError`, find the decimated meshes
         (``MeshBatch.from_meshes(coarse_faces=)``) that cannot be solved, each alone, and solve
         the batch again with those at full resolution (:attr:`fell_back` lists them; ``batch``
@@ -157,13 +168,15 @@ class AKVFSolver:
     """
 
     def __init__(self, meshes, *, remedy: str = DEFAULT_REMEDY, boundary_correction: bool = True,
-                 solver: str = "auto", device=None, full_resolution_fallback: bool = True):
+                 solver: str = "auto", device=None, batched: bool | None = None,
+                 full_resolution_fallback: bool = True):
         if solver not in SOLVERS:
             raise ParameterError(f"solver must be one of {SOLVERS}, got {solver!r}")
         if remedy not in REMEDIES:
             raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
         self.remedy, self.boundary_correction, self.solver = remedy, boundary_correction, solver
         self.full_resolution_fallback = full_resolution_fallback
+        self._batched = batched
         #: [(mesh index, error text)] of the meshes solved at full resolution because their
         #: decimated version could not be solved
         self.fell_back: list[tuple[int, str]] = []
@@ -172,17 +185,19 @@ class AKVFSolver:
     def _use(self, batch: MeshBatch) -> None:
         """Solve ``batch`` from now on (nothing built for another batch is kept)."""
         self.batch = batch
+        #: whether the batch is solved as one (else one mesh at a time)
+        self.batched = batched_by_default(batch.device) if self._batched is None else bool(self._batched)
         self.edges: list[int] = (batch.edge_ptr[1:] - batch.edge_ptr[:-1]).tolist()
         #: the eigensolver of each mesh ("auto" decides per mesh, by its size)
-        self.solvers: list[str] = [solver_for(batch.device, e) if self.solver == "auto" else self.solver
+        self.solvers: list[str] = [solver_for(batch.device, e, self.batched) if self.solver == "auto" else self.solver
                                    for e in self.edges]
         self._factors: dict[int, ShiftedFactor] = {}
         self._interior: dict[tuple[int, int], object] = {}
         self._system: KillingSystem | None = None
         self._alone: list[AKVFSolver] | None = None
-        if len(batch) > 1 and batch.device.type in ONE_MESH_AT_A_TIME_ON:
+        if len(batch) > 1 and not self.batched:
             self._alone = [AKVFSolver(batch.mesh(b), remedy=self.remedy, solver=self.solver,
-                                      boundary_correction=self.boundary_correction,
+                                      boundary_correction=self.boundary_correction, batched=False,
                                       full_resolution_fallback=False) for b in range(len(batch))]
         else:
             self._system = killing_operator(batch, boundary_correction=self.boundary_correction,
@@ -235,7 +250,8 @@ class AKVFSolver:
                                           dtype=self.batch.dtype)
             try:
                 AKVFSolver(alone, remedy=self.remedy, boundary_correction=self.boundary_correction,
-                           solver=self.solver, full_resolution_fallback=False)._solve(settings)
+                           solver=self.solver, batched=self.batched,
+                           full_resolution_fallback=False)._solve(settings)
             except SolverError as exc:
                 failed.append((b, str(exc)))
         return failed
@@ -323,9 +339,9 @@ class AKVFSolver:
                                     factors=[self.factor(b) for b in group] if cpu else None)
 
     def _lobpcg(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
-        # Where LOBPCG takes one factor per mesh, the solver's own are passed (and kept); where
-        # it takes one block-diagonal factor of the batch (lobpcg.BLOCK_FACTOR_ON), it makes it.
-        per_mesh = self.batch.device.type not in lobpcg.BLOCK_FACTOR_ON
+        # Where LOBPCG takes one factor per mesh, the solver's own are passed (and kept); a batch
+        # solved as one takes one block-diagonal factor of the batch (as on lobpcg.BLOCK_FACTOR_ON).
+        per_mesh = not self.batched
         return segmented_lobpcg(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
                                 names=self._names(group), max_iter=settings.max_iter,
                                 factors=[self.factor(b) for b in group] if per_mesh else None)
