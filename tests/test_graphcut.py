@@ -18,7 +18,6 @@ from torchakvf.parts.graphcut import GraphCut, allowed_labels, energy, graphcut_
 from torchakvf.parts.topology import face_adjacency
 from helpers.partitions import sphere_labels
 
-pytest.importorskip("gco", reason="gco-wrapper (a dependency: pip install -e .) not installed")
 
 
 def _brute(unary, pairs, w):
@@ -293,9 +292,10 @@ def test_graphcut_hands_gco_the_full_size_construction(monkeypatch, seed, k):
     opts = gc.GraphCut(smoothness=2.0, band=2)
     seen = []
 
-    def record(unary, pairs, weights, cycles, allowed=None):
+    def record(unary, pairs, weights, cycles, allowed=None, engine=None, initial=None):
         seen.append((unary.copy(), pairs.copy(), weights.copy()))
         assert allowed is not None and allowed.shape == unary.shape and (allowed.sum(axis=1) > 1).all()
+        assert engine == opts.engine and allowed[np.arange(len(unary)), initial].all()
         return np.argmin(unary, axis=1)                              # any labelling will do here
 
     monkeypatch.setattr(gc, "potts_expansion", record)

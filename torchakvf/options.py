@@ -67,6 +67,10 @@ PART_FLOOR_OF_MEAN = 0.25
 #: Alpha-expansion cycles of the graph cut (each tries every label once; -1: until no expansion
 #: lowers the energy): the cycles past the second change little and cost as much.
 EXPANSION_CYCLES = 2
+#: Solvers of the graph cut's alpha-expansion: "scipy" (minimum cuts from
+#: scipy.sparse.csgraph.maximum_flow, BSD; the default) or "gco" (gco-wrapper, an optional
+#: extra licensed for research use only; the same labels).
+GRAPHCUT_ENGINES = ("scipy", "gco")
 
 
 def is_int(value, minimum: int) -> bool:
@@ -145,6 +149,8 @@ class GraphCut:
     band: int = 6
     #: alpha-expansion cycles (>= 1, or -1: until no expansion lowers the energy)
     cycles: int = EXPANSION_CYCLES
+    #: the alpha-expansion's solver, one of :data:`GRAPHCUT_ENGINES` (the same labels)
+    engine: str = "scipy"
 
     def __post_init__(self):
         if not self.smoothness >= 0 or not self.beta >= 0:
@@ -155,6 +161,8 @@ class GraphCut:
             raise ParameterError(f"graph cut band must be an integer >= 0, got {self.band!r}")
         if not (isinstance(self.cycles, (int, np.integer)) and (self.cycles >= 1 or self.cycles == -1)):
             raise ParameterError(f"graph cut cycles must be an integer >= 1, or -1 (until converged), got {self.cycles!r}")
+        if self.engine not in GRAPHCUT_ENGINES:
+            raise ParameterError(f"graph cut engine must be one of {GRAPHCUT_ENGINES}, got {self.engine!r}")
 
 
 def graphcut_option(graphcut) -> GraphCut | None:
@@ -302,4 +310,4 @@ def segment_options(options: SegmentOptions | None = None, **overrides) -> Segme
 __all__ = ["SegmentOptions", "MergeWeights", "GraphCut", "segment_options", "graphcut_option", "METHODS",
            "DEFAULT_METHOD", "BOUNDARIES", "DEFAULT_REMEDY", "SEGMENT_UNTANGLE_RESTARTS",
            "KMEANS_RESTARTS_BY_METHOD", "KMEANS_MAX_ITER", "FIELDS_PER_PART", "FIELDS_STEP", "FIELD_COUNT_RANGE",
-           "SPARE_FIELDS", "CLUSTER_GAP", "MIN_PART_FRACTION", "PART_FLOOR_OF_MEAN", "EXPANSION_CYCLES"]
+           "SPARE_FIELDS", "CLUSTER_GAP", "MIN_PART_FRACTION", "PART_FLOOR_OF_MEAN", "EXPANSION_CYCLES", "GRAPHCUT_ENGINES"]

@@ -12,14 +12,21 @@ reference implementation (gco), so that on the same integer terms the labels are
   labels whose expansion succeeded are retried first, until no expansion lowers the energy);
 * an expansion on α is a binary problem over the sites not labelled α (x = 0: take α, x = 1:
   keep); its minimum cut is exact, and among several minimizers the one where the most sites
-  take α is chosen: the sites that cannot reach the sink in the residual graph of a maximum flow
-  take α (that set is the same for every maximum flow and every graph of the same binary energy);
+  take α is chosen (the union of every minimizer's α sites: minimum cuts form a lattice): the
+  sites that cannot reach the sink in the residual graph of a maximum flow take α;
 * the move is kept only if it lowers the energy strictly.
 
 Sites are split into groups that share no pair (connected components), each with its own ordered
 list of labels; the groups' moves are independent, so the k-th expansion of every group is solved
 in one maximum flow. Terms are integers (int64 sums; each capacity must fit in int32, which the
 callers' scaling to at most 10⁶ per term keeps), so equal energies compare exactly.
+
+What makes it fast without changing a label (each step is exact, see the functions):
+an expansion is skipped where it cannot move anything (the group's labels did not change since
+its last expansion on α; a two-label group after its first expansion, which is the exact
+optimum); sites whose data term outweighs all their pairs are decided before the flow (they are
+most of a band); the graph is built straight into CSR with every reverse arc present, so the
+residual and its reachability are array operations on the flow's own layout.
 """
 from __future__ import annotations
 
@@ -42,7 +49,8 @@ def potts_energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weigh
 
 
 def potts_alpha_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray, cycles: int = 2,
-                          groups: np.ndarray | None = None, group_labels: list | None = None) -> np.ndarray:
+                          groups: np.ndarray | None = None, group_labels: list | None = None,
+                          initial: np.ndarray | None = None) -> np.ndarray:
     """Labels [F] int64 that minimize the Potts energy locally, by alpha-expansion.
 
     unary : [F, k] integers >= 0; pairs : [P, 2] site pairs, pairs[:, 0] < pairs[:, 1], each
@@ -51,6 +59,8 @@ def potts_alpha_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndar
     groups, group_labels : optional [F] group of each site (no pair joins two groups) and, per
         group, the labels it may take in the order they are tried (int arrays; a group with none
         gets label 0). Default: one group over every label 0..k-1.
+    initial : optional [F] labels to start from (each among its group's labels; gco's
+        ``init_label_at_site``); default: every site at its group's first label.
     """
     unary = np.asarray(unary, dtype=np.int64)
     n, k = unary.shape
@@ -63,17 +73,38 @@ def potts_alpha_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndar
     groups = np.asarray(groups, dtype=np.int64)
     table = _label_table(group_labels)
     labels = np.where(table[groups, 0] >= 0, table[groups, 0], 0)
+    if initial is not None:
+        labels = np.asarray(initial, dtype=np.int64).copy()
     if n == 0 or table.shape[1] <= 1:
         return labels
     if cycles == -1:
         return _adaptive_by_group(labels, unary, pairs, weights, groups, group_labels)
-    incident = _incident_weights(pairs, weights, n)
+    n_groups, width = table.shape
+    n_labels = (table >= 0).sum(axis=1)
+    # Step counters per group: an expansion on α from a state it produced (or rejected) cannot
+    # move anything (its moves are a subset of the last ones), so it is skipped while the group
+    # has not changed since; every site starting at the first label is as if expanded on it.
+    last_change = np.full(n_groups, -1, dtype=np.int64)
+    last_tried = np.full((n_groups, width), -2, dtype=np.int64)
+    from_first = initial is None
+    if from_first:
+        last_tried[:, 0] = 0
+    w_f = weights.astype(np.float64)
+    incident = _site_sum(pairs[:, 0], w_f, n) + _site_sum(pairs[:, 1], w_f, n)
+    step = 0
     for _ in range(int(cycles)):
-        changed = False
-        for q in range(table.shape[1]):
-            changed |= expansion_step(labels, table[groups, q], unary, pairs, weights, groups, incident)
-        if not changed:   # the same state again: every later cycle would leave it as it is
-            break
+        for q in range(width):
+            step += 1
+            live = (table[:, q] >= 0) & (last_tried[:, q] <= last_change)
+            # two labels: the first expansion on the second is the exact optimum of the group
+            if from_first:
+                live &= ~((n_labels == 2) & (last_tried[:, 1] > 0))
+            last_tried[live, q] = step
+            if not live.any():
+                continue
+            alpha = np.where(live[groups], table[groups, q], -1)
+            moved = expansion_step(labels, alpha, unary, pairs, weights, groups, incident)
+            last_change[moved] = step
     return labels
 
 
@@ -86,83 +117,176 @@ def _label_table(group_labels: list) -> np.ndarray:
     return table
 
 
-def _incident_weights(pairs: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
-    """[F] int64 sum of the weights of each site's pairs."""
-    out = np.zeros(n, dtype=np.int64)
-    np.add.at(out, pairs[:, 0], weights)
-    np.add.at(out, pairs[:, 1], weights)
-    return out
+def _site_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """[n] int64 sums of integer values by index (bincount's float64 is exact below 2⁵³)."""
+    return np.rint(np.bincount(index, weights=values, minlength=n)).astype(np.int64)
 
 
 def expansion_step(labels: np.ndarray, alpha: np.ndarray, unary: np.ndarray, pairs: np.ndarray,
-                   weights: np.ndarray, groups: np.ndarray, incident: np.ndarray) -> bool:
+                   weights: np.ndarray, groups: np.ndarray, incident: np.ndarray | None = None) -> np.ndarray:
     """One expansion in every group at once, in place: site f's group expands on alpha[f]
     (-1: that group sits this step out). A group's move is kept where it lowers its energy
-    strictly. Returns whether any group's labels changed.
+    strictly. Returns the groups whose labels changed ([G'] int).
 
-    A site whose data term rises by more than ``incident[f]`` (the sum of its pairs' weights)
-    when it takes α keeps its label in every minimizer, since no pair can pay that back; it stays
-    out of the graph as a fixed neighbour (on the graph cut's bands, most sites)."""
-    rows = np.arange(len(labels))
-    cur = unary[rows, labels]
-    take = unary[rows, np.maximum(alpha, 0)]
-    movable = (alpha >= 0) & (labels != alpha) & (take - cur <= incident)
-    sites = np.flatnonzero(movable)
-    m = len(sites)
-    if m == 0:
-        return False
-    var = np.full(len(labels), -1, dtype=np.int64)
-    var[sites] = np.arange(m)
-    u0, u1 = take[sites].copy(), cur[sites].copy()        # x = 0: take α; x = 1: keep
+    incident : [F] sum of each site's pair weights (computed if not given).
+
+    Before the flow, a site whose data term for α against its own differs by at least the sum
+    of its pairs' weights in the binary problem is decided: it keeps its label when α costs
+    more (strictly: on a tie some minimizer takes α), it takes α when α costs that much less
+    (the largest minimizer does: flipping it to α never raises the energy). Deciding sites turns
+    their pairs into data terms of their neighbours, so this repeats until nothing is decided.
+    The work is on the sites that may take α and their pairs alone."""
+    n = len(labels)
     a, b = pairs[:, 0], pairs[:, 1]
-    la, lb = labels[a], labels[b]
-    mov_a, mov_b = movable[a], movable[b]
-    for mine, lmine, lother, one in ((a, la, lb, mov_a & ~mov_b), (b, lb, la, mov_b & ~mov_a)):
-        v, w = var[mine[one]], weights[one]               # a pair with a fixed site: unary terms
-        np.add.at(u0, v, np.where(lother[one] != alpha[mine[one]], w, 0))
-        np.add.at(u1, v, np.where(lother[one] != lmine[one], w, 0))
-    both = mov_a & mov_b
-    i, j, w = var[a[both]], var[b[both]], weights[both]
-    d11 = np.where(la[both] == lb[both], 0, w)            # both keep
-    g_site, g_pair = groups[sites], groups[a[both]]
+    if incident is None:
+        incident = _site_sum(a, weights.astype(np.float64), n) + _site_sum(b, weights.astype(np.float64), n)
+    sites = np.flatnonzero((alpha >= 0) & (labels != alpha))
+    al = alpha[sites]
+    diff = unary[sites, al] - unary[sites, labels[sites]]  # data cost of taking α
+    keep = diff > incident[sites]
+    sites, al, diff = sites[~keep], al[~keep], diff[~keep]
+    r = len(sites)
+    if r == 0:
+        return np.zeros(0, dtype=np.int64)
+    loc = np.full(n, -1, dtype=np.int64)
+    loc[sites] = np.arange(r)
+    ia, ib = loc[a], loc[b]
+    touch = (ia >= 0) | (ib >= 0)
+    ia, ib, w = ia[touch], ib[touch], weights[touch]
+    la, lb = labels[a[touch]], labels[b[touch]]
+    alpha_pair = np.where(ia >= 0, al[np.maximum(ia, 0)], al[np.maximum(ib, 0)])   # one group per pair
+    state = _decide(ia, ib, w, la, lb, alpha_pair, diff, r)
+    free = np.flatnonzero(state == 0)
+    if len(free):
+        u0, u1 = _data_terms(ia, ib, w, la, lb, alpha_pair, diff, state, r)
+        both = (ia >= 0) & (ib >= 0)
+        both &= (state[np.maximum(ia, 0)] == 0) & (state[np.maximum(ib, 0)] == 0)
+        x = _binary_cut(free, u0, u1, ia[both], ib[both], w[both], la[both] == lb[both], r)
+        state[free[~x]] = 2
+    takes = state == 2
+    if not takes.any():
+        return np.zeros(0, dtype=np.int64)
+    # the move's energy change per group: data terms of the sites taking α, and the pairs
+    # around them (before: their labels; after: α at the sites that take it)
+    na = np.where((ia >= 0) & takes[np.maximum(ia, 0)], alpha_pair, la)
+    nb = np.where((ib >= 0) & takes[np.maximum(ib, 0)], alpha_pair, lb)
     n_groups = int(groups.max()) + 1
-    before = _group_sum(g_site, u1, n_groups) + _group_sum(g_pair, d11, n_groups)
-    # E(x_i, x_j) = A + (C-A) x_i + (D-C) x_j + (B+C-A-D)(1-x_i) x_j with A = 0, B = C = w.
-    np.add.at(u1, i, w)
-    np.add.at(u1, j, d11 - w)
-    low = np.minimum(u0, u1)
-    src_cap, sink_cap = u1 - low, u0 - low                # s -> v cut when x_v = 1, v -> t when 0
-    edge_cap = 2 * w - d11                                # i -> j cut when x_i = 0, x_j = 1
-    x = min_cut_sink_side(m, src_cap, sink_cap, i, j, edge_cap)
-    after = (_group_sum(g_site, low + np.where(x, src_cap, sink_cap), n_groups)
-             + _group_sum(g_pair, np.where(~x[i] & x[j], edge_cap, 0), n_groups))
-    better = after < before
-    move = ~x & better[g_site]
-    labels[sites[move]] = alpha[sites[move]]
-    return bool(move.any())
+    g_site = groups[sites]
+    g_pair = np.where(ia >= 0, g_site[np.maximum(ia, 0)], g_site[np.maximum(ib, 0)])
+    change = (np.bincount(g_site[takes], weights=diff[takes], minlength=n_groups)
+              + np.bincount(g_pair, weights=w * ((na != nb).astype(np.int64) - (la != lb)), minlength=n_groups))
+    better = np.rint(change) < 0
+    move = takes & better[g_site]
+    labels[sites[move]] = al[move]
+    return np.flatnonzero(better & (np.bincount(g_site[move], minlength=n_groups) > 0))
 
 
-def _group_sum(group: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarray:
-    out = np.zeros(n_groups, dtype=np.int64)
-    np.add.at(out, group, values)
-    return out
+def _pair_state(state, ia, ib):
+    """State of each pair's two sites (0 free, 1 keeps, 2 takes α; a site outside keeps)."""
+    sa = np.where(ia >= 0, state[np.maximum(ia, 0)], 1)
+    sb = np.where(ib >= 0, state[np.maximum(ib, 0)], 1)
+    return sa, sb
+
+
+def _data_terms(ia, ib, w, la, lb, alpha_pair, diff, state, r):
+    """[r] u0 (take α), u1 (keep) of the free sites: the data cost of α over its own (diff),
+    plus each pair to a decided site as a data term."""
+    sa, sb = _pair_state(state, ia, ib)
+    w_f = w.astype(np.float64)
+    nb_lab = np.where(sb == 2, alpha_pair, lb)             # the decided neighbour's label
+    na_lab = np.where(sa == 2, alpha_pair, la)
+    fa = (sa == 0) & (sb != 0)
+    fb = (sb == 0) & (sa != 0)
+    u0 = diff + _site_sum(ia[fa], w_f[fa] * (nb_lab[fa] != alpha_pair[fa]), r) \
+        + _site_sum(ib[fb], w_f[fb] * (na_lab[fb] != alpha_pair[fb]), r)
+    u1 = _site_sum(ia[fa], w_f[fa] * (nb_lab[fa] != la[fa]), r) \
+        + _site_sum(ib[fb], w_f[fb] * (na_lab[fb] != lb[fb]), r)
+    return u0, u1
+
+
+def _decide(ia, ib, w, la, lb, alpha_pair, diff, r) -> np.ndarray:
+    """[r] int8 state of the sites that may take α: 0 free (to the flow), 1 keeps, 2 takes α,
+    decided where the data terms outweigh every pair between free sites (see expansion_step)."""
+    state = np.zeros(r, dtype=np.int8)
+    w_f = w.astype(np.float64)
+    while True:
+        u0, u1 = _data_terms(ia, ib, w, la, lb, alpha_pair, diff, state, r)
+        sa, sb = _pair_state(state, ia, ib)
+        both = (sa == 0) & (sb == 0)
+        inc = _site_sum(ia[both], w_f[both], r) + _site_sum(ib[both], w_f[both], r)
+        free = state == 0
+        keeps = free & (u0 - u1 > inc)
+        takes = free & (u1 - u0 >= inc)
+        if not (keeps.any() or takes.any()):
+            return state
+        state[keeps] = 1
+        state[takes] = 2
+
+
+def _binary_cut(free, u0, u1, i_loc, j_loc, w, same, r) -> np.ndarray:
+    """[m] bool, x of the free sites (True: keep) in the largest-α minimizer of
+    Σ_v u[v, x_v] + Σ_(i,j) V(x_i, x_j), V(0, 0) = 0, V(0, 1) = V(1, 0) = w, V(1, 1) = w [L_i ≠ L_j]
+    (both take α: no cut; one takes α: cut; both keep: cut where their labels differ)."""
+    m = len(free)
+    var = np.full(r, -1, dtype=np.int64)
+    var[free] = np.arange(m)
+    i, j = var[i_loc], var[j_loc]
+    d11 = np.where(same, 0, w)
+    u0v, u1v = u0[free].copy(), u1[free].copy()
+    # V(x_i, x_j) = A + (C-A) x_i + (D-C) x_j + (B+C-A-D)(1-x_i) x_j with A = 0, B = C = w, D = d11.
+    u1v += _site_sum(i, w.astype(np.float64), m) + _site_sum(j, (d11 - w).astype(np.float64), m)
+    low = np.minimum(u0v, u1v)
+    return min_cut_sink_side(m, u1v - low, u0v - low, i, j, 2 * w - d11)
 
 
 def min_cut_sink_side(m: int, src_cap: np.ndarray, sink_cap: np.ndarray, i: np.ndarray, j: np.ndarray,
                       edge_cap: np.ndarray) -> np.ndarray:
     """[m] bool: the nodes that can reach the sink in the residual graph of a maximum flow (the
     smallest sink side among the minimum cuts) of the graph on nodes 0..m-1 with arcs s -> v
-    (src_cap [m]), v -> t (sink_cap [m]) and i -> j (edge_cap [P]); integer capacities."""
+    (src_cap [m]), v -> t (sink_cap [m]) and i -> j (edge_cap [P], at most one arc per node
+    pair and no j -> i); integer capacities.
+
+    The graph goes to maximum_flow with every reverse arc already present (capacity 0), sorted:
+    the flow comes back on the same layout, so the residual is an array difference."""
     s, t = m, m + 1
-    rows = np.concatenate([np.full(m, s), np.arange(m), i])
-    cols = np.concatenate([np.arange(m), np.full(m, t), j])
-    caps = np.concatenate([src_cap, sink_cap, edge_cap])
-    nz = caps > 0
-    if nz.any() and int(caps.max()) > _INT32_MAX:
+    v = np.arange(m)
+    on_s, on_t, on_e = src_cap > 0, sink_cap > 0, edge_cap > 0
+    tails = np.concatenate([np.full(on_s.sum(), s), v[on_t], i[on_e]])
+    heads = np.concatenate([v[on_s], np.full(on_t.sum(), t), j[on_e]])
+    caps = np.concatenate([src_cap[on_s], sink_cap[on_t], edge_cap[on_e]])
+    if len(caps) and int(caps.max()) > _INT32_MAX:
         raise OverflowError("a graph-cut capacity exceeds int32; scale the terms down")
-    graph = coo_matrix((caps[nz].astype(np.int32), (rows[nz], cols[nz])), shape=(m + 2, m + 2)).tocsr()
-    graph.sum_duplicates()
+    n_arcs = len(caps)
+    tail2 = np.concatenate([tails, heads])               # arc e and its reverse e + n_arcs
+    head2 = np.concatenate([heads, tails])
+    order = np.argsort(tail2 * (m + 2) + head2, kind="stable")
+    indices = head2[order].astype(np.int32)
+    indptr = np.zeros(m + 3, dtype=np.int32)
+    np.cumsum(np.bincount(tail2, minlength=m + 2), out=indptr[1:])
+    cap2 = np.concatenate([caps, np.zeros(n_arcs, dtype=caps.dtype)])[order].astype(np.int32)
+    graph = csr_matrix((cap2, indices, indptr), shape=(m + 2, m + 2))
+    graph.has_sorted_indices = True
     flow = maximum_flow(graph, s, t, method="dinic").flow
+    if flow.nnz != len(cap2) or not np.array_equal(flow.indices, indices):
+        return _sink_side_general(graph, flow, m, t)
+    residual = cap2.astype(np.int64) - flow.data
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    reverse = position[(order + n_arcs) % (2 * n_arcs)]  # where each arc's reverse sits
+    # u -> v lies in the reversed residual graph where v -> u has residual capacity
+    open_arc = residual[reverse] > 0
+    rows = np.repeat(np.arange(m + 2), np.diff(indptr))[open_arc]
+    back_ptr = np.zeros(m + 3, dtype=np.int32)
+    np.cumsum(np.bincount(rows, minlength=m + 2), out=back_ptr[1:])
+    back = csr_matrix((np.ones(len(rows), dtype=np.int8), indices[open_arc], back_ptr), shape=(m + 2, m + 2))
+    reaches_sink = breadth_first_order(back, t, directed=True, return_predecessors=False)
+    x = np.zeros(m + 2, dtype=bool)
+    x[reaches_sink] = True
+    return x[:m]
+
+
+def _sink_side_general(graph: csr_matrix, flow: csr_matrix, m: int, t: int) -> np.ndarray:
+    """:func:`min_cut_sink_side` by sparse algebra, for a flow on another layout."""
     residual = (graph.astype(np.int64) - csr_matrix(flow, dtype=np.int64)).tocsr()
     residual.data[residual.data < 0] = 0
     residual.eliminate_zeros()
@@ -173,7 +297,8 @@ def min_cut_sink_side(m: int, src_cap: np.ndarray, sink_cap: np.ndarray, i: np.n
 
 
 def _adaptive_by_group(labels, unary, pairs, weights, groups, group_labels) -> np.ndarray:
-    """``cycles = -1``: gco's adaptive schedule, group by group (its queues differ per group)."""
+    """``cycles = -1``: gco's adaptive schedule, group by group (its queues differ per group),
+    from the labels given."""
     for g, labs in enumerate(group_labels):
         sites = np.flatnonzero(groups == g)
         if len(labs) <= 1 or not len(sites):
@@ -183,12 +308,15 @@ def _adaptive_by_group(labels, unary, pairs, weights, groups, group_labels) -> n
         inside = (groups[pairs[:, 0]] == g)
         sub_pairs, sub_w = local[pairs[inside]], weights[inside]
         sub_unary = unary[np.ix_(sites, np.asarray(labs))]
-        sub = np.zeros(len(sites), dtype=np.int64)
+        position = np.zeros(unary.shape[1], dtype=np.int64)
+        position[np.asarray(labs)] = np.arange(len(labs))
+        sub = position[labels[sites]]
         one = np.zeros(len(sites), dtype=np.int64)
-        incident = _incident_weights(sub_pairs, sub_w, len(sites))
+        w_f = sub_w.astype(np.float64)
+        incident = _site_sum(sub_pairs[:, 0], w_f, len(sites)) + _site_sum(sub_pairs[:, 1], w_f, len(sites))
 
         def move(q):
-            return expansion_step(sub, np.full(len(sites), q), sub_unary, sub_pairs, sub_w, one, incident)
+            return len(expansion_step(sub, np.full(len(sites), q), sub_unary, sub_pairs, sub_w, one, incident)) > 0
         _adaptive_queue(move, len(labs))
         labels[sites] = np.asarray(labs)[sub]
     return labels

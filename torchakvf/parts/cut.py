@@ -236,7 +236,7 @@ def recorded_params(batch: MeshBatch, b: int, k: int, n_fields: int, k_cluster: 
                   solver=opts.solver, method=opts.method)
     if opts.graphcut is not None and opts.merges_parts:
         params["graphcut"] = True
-        params.update({f"graphcut_{name}": float(v) for name, v in vars(opts.graphcut).items()})
+        params.update({f"graphcut_{name}": v if isinstance(v, str) else float(v) for name, v in vars(opts.graphcut).items()})
     if merge_next is not None:
         params["merge_next"] = merge_next
     if opts.merges_parts:

@@ -27,8 +27,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import ParameterError
-from ..options import EXPANSION_CYCLES, GraphCut
+from ..options import EXPANSION_CYCLES, GRAPHCUT_ENGINES as ENGINES, GraphCut
 from .boundaries import barycenter_values
+from .alpha_expansion import potts_alpha_expansion
 from .concavity import DualEdges, crease_weights
 
 
@@ -54,8 +55,8 @@ def _gco():
     try:
         import gco
     except ImportError as e:   # imported here so the rest of the package works without it
-        raise ParameterError("the graph-cut stage (on by default in method 'merge') needs gco-wrapper: "
-                             "pip install gco-wrapper, or segment with SegmentOptions(graphcut=None)") from e
+        raise ParameterError("the graph cut's engine 'gco' needs gco-wrapper (research use only): "
+                             "pip install 'torchakvf[gco]', or use GraphCut(engine='scipy')") from e
     return gco
 
 
@@ -126,8 +127,9 @@ INTEGER_UNITS = 1_000_000
 
 
 def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
-                    cycles: int = EXPANSION_CYCLES, allowed: np.ndarray | None = None) -> np.ndarray:
-    """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion (gco),
+                    cycles: int = EXPANSION_CYCLES, allowed: np.ndarray | None = None,
+                    engine: str = "scipy", initial: np.ndarray | None = None) -> np.ndarray:
+    """argmin-ish of Σ_f unary[f, L_f] + Σ_p weights[p] [L_a ≠ L_b] by alpha-expansion,
     ``cycles`` cycles over the labels (-1: until converged).
 
     unary : [F, k] float >= 0; pairs : [P, 2] site pairs; weights : [P] >= 0. Returns [F] int64.
@@ -140,7 +142,15 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
         k labels over all sites cost k times the sites per cycle, a band's boundary two or three.
         Every site starts at its component's first label (gco starts at label 0), which gives
         the labels of the whole problem solved at once (see docs/design.md).
+    engine : "scipy" (:mod:`~torchakvf.parts.alpha_expansion`, minimum cuts from
+        scipy.sparse.csgraph.maximum_flow, BSD) or "gco" (the gco library through gco-wrapper,
+        licensed for research use only; ``pip install torchakvf[gco]``). On the same integer
+        terms the two give the same labels.
+    initial : optional [F] labels to start from (each allowed at its site); default: every
+        site at label 0, or at its component's first label given ``allowed`` (gco's start).
     """
+    if engine not in ENGINES:
+        raise ParameterError(f"graph cut engine must be one of {ENGINES}, got {engine!r}")
     unary = np.asarray(unary, dtype=np.float64)
     n, k = unary.shape
     if k == 1 or n == 0:
@@ -152,8 +162,15 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
     scale = INTEGER_UNITS / top
     int_unary = np.rint(unary * scale)
     int_w = np.rint(w * scale)
+    if engine == "scipy":
+        e, int_w = _merge_duplicates(e, int_w, n)
+        if allowed is None:
+            return potts_alpha_expansion(int_unary, e, int_w, cycles, initial=initial)
+        groups, group_labels = _components(e, n, allowed)
+        return potts_alpha_expansion(int_unary, e, int_w, cycles, groups=groups, group_labels=group_labels,
+                                     initial=initial)
     if allowed is None:
-        return _expand(int_unary, e, int_w, cycles)
+        return _expand(int_unary, e, int_w, cycles, initial)
     n_comp, comp = connected_components(
         coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
     out = np.zeros(n, dtype=np.int64)
@@ -170,13 +187,37 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
             continue
         local[sites] = np.arange(len(sites))
         ce = edge_order[edge_ptr[c]:edge_ptr[c + 1]]
-        got = _expand(int_unary[np.ix_(sites, labels)], local[e[ce]], int_w[ce], cycles)
+        start = None if initial is None else np.searchsorted(labels, initial[sites])
+        got = _expand(int_unary[np.ix_(sites, labels)], local[e[ce]], int_w[ce], cycles, start)
         out[sites] = labels[got]
     return out
 
 
-def _expand(unary: np.ndarray, e: np.ndarray, w: np.ndarray, cycles: int) -> np.ndarray:
-    """gco's alpha-expansion on integer terms (unary [F, k], pairs e [P, 2], weights w [P])."""
+def _merge_duplicates(e: np.ndarray, w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs [P', 2] listed once, their weights summed (a Potts term per pair is additive)."""
+    if not len(e):
+        return e, w
+    key = e[:, 0] * n + e[:, 1]
+    uniq, inv = np.unique(key, return_inverse=True)
+    if len(uniq) == len(key):
+        return e, w
+    return np.stack([uniq // n, uniq % n], axis=1), np.bincount(inv, weights=w)
+
+
+def _components(e: np.ndarray, n: int, allowed: np.ndarray) -> tuple[np.ndarray, list]:
+    """[F] connected component of each site and, per component, the labels allowed in it
+    (ascending): the groups of :func:`~torchakvf.parts.alpha_expansion.potts_alpha_expansion`."""
+    n_comp, comp = connected_components(
+        coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
+    anywhere = np.zeros((n_comp, allowed.shape[1]), dtype=bool)
+    np.logical_or.at(anywhere, comp, allowed)
+    return comp.astype(np.int64), [np.flatnonzero(row) for row in anywhere]
+
+
+def _expand(unary: np.ndarray, e: np.ndarray, w: np.ndarray, cycles: int,
+            initial: np.ndarray | None = None) -> np.ndarray:
+    """gco's alpha-expansion on integer terms (unary [F, k], pairs e [P, 2], weights w [P]),
+    from the labels ``initial`` [F] if given."""
     n, k = unary.shape
     gco = _gco()
     g = gco.GCO()
@@ -187,6 +228,9 @@ def _expand(unary: np.ndarray, e: np.ndarray, w: np.ndarray, cycles: int) -> np.
             g.set_all_neighbors(np.ascontiguousarray(e[:, 0], dtype=np.intc), np.ascontiguousarray(e[:, 1], dtype=np.intc),
                                 np.ascontiguousarray(w, dtype=np.intc))
         g.set_smooth_cost(np.ascontiguousarray(1 - np.eye(k), dtype=np.intc))
+        if initial is not None:
+            for site, label in enumerate(np.asarray(initial).tolist()):
+                g.init_label_at_site(site, label)
         g.expansion(int(cycles))
         return np.asarray(g.get_labels(), dtype=np.int64)
     finally:
@@ -257,7 +301,14 @@ def graphcut_labels(labels: np.ndarray, distances: np.ndarray, dual: DualEdges, 
     sub_unary = np.where(allowed_cand[free_cand], sub_unary, big)
     new = own.copy()
     if len(idx):
-        new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w, opts.cycles, allowed=allowed_cand[free_cand])
+        # the expansion starts from the parts (a labelling of low energy; a face whose own part
+        # is not allowed, at an infinite distance, from its first allowed one), so each
+        # expansion on a part only involves the band around it
+        allowed_free = allowed_cand[free_cand]
+        start = own[idx]
+        start = np.where(allowed_free[np.arange(len(idx)), start], start, np.argmax(allowed_free, axis=1))
+        new[idx] = potts_expansion(sub_unary, sub_pairs, sub_w, opts.cycles, allowed=allowed_free,
+                                   engine=opts.engine, initial=start)
     new = _restore_parts(own, new, area, k, min_fraction)
     out = labels.copy()
     out[sites] = new
