@@ -20,6 +20,35 @@ import numpy as np
 
 from torchakvf.parts import graphcut as gc
 
+#: the first alpha-expansion on scipy (before the speed-ups), for the "before" column
+PROTOTYPE_COMMIT = "cd615cf"
+
+
+def _prototype():
+    """potts_expansion with the prototype's potts_alpha_expansion (first-label start only)."""
+    import subprocess
+    import types
+    src = subprocess.run(["git", "show", f"{PROTOTYPE_COMMIT}:torchakvf/parts/alpha_expansion.py"],
+                         capture_output=True, text=True, check=True, cwd=Path(__file__).parent).stdout
+    mod = types.ModuleType("alpha_expansion_prototype")
+    exec(compile(src, "alpha_expansion_prototype", "exec"), mod.__dict__)
+
+    def run(unary, pairs, weights, cycles, allowed=None, initial=None):
+        assert initial is None, "the prototype starts at the first label only"
+        saved = gc.potts_alpha_expansion
+        gc.potts_alpha_expansion = lambda *a, initial=None, **kw: mod.potts_alpha_expansion(*a, **kw)
+        try:
+            return gc.potts_expansion(unary, pairs, weights, cycles, allowed=allowed, engine="scipy")
+        finally:
+            gc.potts_alpha_expansion = saved
+    return run
+
+
+def _engine(name: str):
+    if name == "scipy-prototype":
+        return _prototype()
+    return lambda *a, **kw: gc.potts_expansion(*a, engine=name, **kw)
+
 
 def _eval(ids: str, out: str, extra=()) -> None:
     from torchakvf.cli import main
@@ -31,20 +60,53 @@ def _eval(ids: str, out: str, extra=()) -> None:
 
 
 def capture(args) -> None:
+    """Every cut of an eval run (one process): the inputs of potts_expansion saved, and the
+    stage (graphcut_labels) timed with each engine and start on the same inputs, interleaved."""
+    import dataclasses
+    from torchakvf.parts import cut as cut_module
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    inner = gc.potts_expansion
+    inner, stage = gc.potts_expansion, cut_module.graphcut_labels
     count = [0]
+    times = {"scipy, parts": 0.0, "gco, parts": 0.0, "gco, first": 0.0}
+    differ = {"gco, parts": 0, "gco, first": 0}
 
     def saving(unary, pairs, weights, cycles=gc.EXPANSION_CYCLES, allowed=None, **kw):
-        np.savez_compressed(out / f"cut{count[0]:04d}.npz", unary=unary, pairs=pairs, weights=weights,
-                            cycles=cycles, allowed=allowed, initial=kw.get("initial"))
-        count[0] += 1
+        if kw.get("engine", "scipy") == "scipy" and saving.on:
+            np.savez_compressed(out / f"cut{count[0]:04d}.npz", unary=unary, pairs=pairs, weights=weights,
+                                cycles=cycles, allowed=allowed, initial=kw.get("initial"))
+            count[0] += 1
+        return inner(unary, pairs, weights, cycles, allowed=allowed, **kw)
+    saving.on = True
+
+    def first_start(unary, pairs, weights, cycles=gc.EXPANSION_CYCLES, allowed=None, **kw):
+        kw.pop("initial", None)           # gco's own start: every site at its component's first label
         return inner(unary, pairs, weights, cycles, allowed=allowed, **kw)
 
+    def timed(labels, distances, dual, face_area, opts=None, **kw):
+        opts = gc.GraphCut() if opts is None else opts
+        runs = {}
+        for name, engine in (("scipy, parts", "scipy"), ("gco, parts", "gco"), ("gco, first", "gco")):
+            gc.potts_expansion = first_start if name.endswith("first") else saving
+            saving.on = name == "scipy, parts"
+            t0 = time.perf_counter()
+            runs[name] = stage(labels, distances, dual, face_area, dataclasses.replace(opts, engine=engine), **kw)
+            times[name] += time.perf_counter() - t0
+        gc.potts_expansion = saving
+        for name in differ:
+            differ[name] += not np.array_equal(runs[name], runs["scipy, parts"])
+        return runs["scipy, parts"]
+
     gc.potts_expansion = saving
+    cut_module.graphcut_labels = timed
+    t0 = time.perf_counter()
     _eval(args.ids, str(out / "eval"))
-    print(f"{count[0]} cuts saved to {out}")
+    wall = time.perf_counter() - t0
+    own = wall - times["gco, parts"] - times["gco, first"]     # the run without the extra solves
+    print(f"{count[0]} potts_expansion calls saved to {out}; eval wall {own:.1f} s without the extra solves")
+    for name, t in times.items():
+        print(f"  graph-cut stage, {name}: {t:.2f} s ({100 * t / own:.1f}% of the scipy run)"
+              + (f", stage labels differ from scipy-parts on {differ[name]} cuts" if name in differ else ""))
 
 
 def _load(folder: Path):
@@ -65,6 +127,7 @@ def _start(how: str, unary, allowed, initial):
 
 def time_engines(args) -> None:
     engines = args.engines.split(",")
+    solve = {e: _engine(e) for e in engines}
     total = {e: 0.0 for e in engines}
     differ = 0
     n = 0
@@ -76,7 +139,7 @@ def time_engines(args) -> None:
         for _ in range(args.repeat):
             for e in engines:            # interleaved: the engines see the same machine load
                 t0 = time.perf_counter()
-                got[e] = gc.potts_expansion(unary, pairs, weights, cycles, allowed=allowed, engine=e, initial=initial)
+                got[e] = solve[e](unary, pairs, weights, cycles, allowed=allowed, initial=initial)
                 best[e] = min(best[e], time.perf_counter() - t0)
         same = all(np.array_equal(got[engines[0]], got[e]) for e in engines[1:])
         differ += not same

@@ -326,3 +326,50 @@ def test_corner_means_rows_are_barycenter_values_rows_and_cut_the_same():
     opts = gc.GraphCut(band=3)
     np.testing.assert_array_equal(gc.graphcut_labels(labels, cm, dual, area, opts),
                                   gc.graphcut_labels(labels, full, dual, area, opts))
+
+
+def test_engine_option_and_its_errors():
+    assert GraphCut().engine == "scipy"                 # the default needs no research-only code
+    with pytest.raises(ParameterError, match="engine"):
+        GraphCut(engine="maxflow")
+    with pytest.raises(ParameterError, match="engine"):
+        potts_expansion(np.zeros((2, 2)), np.array([[0, 1]]), np.ones(1), engine="maxflow")
+
+
+@pytest.mark.parametrize("seed,k", [(0, 4), (1, 9), (2, 30)])
+def test_engines_give_the_same_labels(seed, k):
+    """The stage with scipy's maximum_flow and with gco: the same labels (from the parts, and
+    from gco's first-label start) on random parts of a sphere and random data terms."""
+    pytest.importorskip("gco", reason="gco-wrapper (the optional engine: pip install 'torchakvf[gco]') not installed")
+    v, f, labels = sphere_labels(3, k, seed)
+    rng = np.random.default_rng(seed)
+    dual, area = dual_edges(v, f), face_areas(v, f)
+    dist = rng.random((len(labels), k))
+    for smooth in (0.3, 3.0):
+        opts = GraphCut(smoothness=smooth, band=3)
+        got = graphcut_labels(labels, dist, dual, area, opts)
+        np.testing.assert_array_equal(got, graphcut_labels(labels, dist, dual, area,
+                                                           GraphCut(smoothness=smooth, band=3, engine="gco")))
+        assert (got != labels).any()
+    allowed = allowed_labels(labels, dual.pairs, k, 3)
+    unary = np.where(allowed, dist, 10.0)
+    for cycles in (1, 2):
+        np.testing.assert_array_equal(potts_expansion(unary, dual.pairs, 0.5 * np.ones(len(dual.pairs)), cycles, allowed),
+                                      potts_expansion(unary, dual.pairs, 0.5 * np.ones(len(dual.pairs)), cycles, allowed,
+                                                      engine="gco"))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_cut_starts_from_the_parts_so_never_raises_their_energy(seed):
+    """Expansions from the parts only lower the stage's energy: the cut's labels cost at most
+    what the parts cost (and less where a boundary moved)."""
+    v, f, labels = sphere_labels(3, 6, seed)
+    rng = np.random.default_rng(50 + seed)
+    dual, area = dual_edges(v, f), face_areas(v, f)
+    dist = rng.random((len(labels), 6))
+    opts = GraphCut(smoothness=1.0, band=2)
+    out = graphcut_labels(labels, dist, dual, area, opts)
+    unary = dist * (area / area.mean())[:, None]
+    w = opts.smoothness * gc.edge_weights(dual, opts)
+    assert (out != labels).any()
+    assert energy(out, unary, dual.pairs, w) < energy(labels, unary, dual.pairs, w)

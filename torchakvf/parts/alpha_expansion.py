@@ -134,7 +134,7 @@ def expansion_step(labels: np.ndarray, alpha: np.ndarray, unary: np.ndarray, pai
     of its pairs' weights in the binary problem is decided: it keeps its label when α costs
     more (strictly: on a tie some minimizer takes α), it takes α when α costs that much less
     (the largest minimizer does: flipping it to α never raises the energy). Deciding sites turns
-    their pairs into data terms of their neighbours, so this repeats until nothing is decided.
+    their pairs into data terms of their neighbours, so this repeats (:data:`DECIDE_ROUNDS`).
     The work is on the sites that may take α and their pairs alone."""
     n = len(labels)
     a, b = pairs[:, 0], pairs[:, 1]
@@ -155,10 +155,9 @@ def expansion_step(labels: np.ndarray, alpha: np.ndarray, unary: np.ndarray, pai
     ia, ib, w = ia[touch], ib[touch], weights[touch]
     la, lb = labels[a[touch]], labels[b[touch]]
     alpha_pair = np.where(ia >= 0, al[np.maximum(ia, 0)], al[np.maximum(ib, 0)])   # one group per pair
-    state = _decide(ia, ib, w, la, lb, alpha_pair, diff, r)
+    state, u0, u1 = _decide(ia, ib, w, la, lb, alpha_pair, diff, r)
     free = np.flatnonzero(state == 0)
     if len(free):
-        u0, u1 = _data_terms(ia, ib, w, la, lb, alpha_pair, diff, state, r)
         both = (ia >= 0) & (ib >= 0)
         both &= (state[np.maximum(ia, 0)] == 0) & (state[np.maximum(ib, 0)] == 0)
         x = _binary_cut(free, u0, u1, ia[both], ib[both], w[both], la[both] == lb[both], r)
@@ -204,12 +203,19 @@ def _data_terms(ia, ib, w, la, lb, alpha_pair, diff, state, r):
     return u0, u1
 
 
-def _decide(ia, ib, w, la, lb, alpha_pair, diff, r) -> np.ndarray:
-    """[r] int8 state of the sites that may take α: 0 free (to the flow), 1 keeps, 2 takes α,
-    decided where the data terms outweigh every pair between free sites (see expansion_step)."""
+#: rounds of deciding sites before the flow: each round frees the pairs of the sites it
+#: decided; past the second, few more are decided on the graph cut's bands (the flow decides
+#: the rest exactly, so the count changes time only)
+DECIDE_ROUNDS = 2
+
+
+def _decide(ia, ib, w, la, lb, alpha_pair, diff, r):
+    """State [r] int8 of the sites that may take α (0 free, to the flow; 1 keeps; 2 takes α),
+    decided where the data terms outweigh every pair between free sites (see expansion_step),
+    and the free sites' data terms u0, u1 [r] given the decided ones."""
     state = np.zeros(r, dtype=np.int8)
     w_f = w.astype(np.float64)
-    while True:
+    for _ in range(DECIDE_ROUNDS):
         u0, u1 = _data_terms(ia, ib, w, la, lb, alpha_pair, diff, state, r)
         sa, sb = _pair_state(state, ia, ib)
         both = (sa == 0) & (sb == 0)
@@ -218,9 +224,10 @@ def _decide(ia, ib, w, la, lb, alpha_pair, diff, r) -> np.ndarray:
         keeps = free & (u0 - u1 > inc)
         takes = free & (u1 - u0 >= inc)
         if not (keeps.any() or takes.any()):
-            return state
+            return state, u0, u1
         state[keeps] = 1
         state[takes] = 2
+    return state, *_data_terms(ia, ib, w, la, lb, alpha_pair, diff, state, r)
 
 
 def _binary_cut(free, u0, u1, i_loc, j_loc, w, same, r) -> np.ndarray:

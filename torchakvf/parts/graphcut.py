@@ -14,9 +14,11 @@ After the parts are chosen (k-means, merging), each face's part is re-decided by
   would make a part disconnected). Faces with one part in reach are fixed and only the band
   around the boundaries goes to the solver (their edges to it become data terms).
 
-The minimization is alpha-expansion (Boykov, Veksler & Zabih 2001) with the gco library
-(Veksler & Delong) through gco-wrapper: the field's standard solver for Potts energies; with
-two labels one expansion is an exact minimum cut.
+The minimization is alpha-expansion (Boykov, Veksler & Zabih 2001) from the parts: each
+expansion's exact minimum cut by scipy.sparse.csgraph.maximum_flow (BSD,
+:mod:`~torchakvf.parts.alpha_expansion`), in the conventions of the field's reference solver,
+gco (Veksler & Delong), which ``GraphCut(engine="gco")`` uses instead where gco-wrapper is
+installed (licensed for research use only; the same labels).
 """
 from __future__ import annotations
 
@@ -121,8 +123,9 @@ def energy(labels: np.ndarray, unary: np.ndarray, pairs: np.ndarray, weights: np
                  + weights[labels[pairs[:, 0]] != labels[pairs[:, 1]]].sum())
 
 
-#: Energies go to gco as integers: the largest term maps to this many units (gco sums them in
-#: 64 bits; its own float mode keeps only 3 digits of the largest term for edge weights).
+#: Energies go to the solver as integers: the largest term maps to this many units (sums in
+#: 64 bits, equal energies compare exactly; gco's own float mode keeps only 3 digits of the
+#: largest term for edge weights).
 INTEGER_UNITS = 1_000_000
 
 
@@ -140,14 +143,13 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
         energy is a sum over components, and a component's moves on its own labels are those
         of the whole problem restricted to it): an expansion builds a graph of every site, so
         k labels over all sites cost k times the sites per cycle, a band's boundary two or three.
-        Every site starts at its component's first label (gco starts at label 0), which gives
-        the labels of the whole problem solved at once (see docs/design.md).
     engine : "scipy" (:mod:`~torchakvf.parts.alpha_expansion`, minimum cuts from
         scipy.sparse.csgraph.maximum_flow, BSD) or "gco" (the gco library through gco-wrapper,
         licensed for research use only; ``pip install torchakvf[gco]``). On the same integer
         terms the two give the same labels.
     initial : optional [F] labels to start from (each allowed at its site); default: every
-        site at label 0, or at its component's first label given ``allowed`` (gco's start).
+        site at label 0, or at its component's first label given ``allowed`` (gco's start,
+        which gives the labels of the whole problem solved at once).
     """
     if engine not in ENGINES:
         raise ParameterError(f"graph cut engine must be one of {ENGINES}, got {engine!r}")
@@ -169,8 +171,14 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
         groups, group_labels = _components(e, n, allowed)
         return potts_alpha_expansion(int_unary, e, int_w, cycles, groups=groups, group_labels=group_labels,
                                      initial=initial)
+    return _gco_by_component(int_unary, e, int_w, cycles, allowed, initial)
+
+
+def _gco_by_component(unary, e, w, cycles, allowed, initial) -> np.ndarray:
+    """:func:`potts_expansion` with gco on integer terms, one gco problem per component."""
+    n = len(unary)
     if allowed is None:
-        return _expand(int_unary, e, int_w, cycles, initial)
+        return _expand(unary, e, w, cycles, initial)
     n_comp, comp = connected_components(
         coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
     out = np.zeros(n, dtype=np.int64)
@@ -188,7 +196,7 @@ def potts_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndarray,
         local[sites] = np.arange(len(sites))
         ce = edge_order[edge_ptr[c]:edge_ptr[c + 1]]
         start = None if initial is None else np.searchsorted(labels, initial[sites])
-        got = _expand(int_unary[np.ix_(sites, labels)], local[e[ce]], int_w[ce], cycles, start)
+        got = _expand(unary[np.ix_(sites, labels)], local[e[ce]], w[ce], cycles, start)
         out[sites] = labels[got]
     return out
 
