@@ -79,32 +79,51 @@ def potts_alpha_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndar
         return labels
     if cycles == -1:
         return _adaptive_by_group(labels, unary, pairs, weights, groups, group_labels)
+    return _cycles(labels, unary, pairs, weights, groups, table, int(cycles), initial is None)
+
+
+def _cycles(labels, unary, pairs, weights, groups, table, cycles: int, from_first: bool) -> np.ndarray:
+    """``cycles`` passes over each group's labels (table [G, L]), in place, skipping the
+    expansions that cannot move anything (exact):
+
+    * an expansion on α from a state where no α-move lowers the energy (the state an
+      α-expansion produced or rejected) moves nothing; it stays so while no site changes that
+      could move to α now or neighbours one that could (the α-moves' energy changes read those
+      sites' labels alone), so a group's α is retried only once such a site changed since;
+    * every site starting at the first label is as if expanded on it; and with two labels,
+      the first expansion on the second from there is the group's exact optimum."""
+    n = len(labels)
+    rows = np.arange(n)
+    a, b = pairs[:, 0], pairs[:, 1]
     n_groups, width = table.shape
     n_labels = (table >= 0).sum(axis=1)
-    # Step counters per group: an expansion on α from a state it produced (or rejected) cannot
-    # move anything (its moves are a subset of the last ones), so it is skipped while the group
-    # has not changed since; every site starting at the first label is as if expanded on it.
-    last_change = np.full(n_groups, -1, dtype=np.int64)
+    changed_at = np.full(n, -1, dtype=np.int64)          # the step each site last changed
     last_tried = np.full((n_groups, width), -2, dtype=np.int64)
-    from_first = initial is None
     if from_first:
         last_tried[:, 0] = 0
     w_f = weights.astype(np.float64)
-    incident = _site_sum(pairs[:, 0], w_f, n) + _site_sum(pairs[:, 1], w_f, n)
+    incident = _site_sum(a, w_f, n) + _site_sum(b, w_f, n)
     step = 0
-    for _ in range(int(cycles)):
+    for _ in range(cycles):
         for q in range(width):
             step += 1
-            live = (table[:, q] >= 0) & (last_tried[:, q] <= last_change)
-            # two labels: the first expansion on the second is the exact optimum of the group
+            has = table[:, q] >= 0
             if from_first:
-                live &= ~((n_labels == 2) & (last_tried[:, 1] > 0))
-            last_tried[live, q] = step
+                has &= ~((n_labels == 2) & (last_tried[:, 1] > 0))
+            alpha = np.where(has[groups], table[groups, q], -1)
+            could = (alpha >= 0) & (labels != alpha) & \
+                (unary[rows, np.maximum(alpha, 0)] - unary[rows, labels] <= incident)
+            near = could.copy()
+            near[a[could[b]]] = True
+            near[b[could[a]]] = True
+            dirty = near & (changed_at > last_tried[groups, q])
+            live = has & (np.bincount(groups[dirty], minlength=n_groups) > 0)
+            last_tried[has, q] = step
             if not live.any():
                 continue
-            alpha = np.where(live[groups], table[groups, q], -1)
-            moved = expansion_step(labels, alpha, unary, pairs, weights, groups, incident)
-            last_change[moved] = step
+            before = labels.copy()
+            expansion_step(labels, np.where(live[groups], alpha, -1), unary, pairs, weights, groups, incident)
+            changed_at[labels != before] = step
     return labels
 
 
