@@ -5,8 +5,10 @@ scipy.sparse.csgraph.maximum_flow (BSD), on the cuts the default segmentation ma
     PYTHONPATH=$PWD python experiments/graph_cut_engine.py capture --ids 1,21,... --out /tmp/gc_cuts
     # 2. per-cut times of each engine (same process, interleaved, best of --repeat) and labels compared
     PYTHONPATH=$PWD python experiments/graph_cut_engine.py time --cuts /tmp/gc_cuts
-    # 3. the cut stage's share of segment time (a profile of one eval run)
-    PYTHONPATH=$PWD python experiments/graph_cut_engine.py share --ids 1,21,... --engine scipy
+    # 3. whole-eval CPU seconds of two code trees, interleaved
+    PYTHONPATH=$PWD python experiments/graph_cut_engine.py ab --a /work/main --b $PWD --ids 1,21 --out /tmp/gc_ab
+    # 4. the scores of two eval runs per category (e.g. main's against this branch's)
+    PYTHONPATH=$PWD python experiments/graph_cut_engine.py compare --base /work/eval_base --new /tmp/gc_eval
 """
 from __future__ import annotations
 
@@ -61,9 +63,12 @@ def _eval(ids: str, out: str, extra=()) -> None:
 
 def capture(args) -> None:
     """Every cut of an eval run (one process): the inputs of potts_expansion saved, and the
-    stage (graphcut_labels) timed with each engine and start on the same inputs, interleaved."""
+    stage (graphcut_labels) timed with each engine and start on the same inputs, interleaved,
+    in CPU seconds of this process (the machine is shared)."""
     import dataclasses
+    import torch
     from torchakvf.parts import cut as cut_module
+    torch.set_num_threads(1)             # as eval's workers run (run with OMP_NUM_THREADS=1 too)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     inner, stage = gc.potts_expansion, cut_module.graphcut_labels
@@ -89,9 +94,9 @@ def capture(args) -> None:
         for name, engine in (("scipy, parts", "scipy"), ("gco, parts", "gco"), ("gco, first", "gco")):
             gc.potts_expansion = first_start if name.endswith("first") else saving
             saving.on = name == "scipy, parts"
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             runs[name] = stage(labels, distances, dual, face_area, dataclasses.replace(opts, engine=engine), **kw)
-            times[name] += time.perf_counter() - t0
+            times[name] += time.process_time() - t0
         gc.potts_expansion = saving
         for name in differ:
             differ[name] += not np.array_equal(runs[name], runs["scipy, parts"])
@@ -99,11 +104,12 @@ def capture(args) -> None:
 
     gc.potts_expansion = saving
     cut_module.graphcut_labels = timed
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     _eval(args.ids, str(out / "eval"))
-    wall = time.perf_counter() - t0
-    own = wall - times["gco, parts"] - times["gco, first"]     # the run without the extra solves
-    print(f"{count[0]} potts_expansion calls saved to {out}; eval wall {own:.1f} s without the extra solves")
+    cpu = time.process_time() - t0
+    own = cpu - times["gco, parts"] - times["gco, first"]     # the run without the extra solves
+    print(f"{count[0]} potts_expansion calls saved to {out}; eval CPU time {own:.1f} s without the extra "
+          f"solves (one process, one thread: CPU seconds do not depend on the machine's load)")
     for name, t in times.items():
         print(f"  graph-cut stage, {name}: {t:.2f} s ({100 * t / own:.1f}% of the scipy run)"
               + (f", stage labels differ from scipy-parts on {differ[name]} cuts" if name in differ else ""))
@@ -138,9 +144,9 @@ def time_engines(args) -> None:
         got = {}
         for _ in range(args.repeat):
             for e in engines:            # interleaved: the engines see the same machine load
-                t0 = time.perf_counter()
+                t0 = time.process_time()        # CPU seconds: the machine is shared
                 got[e] = solve[e](unary, pairs, weights, cycles, allowed=allowed, initial=initial)
-                best[e] = min(best[e], time.perf_counter() - t0)
+                best[e] = min(best[e], time.process_time() - t0)
         same = all(np.array_equal(got[engines[0]], got[e]) for e in engines[1:])
         differ += not same
         n += 1
@@ -169,21 +175,56 @@ def profile(args) -> None:
     pstats.Stats(prof).sort_stats("tottime").print_stats(25)
 
 
-def share(args) -> None:
-    """The graph-cut stage's share of one eval run's time (cumulative, from a profile)."""
-    prof = cProfile.Profile()
-    prof.enable()
-    t0 = time.perf_counter()
-    _eval(args.ids, args.out, ("--graph-cut", "on"))
-    wall = time.perf_counter() - t0
-    prof.disable()
-    st = pstats.Stats(prof)
-    cum = {f"{fn[0].split('torchakvf/')[-1]}:{fn[2]}": v[3] for fn, v in st.stats.items()}
-    pick = {k: v for k, v in cum.items() if k.endswith((":graphcut_labels", ":potts_expansion", ":segment",
-                                                         ":cut_parts"))}
-    print(f"wall {wall:.1f} s")
-    for k, v in sorted(pick.items(), key=lambda kv: -kv[1]):
-        print(f"  {k}: {v:.2f} s ({100 * v / wall:.1f}% of the run)")
+def ab(args) -> None:
+    """Whole-eval CPU seconds, two code trees interleaved (A B A B ...), each run a fresh process
+    with one worker and one thread (the CPU seconds of the process and its children)."""
+    import os
+    import resource
+    import subprocess
+    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    trees = {"A": args.a, "B": args.b}
+    got = {"A": [], "B": []}
+    for r in range(args.rounds):
+        for name, tree in trees.items():
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            subprocess.run(["python3", "-m", "torchakvf.cli", "eval", "--psb", "/work/shared/psb", "--ids", args.ids,
+                            "--out", f"{args.out}/{name}{r}", "--quiet", "--workers", "1", "--metrics", "rand"],
+                           env=dict(env, PYTHONPATH=tree), cwd=tree, check=False, capture_output=True)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            got[name].append(cpu)
+            print(f"round {r} {name} ({tree}): CPU {cpu:.1f} s, wall {time.perf_counter() - t0:.1f} s", flush=True)
+    a, b = np.median(got["A"]), np.median(got["B"])
+    print(f"median CPU: A {a:.1f} s, B {b:.1f} s, B/A {b / a:.3f}")
+
+
+def compare(args) -> None:
+    """Per-category 1-RI of two eval runs on the meshes both scored (markdown table)."""
+    import csv
+
+    def read(folder):
+        with open(Path(folder) / "scores.csv") as fh:
+            return {r["id"]: r for r in csv.DictReader(fh) if r["status"] == "ok" and r["rand_index_error"]}
+    base, new = read(args.base), read(args.new)
+    ids = sorted(set(base) & set(new), key=int)
+    cats = sorted({base[i]["category"] for i in ids}, key=lambda c: min(int(i) for i in ids if base[i]["category"] == c))
+    print(f"| category | meshes | {args.base_name} | {args.new_name} | change | meshes better / worse |")
+    print("|---|---:|---:|---:|---:|---:|")
+    helps = hurts = 0
+    allb, alln = [], []
+    for c in cats:
+        sel = [i for i in ids if base[i]["category"] == c]
+        b = np.array([float(base[i]["rand_index_error"]) for i in sel])
+        n = np.array([float(new[i]["rand_index_error"]) for i in sel])
+        allb += list(b)
+        alln += list(n)
+        d = n.mean() - b.mean()
+        helps += d < -5e-5
+        hurts += d > 5e-5
+        print(f"| {c} | {len(sel)} | {b.mean():.4f} | {n.mean():.4f} | {d:+.4f} | {(n < b - 1e-6).sum()} / {(n > b + 1e-6).sum()} |")
+    print(f"| all | {len(ids)} | {np.mean(allb):.4f} | {np.mean(alln):.4f} | {np.mean(alln) - np.mean(allb):+.4f} | |")
+    print(f"\ncategories better: {helps}, worse: {hurts}, unchanged (|change| < 5e-5): {len(cats) - helps - hurts}")
 
 
 def main() -> None:
@@ -203,11 +244,19 @@ def main() -> None:
     p = sub.add_parser("profile")
     p.add_argument("--cuts", required=True)
     p.add_argument("--start", choices=["first", "given", "nearest"], default="given")
-    s = sub.add_parser("share")
-    s.add_argument("--ids", required=True)
-    s.add_argument("--out", required=True)
+    c = sub.add_parser("compare")
+    c.add_argument("--base", required=True)
+    c.add_argument("--new", required=True)
+    c.add_argument("--base-name", default="base")
+    c.add_argument("--new-name", default="new")
+    x = sub.add_parser("ab")
+    x.add_argument("--a", required=True, help="code tree A (e.g. /work/main)")
+    x.add_argument("--b", required=True, help="code tree B (e.g. this worktree)")
+    x.add_argument("--ids", required=True)
+    x.add_argument("--out", required=True)
+    x.add_argument("--rounds", type=int, default=2)
     args = ap.parse_args()
-    {"capture": capture, "time": time_engines, "profile": profile, "share": share}[args.cmd](args)
+    {"capture": capture, "time": time_engines, "profile": profile, "compare": compare, "ab": ab}[args.cmd](args)
 
 
 if __name__ == "__main__":
