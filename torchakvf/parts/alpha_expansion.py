@@ -323,7 +323,8 @@ def min_cut_sink_side(m: int, src_cap: np.ndarray, sink_cap: np.ndarray, i: np.n
     rows = np.repeat(np.arange(m + 2), np.diff(indptr))[open_arc]
     back_ptr = np.zeros(m + 3, dtype=np.int32)
     np.cumsum(np.bincount(rows, minlength=m + 2), out=back_ptr[1:])
-    back = csr_matrix((np.ones(len(rows), dtype=np.int8), indices[open_arc], back_ptr), shape=(m + 2, m + 2))
+    # float64 data: the dtype breadth_first_order works in (no converted copy)
+    back = csr_matrix((np.ones(len(rows)), indices[open_arc], back_ptr), shape=(m + 2, m + 2))
     reaches_sink = breadth_first_order(back, t, directed=True, return_predecessors=False)
     x = np.zeros(m + 2, dtype=bool)
     x[reaches_sink] = True
