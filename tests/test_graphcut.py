@@ -373,3 +373,11 @@ def test_the_cut_starts_from_the_parts_so_never_raises_their_energy(seed):
     w = opts.smoothness * gc.edge_weights(dual, opts)
     assert (out != labels).any()
     assert energy(out, unary, dual.pairs, w) < energy(labels, unary, dual.pairs, w)
+
+
+def test_engine_gco_without_gco_wrapper_says_how_to_get_it(monkeypatch):
+    import sys
+    monkeypatch.setitem(sys.modules, "gco", None)                 # as if not installed
+    with pytest.raises(ParameterError, match=r"torchakvf\[gco\]"):
+        potts_expansion(np.zeros((2, 2)), np.array([[0, 1]]), np.ones(1), engine="gco")
+    potts_expansion(np.zeros((2, 2)), np.array([[0, 1]]), np.ones(1))   # the default needs none
