@@ -106,9 +106,10 @@ def test_groups_are_solved_as_separate_problems():
     groups = np.r_[np.zeros(8, dtype=np.int64), np.ones(6, dtype=np.int64)]
     labs = [np.array([0, 2, 3]), np.array([1, 3])]
     start = np.r_[np.full(8, 2), np.full(6, 3)]
+    weights = np.concatenate([w1, w2])
     for initial in (None, start):
-        got = potts_alpha_expansion(unary, pairs, weights := np.concatenate([w1, w2]), cycles=3, groups=groups,
-                                    group_labels=labs, initial=initial)
+        got = potts_alpha_expansion(unary, pairs, weights, cycles=3, groups=groups, group_labels=labs,
+                                    initial=initial)
         for g, (sl, u, p, w) in enumerate([(slice(0, 8), u1, p1, w1), (slice(8, 14), u2, p2, w2)]):
             alone = potts_alpha_expansion(u[:, labs[g]], p, w, cycles=3,
                                           initial=None if initial is None else np.searchsorted(labs[g], initial[sl]))

@@ -7,9 +7,10 @@ The moves are those of Boykov, Veksler & Zabih (2001), in the conventions of the
 reference implementation (gco), so that on the same integer terms the labels are the same
 (``tests/test_alpha_expansion.py`` compares the two where gco is installed):
 
-* every site starts at the first label; a cycle tries the labels in order, and the cycles stop
-  early when one leaves the energy as it was (``cycles = -1``: gco's adaptive schedule, where the
-  labels whose expansion succeeded are retried first, until no expansion lowers the energy);
+* every site starts at the first label (or at the labels given, gco's ``init_label_at_site``);
+  a cycle tries the labels in order, and the cycles stop early when one leaves the energy as it
+  was (``cycles = -1``: gco's adaptive schedule, where the labels whose expansion succeeded are
+  retried first, until no expansion lowers the energy);
 * an expansion on α is a binary problem over the sites not labelled α (x = 0: take α, x = 1:
   keep); its minimum cut is exact, and among several minimizers the one where the most sites
   take α is chosen (the union of every minimizer's α sites: minimum cuts form a lattice): the
@@ -21,17 +22,17 @@ list of labels; the groups' moves are independent, so the k-th expansion of ever
 in one maximum flow. Terms are integers (int64 sums; each capacity must fit in int32, which the
 callers' scaling to at most 10⁶ per term keeps), so equal energies compare exactly.
 
-What makes it fast without changing a label (each step is exact, see the functions):
-an expansion is skipped where it cannot move anything (the group's labels did not change since
-its last expansion on α; a two-label group after its first expansion, which is the exact
-optimum); sites whose data term outweighs all their pairs are decided before the flow (they are
-most of a band); the graph is built straight into CSR with every reverse arc present, so the
-residual and its reachability are array operations on the flow's own layout.
+What makes it fast without changing a label (each rule exact, see :func:`_cycles` and
+:func:`expansion_step`): an expansion is skipped where it cannot move anything; consecutive
+expansions that read no site an earlier one may move share one maximum flow; sites whose data
+term outweighs all their pairs are decided before the flow; the graph is built straight into CSR
+with every reverse arc present, so the residual and its reachability are array operations on the
+flow's own layout.
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 
 _INT32_MAX = int(np.iinfo(np.int32).max)
@@ -67,7 +68,8 @@ def potts_alpha_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndar
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     weights = np.asarray(weights, dtype=np.int64)
     if groups is None:
-        if not len(pairs):   # independent sites: each its cheapest label, the first on ties
+        # independent sites, as gco: each its cheapest label, the first on ties, whatever the start
+        if not len(pairs):
             return np.argmin(unary, axis=1).astype(np.int64) if n else np.zeros(0, dtype=np.int64)
         groups, group_labels = np.zeros(n, dtype=np.int64), [np.arange(k)]
     groups = np.asarray(groups, dtype=np.int64)
