@@ -116,6 +116,18 @@ def test_groups_are_solved_as_separate_problems():
             np.testing.assert_array_equal(got[sl], labs[g][alone])
 
 
+def test_a_group_without_pairs_takes_its_cheapest_label_whatever_the_start():
+    """As gco solves a problem without pairs (each component of the graph cut is one): the
+    cheapest label, the first in the group's order on ties, not the start's."""
+    unary = np.array([[3, 1, 1], [2, 2, 5], [0, 4, 4], [9, 9, 9]])
+    pairs = np.array([[2, 3]])
+    groups = np.array([0, 1, 2, 2])
+    labs = [np.array([0, 1, 2]), np.array([2, 1, 0]), np.array([0, 1, 2])]
+    got = potts_alpha_expansion(unary, pairs, np.array([1]), groups=groups, group_labels=labs,
+                                initial=np.array([2, 0, 1, 1]))
+    assert got[0] == 1 and got[1] == 1                   # ties: 1 before 2; 1 before 0 in group 1's order
+
+
 def test_same_input_same_labels_and_no_pairs():
     rng = np.random.default_rng(9)
     unary, pairs, weights = _random_problem(rng, 30, 5, p_edge=0.15)

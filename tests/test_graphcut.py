@@ -381,3 +381,23 @@ def test_engine_gco_without_gco_wrapper_says_how_to_get_it(monkeypatch):
     with pytest.raises(ParameterError, match=r"torchakvf\[gco\]"):
         potts_expansion(np.zeros((2, 2)), np.array([[0, 1]]), np.ones(1), engine="gco")
     potts_expansion(np.zeros((2, 2)), np.array([[0, 1]]), np.ones(1))   # the default needs none
+
+
+def test_engines_agree_on_sparse_problems_with_ties_and_lonely_faces():
+    """Random sparse graphs (many components, single faces among them), few distinct costs
+    (ties), random allowed labels and starts: component by component gco and scipy agree."""
+    pytest.importorskip("gco", reason="gco-wrapper (the optional engine: pip install 'torchakvf[gco]') not installed")
+    rng = np.random.default_rng(21)
+    for _ in range(60):
+        n, k = int(rng.integers(2, 30)), int(rng.integers(2, 6))
+        pairs = rng.integers(0, n, size=(int(rng.integers(0, n)), 2))
+        pairs = np.unique(np.sort(pairs[pairs[:, 0] != pairs[:, 1]], axis=1), axis=0)
+        allowed = rng.random((n, k)) < 0.6
+        allowed[np.arange(n), rng.integers(0, k, n)] = True
+        unary = np.where(allowed, rng.integers(0, 4, (n, k)).astype(float), 50.0)
+        w = rng.integers(0, 3, len(pairs)).astype(float)
+        start = np.array([rng.choice(np.flatnonzero(row)) for row in allowed])
+        for initial in (None, start):
+            np.testing.assert_array_equal(
+                potts_expansion(unary, pairs, w, 2, allowed=allowed, initial=initial),
+                potts_expansion(unary, pairs, w, 2, allowed=allowed, initial=initial, engine="gco"))

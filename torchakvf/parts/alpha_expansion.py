@@ -79,6 +79,7 @@ def potts_alpha_expansion(unary: np.ndarray, pairs: np.ndarray, weights: np.ndar
         labels = np.asarray(initial, dtype=np.int64).copy()
     if n == 0 or table.shape[1] <= 1:
         return labels
+    _lonely_groups(labels, unary, pairs, groups, table)
     if cycles == -1:
         return _adaptive_by_group(labels, unary, pairs, weights, groups, group_labels)
     return _cycles(labels, unary, pairs, weights, groups, table, int(cycles), initial is None)
@@ -95,8 +96,9 @@ def _cycles(labels, unary, pairs, weights, groups, table, cycles: int, from_firs
     * every site starting at the first label is as if expanded on it; and with two labels,
       the first expansion on the second from there is the group's exact optimum;
     * consecutive expansions share one flow while none reads a site an earlier one may move
-      (its sites that could take its label, and their neighbours): solved together, each sees
-      the state it would see in turn (parts far apart on a band; groups never share a pair)."""
+      (its sites that could take its label, and their neighbours, and the sites that could
+      take it once an earlier one moved them): solved together, each sees the state it would
+      see in turn (parts far apart on a band; groups never share a pair)."""
     n = len(labels)
     rows = np.arange(n)
     a, b = pairs[:, 0], pairs[:, 1]
@@ -127,7 +129,7 @@ def _cycles(labels, unary, pairs, weights, groups, table, cycles: int, from_firs
             could = (alpha_q >= 0) & (labels != alpha_q) & \
                 (unary[rows, np.maximum(alpha_q, 0)] - cur <= incident)
             near = could | (adjacency @ could.astype(np.int32) > 0)
-            if j > i and (writes & near).any():
+            if j > i and _reads_a_write(writes, near, alpha, alpha_q, unary, incident):
                 break
             dirty = near & (changed_at > last_tried[groups, q])
             live = has & (np.bincount(groups[dirty], minlength=n_groups) > 0)
@@ -146,6 +148,30 @@ def _cycles(labels, unary, pairs, weights, groups, table, cycles: int, from_firs
             cur[changed] = unary[changed, labels[changed]]
         i = j
     return labels
+
+
+def _reads_a_write(writes, near, alpha, alpha_q, unary, incident) -> bool:
+    """Whether the expansion on alpha_q [F] reads a site that the batch's earlier expansions
+    (alpha [F] at the sites ``writes``) may move: a site it reads now (``near``), or one that
+    could take alpha_q once it took its batch label."""
+    if (writes & near).any():
+        return True
+    f = np.flatnonzero(writes & (alpha_q >= 0) & (alpha_q != alpha))
+    return bool((unary[f, alpha_q[f]] - unary[f, alpha[f]] <= incident[f]).any())
+
+
+def _lonely_groups(labels, unary, pairs, groups, table) -> None:
+    """In place: the sites of a group without pairs take their cheapest label, the first in
+    the group's order on ties, whatever the start (as gco solves a problem without pairs)."""
+    paired = np.zeros(len(table), dtype=bool)
+    paired[groups[pairs[:, 0]]] = True
+    sites = np.flatnonzero(~paired[groups])
+    if not len(sites):
+        return
+    options = table[groups[sites]]                      # [m, L], -1 past a group's last
+    cost = np.where(options >= 0, unary[sites[:, None], np.maximum(options, 0)], np.iinfo(np.int64).max)
+    best = options[np.arange(len(sites)), np.argmin(cost, axis=1)]
+    labels[sites] = np.where(best >= 0, best, labels[sites])
 
 
 def _label_table(group_labels: list) -> np.ndarray:
