@@ -30,8 +30,8 @@ from scipy.sparse.csgraph import connected_components
 
 from ..errors import ParameterError
 from ..options import EXPANSION_CYCLES, GRAPHCUT_ENGINES as ENGINES, GraphCut
-from .boundaries import barycenter_values
 from .alpha_expansion import potts_alpha_expansion
+from .boundaries import barycenter_values
 from .concavity import DualEdges, crease_weights
 
 
