@@ -219,7 +219,7 @@ class _EvalRun:
         for res in map_batches(batches, predict_in_worker, (predict,), workers=workers,
                                fatal=(OutputSpaceError,)):
             if res.split:
-                self.tell(f"a batch failed ({res.error}); retrying its {len(res.batch)} meshes one by one")
+                self.tell(f"a batch of {len(res.batch)} meshes failed ({res.error}); retrying its halves")
                 continue
             n_batch += 1
             self._batch_done(res, n_batch)
