@@ -16,7 +16,8 @@ import multiprocessing
 import os
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -30,16 +31,27 @@ RECYCLE_AFTER = 250
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "IGL_NUM_THREADS")
 
 
-def default_workers(device: str = "cpu") -> int:
-    """Worker processes by default: one per usable CPU core (at most 8) on CPU, 1 elsewhere
-    (one process owns a GPU)."""
+#: Processes of a batched run at most by default (the solving process and its host workers):
+#: a 16-core GPU machine keeps all its cores on the host stages.
+MAX_BATCHED_PROCESSES = 16
+
+
+def usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def default_workers(device: str = "cpu", batched: bool = False) -> int:
+    """Processes by default: one per usable CPU core (at most 8) on CPU; 1 elsewhere (one
+    process owns a GPU); for a batched run (one solving process fed by host workers) one per
+    core, at most :data:`MAX_BATCHED_PROCESSES`, on any device."""
+    if batched:
+        return max(1, min(usable_cores(), MAX_BATCHED_PROCESSES))
     if not str(device).startswith("cpu"):
         return 1
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(cores, 8))
+    return max(1, min(usable_cores(), 8))
 
 
 @dataclass
@@ -182,6 +194,44 @@ def halves(batch: list) -> list[list]:
     return [batch[:mid], batch[mid:]]
 
 
+class InlineExecutor:
+    """The :class:`concurrent.futures.Executor` calls :func:`host_pool` gives with no worker:
+    each call runs at once, in this process, and returns a finished future."""
+
+    def submit(self, fn, *args, **kwargs) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except Exception as exc:  # noqa: BLE001 - handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+    def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
+        pass
+
+
+@contextmanager
+def host_pool(workers: int):
+    """An executor of ``workers`` spawned single-threaded processes for the host stages of a
+    batched run (0: :class:`InlineExecutor`, everything in this process, in call order)."""
+    if workers <= 0:
+        yield InlineExecutor()
+        return
+    saved = {v: os.environ.get(v) for v in _THREAD_VARS}
+    os.environ.update({v: "1" for v in _THREAD_VARS})   # inherited by the spawned workers
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_init_worker, initargs=(1,))
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        for v, old in saved.items():
+            if old is None:
+                os.environ.pop(v, None)
+            else:
+                os.environ[v] = old
+
+
 def _outcome(queue, batch, result, error, seconds):
     if error is not None and len(batch) > 1:
         queue.extendleft(reversed(halves(batch)))
@@ -190,5 +240,5 @@ def _outcome(queue, batch, result, error, seconds):
         yield BatchOutcome(batch, result, error, seconds)
 
 
-__all__ = ["map_batches", "halves", "BatchOutcome", "default_workers", "error_text", "is_programming_error",
+__all__ = ["map_batches", "halves", "host_pool", "InlineExecutor", "usable_cores", "MAX_BATCHED_PROCESSES", "BatchOutcome", "default_workers", "error_text", "is_programming_error",
            "PROGRAMMING_ERRORS"]
