@@ -115,3 +115,19 @@ def test_batched_eval_on_psb_with_mesh_114(psb, tmp_path):
     diff = np.abs(scores[True] - scores[False])
     assert diff.max() <= PER_MESH_RI_TOL, diff
     assert abs(scores[True].mean() - scores[False].mean()) <= MEAN_RI_TOL
+
+
+def test_eval_command_batched(shapes_psb, tmp_path, capsys):
+    """``torchakvf eval --batched`` on the CPU: the batched path (its timings recorded), a
+    memory budget of one mesh's arrays giving one batch per mesh."""
+    from torchakvf.cli import main
+    from torchakvf.pipeline.batches import solve_bytes
+
+    out = tmp_path / "out"
+    one_mesh = solve_bytes(int(1.5 * 492) + 1, 1, 8)
+    assert main(["eval", "--psb", str(shapes_psb), "--out", str(out), "--batched", "--workers", "1",
+                 "--n-fields", "8", "--metrics", "rand", "--protocol", "by-model", "--quiet",
+                 "--batch-bytes", str(one_mesh)]) == 0
+    rec = json.loads((out / "settings.json").read_text())
+    assert rec["prediction"]["options"]["batched"] is True
+    assert rec["run"]["timings"]["batches"] == 3 and rec["run"]["batch_faces"] > 10 ** 5
