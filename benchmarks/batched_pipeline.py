@@ -37,8 +37,9 @@ print("WALL", time.perf_counter() - t)
 
 def run(code_dir: str, kwargs: dict) -> float:
     env = dict(os.environ, PYTHONPATH=code_dir)
+    # run in code_dir: ``python -c`` puts the working folder first on sys.path
     res = subprocess.run([sys.executable, "-c", RUN, json.dumps(kwargs)], env=env, capture_output=True,
-                         text=True, check=True)
+                         text=True, check=True, cwd=code_dir)
     return float([ln for ln in res.stdout.splitlines() if ln.startswith("WALL")][-1].split()[1])
 
 

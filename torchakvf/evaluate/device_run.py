@@ -10,9 +10,11 @@ cut what it solved, so that the device never waits on one core's host work.
     host workers      cut_and_score: boundaries, merge, graph cut, generators per (mesh, k);
                       .seg files, meta file, the mesh's scores.csv row
 
-The solving process prepares nothing itself: while batch i is solved, the workers prepare
-batches i+1 .. i+LOOKAHEAD and cut batches i-1, i-2, ... . With ``workers`` <= 1 every stage
-runs in the solving process, in order (the single-process device path).
+While batch i is solved, the workers prepare batches i+1 .. i+LOOKAHEAD and cut batches i-1,
+i-2, ...; the solving process does host work only where it would otherwise wait: a call no
+worker has started when it is needed (the first batch's meshes, the last cuts) is run there.
+With ``workers`` <= 1 every stage runs in the solving process, in order (the single-process
+device path).
 
 A batch whose solve raises is bisected (its halves solved again, recursively), so one mesh
 that cannot be solved fails alone and the others keep their shared solve; a mesh whose load or
@@ -113,12 +115,14 @@ def cut_and_score(job, plan, mesh, meta: dict, settings: PredictSettings, score_
 class DeviceRunTimes:
     """Seconds of a batched evaluation's stages. In the solving process: ``pack``, ``akvf``,
     ``rounds`` (untangling + k-means), ``jobs`` (the cut jobs' arrays to the host), ``wait_prepare``
-    / ``wait_cut`` (waiting for host workers, or doing their work inline with no worker),
-    ``other``; summed over the host work: ``prepare`` and ``cut`` (+ meta, scoring ``score``)."""
+    / ``wait_cut`` (waiting for host workers, or doing their work itself: with no worker, or
+    host calls no worker had started when they were needed, ``run_here`` of them), ``other``;
+    summed over the host work: ``prepare`` and ``cut`` (+ meta, scoring ``score``)."""
 
     workers: int = 0
     batches: int = 0
     bisections: int = 0
+    run_here: int = 0
     wall: float = 0.0
     pack: float = 0.0
     akvf: float = 0.0
@@ -151,12 +155,30 @@ class _DeviceRun:
         self.pool, self.settings, self.score_args = pool, settings, score_args
         self.finish, self.tell, self.inline = finish, tell, inline
         self.times = DeviceRunTimes()
-        self.cutting: dict = {}          # future -> plan
+        self.cutting: dict = {}          # future -> (plan, mesh)
+        self.calls: dict = {}            # future -> (fn, args)
+
+    def submit(self, fn, *args):
+        """``fn(*args)`` handed to the host workers; the call is kept so that this process can
+        run it itself if it has to wait for it before a worker started it (:meth:`outcome`)."""
+        fut = self.pool.submit(fn, *args)
+        self.calls[fut] = (fn, args)
+        return fut
+
+    def outcome(self, fut):
+        """The future's result: a call no worker has started yet is run here (it is cancelled
+        there), so the solving process never idles on queued host work (the first batch, the
+        last cuts)."""
+        fn, args = self.calls.pop(fut)
+        if fut.cancel():
+            self.times.run_here += 1
+            return fn(*args)
+        return fut.result()
 
     def prepare(self, batch) -> list:
         """The batch's meshes handed to the host workers (prepared now, with none)."""
         t0 = time.perf_counter()
-        futures = [self.pool.submit(prepare_mesh, p.entry.mesh_path, self.settings.coarse_faces) for p in batch]
+        futures = [self.submit(prepare_mesh, p.entry.mesh_path, self.settings.coarse_faces) for p in batch]
         self.times.wait_prepare += time.perf_counter() - t0
         return futures
 
@@ -166,7 +188,7 @@ class _DeviceRun:
         ready = []
         for p, fut in zip(batch, futures):
             try:
-                prep = fut.result()
+                prep = self.outcome(fut)
             except Exception as exc:  # noqa: BLE001 - a bad input fails alone, a bug ends the run
                 if is_programming_error(exc):
                     raise
@@ -216,7 +238,7 @@ class _DeviceRun:
         faces = np.array([len(m.faces) for m in fields.batch.meshes], dtype=np.float64)
         for b, (p, prep) in enumerate(ready):
             metas[b]["seconds"] = prep.seconds + solve_s * faces[b] / faces.sum()
-            fut = self.pool.submit(cut_and_score, jobs[b], p, prep.mesh, metas[b], s, self.score_args)
+            fut = self.submit(cut_and_score, jobs[b], p, prep.mesh, metas[b], s, self.score_args)
             self.cutting[fut] = (p, prep.mesh)
         dt = time.perf_counter() - t4
         if self.inline:              # the cuts ran in this process, in submit
@@ -241,13 +263,18 @@ class _DeviceRun:
         """Hand the finished cuts to ``finish`` (all of them with ``block``)."""
         t0 = time.perf_counter()
         while self.cutting:
-            done, _ = wait(list(self.cutting), timeout=None if block else 0, return_when=FIRST_COMPLETED)
+            if block:        # the last cuts: queued ones are run here too (in reverse: the
+                # workers take the queue's head), the others waited for
+                queued = [f for f in self.cutting if not f.running() and not f.done()]
+                done = queued[-1:] or wait(list(self.cutting), return_when=FIRST_COMPLETED)[0]
+            else:
+                done = [f for f in self.cutting if f.done()]
             if not done:
                 break
             for fut in done:
                 plan, mesh = self.cutting.pop(fut)
                 try:
-                    row, cut_s, score_s = fut.result()
+                    row, cut_s, score_s = self.outcome(fut)
                 except Exception as exc:  # noqa: BLE001
                     if is_programming_error(exc) or isinstance(exc, OutputSpaceError):
                         raise
