@@ -21,7 +21,8 @@
 #
 # DEVICE=cpu runs the same check on the CPU (no CUDA tests; syncs and reserved memory "n/a"),
 # e.g. on a few meshes to try the script where no GPU is lent:
-#   DEVICE=cpu IDS=61,114,4 COARSE_FACES=600 N_FIELDS=8 RATIO_MESHES=2 bash benchmarks/device_check.sh
+#   DEVICE=cpu IDS=61,114 COARSE_FACES=600 N_FIELDS=8 RATIO_MESHES=2 WORKERS=2 EVAL_SECONDS=900 \
+#     CHECK_SECONDS=1000 bash benchmarks/device_check.sh
 set -uo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-benchmarks/results/device}
@@ -94,7 +95,7 @@ if [ "$device" = cuda ] && [ "$has_cuda" != 1 ]; then
 fi
 
 # ---- 2. the batched evaluation ------------------------------------------------------------------
-t=$(cap 330)
+t=$(cap "${EVAL_SECONDS:-330}")
 echo "== batched eval on $device (at most $t s)"
 timeout "$t" python3 benchmarks/device_eval.py --psb "$psb" --device "$device" --out "$OUT/device_eval.json" \
     ${IDS:+--ids "$IDS"} --ratio-meshes "${RATIO_MESHES:-8}" --coarse-faces "${COARSE_FACES:-4000}" \

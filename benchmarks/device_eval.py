@@ -102,6 +102,7 @@ def main() -> None:
         t0 = time.perf_counter()
         figures["eval"] = eval_run(args.psb, work / "eval", ids, args.device, common)
         print("eval", json.dumps(figures["eval"]), flush=True)
+        Path(args.out).write_text(json.dumps(figures, indent=1))    # kept if the ratio runs time out
         sub = ([114] if 114 in ids else []) + [i for i in ids if i != 114][:max(args.ratio_meshes - 1, 1)]
         figures["ratio_ids"] = sub
         batched = eval_run(args.psb, work / "batched", sub, args.device, common)

@@ -133,7 +133,9 @@ def run_eval(args) -> int:
     if coarse < 0:
         raise TorchAKVFError(f"--coarse-faces must be >= 0, got {coarse}")
     device = parse_device(args.device)
-    batched = args.batched if args.batched is not None else not device.startswith("cpu")
+    # the batched path's processes (a solving one and host workers) serve given k's; k auto
+    # predicts in --workers processes that each solve, one per GPU
+    batched = (args.batched if args.batched is not None else not device.startswith("cpu")) and args.k != "auto"
     settings = EvalSettings(protocol=args.protocol, categories=categories, ids=args.ids,
                             per_category=args.per_category, k_mode=args.k, k_range=k_range,
                             default_k=args.default_k, n_fields=args.n_fields, coarse_faces=coarse or None,
