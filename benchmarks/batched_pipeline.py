@@ -7,12 +7,15 @@
   process and cut its batches);
 
 interleaved (base, inline, overlap, base, ...) ``--repeats`` times, each run a fresh process and
-output folder. Prints one JSON line per run (wall seconds; the run's own stage timings from its
+output folder. ``--threads 1`` gives every run's solving process one BLAS thread (the host workers
+have one either way): without it the overlap runs' solving process may read the workers' thread
+setting (it is in the environment while their pool runs) and the runs differ by more than the
+overlap. Prints one JSON line per run (wall seconds; the run's own stage timings from its
 settings.json) and a summary: median walls, the same-run ratios base / overlap and inline /
 overlap, and the share of wall time the solving process spent on host work or waiting for it.
 
     python benchmarks/batched_pipeline.py --psb ../shared/psb --ids 1-24 --base-code /tmp/base \
-        --out /tmp/bp --workers 2 --repeats 2
+        --out /tmp/bp --workers 2 --repeats 2 --threads 1
 """
 from __future__ import annotations
 
@@ -35,8 +38,14 @@ print("WALL", time.perf_counter() - t)
 """
 
 
-def run(code_dir: str, kwargs: dict) -> float:
+#: Thread-count variables of the BLAS/OpenMP runtimes (set for every run alike with --threads).
+THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+def run(code_dir: str, kwargs: dict, threads: int | None) -> float:
     env = dict(os.environ, PYTHONPATH=code_dir)
+    if threads:
+        env.update({v: str(threads) for v in THREAD_VARS})
     # run in code_dir: ``python -c`` puts the working folder first on sys.path
     res = subprocess.run([sys.executable, "-c", RUN, json.dumps(kwargs)], env=env, capture_output=True,
                          text=True, check=True, cwd=code_dir)
@@ -54,6 +63,8 @@ def main() -> None:
     ap.add_argument("--coarse-faces", type=int, default=1000)
     ap.add_argument("--n-fields", type=int, default=16)
     ap.add_argument("--batch-faces", type=int, default=8000)
+    ap.add_argument("--threads", type=int, default=None,
+                    help="BLAS/OpenMP threads of every run's solving process (default: the runtime's)")
     args = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1])
     common = dict(psb=args.psb, ids=args.ids, coarse_faces=args.coarse_faces, n_fields=args.n_fields,
@@ -66,7 +77,7 @@ def main() -> None:
     for rep in range(args.repeats):
         for name, (code, extra) in configs.items():
             out = Path(args.out) / f"{name}-{rep}"
-            wall = run(code, dict(common, out=str(out), **extra))
+            wall = run(code, dict(common, out=str(out), **extra), args.threads)
             timings = json.loads((out / "settings.json").read_text())["run"].get("timings")
             walls[name].append(wall)
             if timings:

@@ -29,6 +29,7 @@ import json
 import logging
 import time
 from concurrent.futures import FIRST_COMPLETED, wait
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -40,7 +41,7 @@ from ..mesh import MeshBatch, clean_mesh
 from ..mesh.coarse import coarse_mesh
 from ..parts.rounds import cut_mesh_rounds, mesh_cut_job, segment_rounds
 from ..parts.solve import solve_akvfs, solve_quality
-from ..pipeline.parallel import error_text, halves, host_pool, is_programming_error
+from ..pipeline.parallel import error_text, halves, host_pool, is_programming_error, usable_cores
 from .predict import PredictSettings, eval_akvf_count
 from .score import score_mesh
 
@@ -287,6 +288,23 @@ class _DeviceRun:
             self.times.wait_cut += time.perf_counter() - t0
 
 
+@contextmanager
+def solver_threads(device, host_workers: int):
+    """On the CPU with host workers, the solving process's torch threads are the cores the
+    workers leave (at least one): threads beyond the free cores spin-wait on a busy machine."""
+    if not str(device).startswith("cpu") or host_workers == 0:
+        yield
+        return
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, usable_cores() - host_workers))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def predict_on_device(batches: list, settings: PredictSettings, workers: int, score_args: tuple,
                       finish, tell=lambda line: None) -> DeviceRunTimes:
     """Predict (given k's) and score ``batches`` of :class:`~torchakvf.evaluate.plan.PredictionPlan`
@@ -301,7 +319,7 @@ def predict_on_device(batches: list, settings: PredictSettings, workers: int, sc
     """
     t_start = time.perf_counter()
     host = max(int(workers) - 1, 0)
-    with host_pool(host) as pool:
+    with host_pool(host) as pool, solver_threads(settings.device, host):
         run = _DeviceRun(pool, settings, score_args, finish, tell, inline=host == 0)
         run.times.workers = host
         ahead = collections.deque()
