@@ -12,7 +12,8 @@ cut what it solved, so that the device never waits on one core's host work.
 
 While batch i is solved, the workers prepare batches i+1 .. i+LOOKAHEAD and cut batches i-1,
 i-2, ...; the solving process does host work only where it would otherwise wait: a call no
-worker has started when it is needed (the first batch's meshes, the last cuts) is run there.
+worker has started when it is needed (the last cuts) is run there, and it prepares the first
+batch itself while the workers start.
 With ``workers`` <= 1 every stage runs in the solving process, in order (the single-process
 device path).
 
@@ -41,7 +42,8 @@ from ..mesh import MeshBatch, clean_mesh
 from ..mesh.coarse import coarse_mesh
 from ..parts.rounds import cut_mesh_rounds, mesh_cut_job, segment_rounds
 from ..parts.solve import solve_akvfs, solve_quality
-from ..pipeline.parallel import error_text, halves, host_pool, is_programming_error, usable_cores
+from ..pipeline.parallel import (InlineExecutor, error_text, halves, host_pool, is_programming_error,
+                                 usable_cores)
 from .predict import PredictSettings, eval_akvf_count
 from .score import score_mesh
 
@@ -176,10 +178,16 @@ class _DeviceRun:
             return fn(*args)
         return fut.result()
 
-    def prepare(self, batch) -> list:
-        """The batch's meshes handed to the host workers (prepared now, with none)."""
+    def prepare(self, batch, here: bool = False) -> list:
+        """The batch's meshes handed to the host workers (prepared now, in this process, with
+        none or with ``here``)."""
         t0 = time.perf_counter()
-        futures = [self.submit(prepare_mesh, p.entry.mesh_path, self.settings.coarse_faces) for p in batch]
+        pool = InlineExecutor() if here else self.pool
+        futures = []
+        for p in batch:
+            fut = pool.submit(prepare_mesh, p.entry.mesh_path, self.settings.coarse_faces)
+            self.calls[fut] = (prepare_mesh, (p.entry.mesh_path, self.settings.coarse_faces))
+            futures.append(fut)
         self.times.wait_prepare += time.perf_counter() - t0
         return futures
 
@@ -324,10 +332,13 @@ def predict_on_device(batches: list, settings: PredictSettings, workers: int, sc
         run.times.workers = host
         ahead = collections.deque()
         todo = collections.deque(batches)
-        for _ in range(LOOKAHEAD if host else 1):
-            if todo:
+        first = todo.popleft() if todo else None
+        for _ in range(LOOKAHEAD - 1 if host else 0):
+            if todo:         # the workers start (seconds of imports) on these
                 batch = todo.popleft()
                 ahead.append((batch, run.prepare(batch)))
+        if first is not None:  # meanwhile this process, idle until then, prepares the first batch
+            ahead.appendleft((first, run.prepare(first, here=True)))
         while ahead:
             batch, futures = ahead.popleft()
             ready = run.wait_prepared(batch, futures)
