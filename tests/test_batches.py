@@ -73,3 +73,38 @@ def test_batches_sorted_by_size_under_face_budget(tmp_path):
     task = FakeTask()
     run_corpus(list(reversed(paths)), tmp_path / "out", task, batch_faces=500)
     assert task.batches == [["s1", "s2"], ["s3"]]      # the 1280-face mesh alone, over budget
+
+
+def test_batched_batches_fit_the_memory_budget(monkeypatch):
+    """On the batched path a batch's padded arrays fit the budget: on CUDA a share of the
+    simulated free memory, on the CPU the configured bytes; the face budget only caps it."""
+    import torch
+
+    from torchakvf.pipeline import batches as B
+
+    per_mesh = B.solve_bytes(int(1.5 * 4000) + 1, 1, 36)
+    assert B.solve_bytes(6001, 3, 36) == 3 * per_mesh            # linear in the meshes
+    assert B.solve_bytes(12001, 1, 36) > 1.9 * per_mesh          # and about in the padded edges
+    monkeypatch.setattr(torch.cuda, "mem_get_info", lambda device=None: (int(10.5 * per_mesh / B.FREE_MEMORY_SHARE),
+                                                                        80 * 2**30))
+    assert B.batch_bytes_budget("cuda") == int(10.5 * per_mesh)
+    assert B.batch_bytes_budget("cpu") == B.DEFAULT_CPU_BATCH_BYTES
+    assert B.batch_bytes_budget("cuda", given=123) == 123
+    assert B.default_batch_faces("cpu", 4000, batched=True) == B.BATCHED_BATCH_FACES
+    assert B.default_batch_faces("cuda", 4000) == B.BATCHED_BATCH_FACES
+    assert B.default_batch_faces("cpu", 4000) < B.BATCHED_BATCH_FACES
+
+    class P:
+        def __init__(self, i):
+            self.mesh_id = i
+
+    plans = [P(i) for i in range(25)]
+    faces = {i: 4000 for i in range(25)}
+    memory = B.MemoryBudget(B.batch_bytes_budget("cuda"), 36)
+    got = B.prediction_batches(plans, faces, {i: 1 for i in range(25)}, B.BATCHED_BATCH_FACES,
+                               coarse_faces=4000, workers=1, device="cuda", memory=memory)
+    assert sorted(len(b) for b in got) == [5, 10, 10]
+    assert all(memory.fits([4000] * len(b)) for b in got)
+    faces[24] = 40_000                      # padded to the largest: it goes alone
+    got = B.cut_by_bytes(plans, lambda p: faces[p.mesh_id], memory)
+    assert [len(b) for b in got] == [10, 10, 4, 1]

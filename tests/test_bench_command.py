@@ -232,3 +232,21 @@ def test_a_stopped_bench_leaves_the_runs_it_finished(fake_psb, tmp_path, monkeyp
     assert sorted(p.name for p in out.iterdir()) == ["report.json", "report.md"]   # scratch gone
 
 
+
+
+def test_batched_flag_runs_the_accelerator_path_and_is_recorded(fake_psb, tmp_path, capsys, monkeypatch):
+    """--batched: every batch through the batched LOBPCG (none on the per-mesh CPU solvers),
+    the batched budget, and the flag in the report."""
+    from torchakvf.pipeline.batches import BATCHED_BATCH_FACES
+    from torchakvf.solvers import akvf_solver
+
+    calls = []
+    real = akvf_solver.segmented_lobpcg
+    monkeypatch.setattr(akvf_solver, "segmented_lobpcg", lambda *a, **k: calls.append(1) or real(*a, **k))
+    root, _ = fake_psb
+    out = tmp_path / "b"
+    assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "0",
+                 "--workers", "1", "--batched", "--categories", "Human"]) == 0
+    r = json.loads((out / "report.json").read_text())
+    assert r["settings"]["segment_kwargs"]["batched"] is True and calls
+    assert r["settings"]["batch_faces"] == BATCHED_BATCH_FACES

@@ -1,5 +1,5 @@
 """torchakvf.pipeline.execute: one batch loaded, computed and written; a bad input fails alone, a
-bug ends the run, a failing batch is retried one mesh at a time."""
+bug ends the run, a failing batch is bisected."""
 from __future__ import annotations
 
 import pytest
@@ -45,14 +45,20 @@ def test_manifest_fields_hook_and_exit_codes(tmp_path, capsys):
         assert rc == 0 and "1 ok, 0 failed" in stdout
 
 
-def test_batch_failure_is_retried_one_by_one(tmp_path):
+def test_batch_failure_is_bisected(tmp_path):
     ico = shapes.icosphere(1)
-    paths = [write_off(tmp_path / "in" / f"{n}.off", ico.vertices, ico.faces) for n in ("a", "b", "poison")]
+    names = ("a", "b", "c", "d", "e", "f", "g", "poison")
+    paths = [write_off(tmp_path / "in" / f"{n}.off", ico.vertices, ico.faces) for n in names]
     task = FakeTask()
     summary = run_corpus(paths, tmp_path / "out", task, batch_faces=10_000)
-    assert (summary.ok, summary.failed) == (2, 1)
-    assert task.batches[0] == ["a", "b", "poison"] and sorted(task.batches[1:]) == [["a"], ["b"], ["poison"]]
+    assert (summary.ok, summary.failed) == (7, 1)
+    # 8 -> 4 + 4 -> (2 + 2) -> 1 + 1: the culprit ends alone, the others are never run alone
+    assert task.batches == [list(names), list(names[:4]), list(names[4:]), ["e", "f"], ["g", "poison"],
+                            ["g"], ["poison"]]
+    runs = {n: sum(n in b for b in task.batches) for n in names}
+    assert runs == {"a": 2, "b": 2, "c": 2, "d": 2, "e": 3, "f": 3, "g": 4, "poison": 4}
     recs = by_stem(tmp_path / "out")
     assert recs["poison"]["status"] == "failed" and "poisoned batch" in recs["poison"]["error"]
-    # stage time is shared by face count: equal meshes in a batch of 1 get the whole second
-    assert recs["a"]["seconds"]["akvf"] == pytest.approx(1.0)
+    assert all(recs[n]["status"] == "ok" for n in names[:-1])
+    # stage time is shared by face count: equal meshes in the batch of 4 that ran get a quarter
+    assert recs["a"]["seconds"]["akvf"] == pytest.approx(0.25)

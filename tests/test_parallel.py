@@ -32,7 +32,7 @@ def test_results_failures_and_retries(workers):
     batches = [[1, 2], [3, -4, 5], [6]]
     done, split, failed = _collect(map_batches(batches, square_or_fail, (10,), workers=workers))
     assert done == {(1, 2): [11, 14], (3,): [19], (5,): [35], (6,): [46]}
-    assert split == [(3, -4, 5)]
+    assert split == [(3, -4, 5), (3, -4)]
     assert list(failed) == [(-4,)] and "ValueError: negative item" in failed[(-4,)]
 
 
@@ -69,3 +69,20 @@ def test_programming_errors_are_not_bad_items(workers):
 def test_fatal_errors_end_the_map():
     with pytest.raises(ValueError, match="negative"):
         list(map_batches([[1], [-1, 2]], square_or_fail, (0,), fatal=(ValueError,)))
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_failed_batch_is_bisected_and_nothing_finished_is_lost(workers):
+    """16 items, two bad: each bad item ends alone; a good item is run at most
+    1 + log2(16) = 5 times (never 16 single runs), and every good item's result comes back once."""
+    batch = list(range(1, 17))
+    batch[5], batch[12] = -6, -13
+    outcomes = list(map_batches([batch], square_or_fail, (0,), workers=workers))
+    runs = {x: sum(x in o.batch for o in outcomes) for x in batch}
+    done, split, failed = _collect(outcomes)
+    assert sorted(failed) == [(-13,), (-6,)]
+    results = sorted(v for r in done.values() for v in r)
+    assert results == sorted(x * x for x in batch if x > 0)
+    assert max(runs.values()) <= 5 and runs[-6] == runs[-13] == 5
+    assert sum(len(b) == 1 for b in done) <= 2     # good items alone only beside a culprit
+    assert len(outcomes) <= 1 + 2 * 2 * 4          # at most 2 log2(16) runs per culprit

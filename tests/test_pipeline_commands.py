@@ -91,3 +91,25 @@ def test_k_larger_than_faces_fails_that_mesh(tmp_path, capsys):
     rec = by_stem(tmp_path / "o")["m"]
     assert rec["status"] == "failed" and "-k 100" in rec["error"]
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("command", [["segment", "-k", "2", "--n-fields", "8", "--formats", "seg"],
+                                     ["features", "--n", "8"]])
+def test_batched_flag_solves_batches_as_one_and_is_recorded(tmp_path, capsys, monkeypatch, command):
+    """--batched on the CPU: the batch through the batched LOBPCG (the accelerator's path, not the
+    per-mesh CPU solvers), recorded in the manifest's params; without it the params are as
+    before (earlier manifests resume)."""
+    from torchakvf.solvers import akvf_solver
+
+    calls = []
+    real = akvf_solver.segmented_lobpcg
+    monkeypatch.setattr(akvf_solver, "segmented_lobpcg", lambda *a, **k: calls.append(1) or real(*a, **k))
+    s = shapes.dumbbell(n_around=12)
+    srcs = [write_off(tmp_path / "in" / f"{n}.off", s.vertices, s.faces) for n in ("a", "b")]
+    rc, stdout, err = cli_run([command[0], *srcs, "--out", tmp_path / "b", *command[1:], "--batched"], capsys)
+    assert rc == 0 and "2 ok, 0 failed" in stdout, err
+    assert calls and all(r["params"]["batched"] is True for r in by_stem(tmp_path / "b").values())
+    calls.clear()
+    rc, stdout, err = cli_run([command[0], *srcs, "--out", tmp_path / "p", *command[1:]], capsys)
+    assert rc == 0 and not calls
+    assert all("batched" not in r["params"] for r in by_stem(tmp_path / "p").values())

@@ -82,3 +82,19 @@ def test_cache_makes_reruns_free(tmp_path):
     assert (tmp_path / "o1" / "a.npz").read_bytes() == (tmp_path / "o2" / "a.npz").read_bytes()
     rec = by_stem(tmp_path / "o2")["a"]
     assert rec["cached"] is True and rec["status"] == "ok"
+
+
+def test_features_checks_gpu_memory_on_a_gpu(tmp_path, monkeypatch):
+    """On a GPU the estimate is the batched solve's arrays against the GPU's free memory (here a
+    simulated 1 MiB), not host RAM; the error names the GPU."""
+    import torch
+
+    from torchakvf.pipeline.features import estimate_device_bytes
+
+    monkeypatch.setattr(torch.cuda, "mem_get_info", lambda device=None: (2**20, 80 * 2**30))
+    task = FeaturesTask(4, device="cuda")
+    assert task.memory_bytes == 2**20
+    with pytest.raises(ta.errors.TorchAKVFError, match="free on the GPU"):
+        task.check_size("m.off", 320)
+    assert estimate_device_bytes(320, 4) > 2**20 > estimate_device_bytes(10, 4) / 100
+    FeaturesTask(4, device="cuda", memory_bytes=2**34).check_size("m.off", 320)    # fits

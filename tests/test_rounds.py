@@ -281,3 +281,33 @@ def test_batched_rounds_equal_each_mesh_alone(solved):
             assert many.features.shape == one.features.shape
             assert np.array_equal(many.features, one.features)
             assert many.generators == one.generators     # from the untangled fields' energies
+
+
+def test_cut_jobs_cut_elsewhere_give_the_rounds_own_parts():
+    """The solve phase and the cut phase apart (``cut=False``, :func:`mesh_cut_job` pickled as to
+    a host process, :func:`cut_mesh_rounds`) give each mesh's parts of ``cut=True`` bit for bit,
+    also for a mesh sitting out a round and on a decimated mesh."""
+    import pickle
+
+    from torchakvf.mesh import Mesh, MeshBatch
+    from torchakvf.parts.rounds import cut_mesh_rounds, mesh_cut_job
+    from torchakvf.parts.solve import solve_akvfs
+
+    s = [shapes.dumbbell(n_around=16), shapes.three_blobs(n_around=12)]     # 396, 312 faces
+    mb = MeshBatch.from_meshes([Mesh(x.vertices, x.faces, name=str(i)) for i, x in enumerate(s)],
+                               coarse_faces=300)
+    assert mb.coarse_of(0) is not None                  # the cut maps to the fine mesh
+    opts = SegmentOptions(kmeans_restarts=2, untangle_restarts=1, batched=True)
+    fields, _ = solve_akvfs(mb, 12, opts)
+    ks = [[2, 3], [3]]
+    whole = list(segment_rounds(fields, ks, opts, n_fields=8))
+    solved = list(segment_rounds(fields, ks, opts, n_fields=8, cut=False))
+    assert all(m is None for r in solved for m in r.meshes)
+    for b in range(2):
+        job = pickle.loads(pickle.dumps(mesh_cut_job(fields, solved, b)))
+        cuts = list(cut_mesh_rounds(job, opts))
+        assert [k for k, _ in cuts] == ks[b]
+        for (k, seg), rnd in zip(cuts, [r for r in whole if b in r.active]):
+            ref = rnd.meshes[b]
+            assert np.array_equal(seg.labels, ref.labels) and np.array_equal(seg.features, ref.features)
+            assert seg.cost == ref.cost and seg.params == ref.params and seg.converged == ref.converged

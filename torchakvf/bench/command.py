@@ -7,7 +7,7 @@ from ..errors import TorchAKVFError
 from ..evaluate.commands import default_psb_arg
 from ..mesh.coarse import DEFAULT_COARSE_FACES
 from ..options import METHODS
-from ..pipeline.arguments import (add_graph_cut_argument, add_method_argument, add_solver_argument,
+from ..pipeline.arguments import (add_batched_argument, add_graph_cut_argument, add_method_argument, add_solver_argument,
                                   parse_device, parse_int, register_command)
 from .run import DEFAULT_BASELINE_EVERY
 
@@ -54,6 +54,7 @@ def add_bench_arguments(p) -> None:
                    help="processes of the torchakvf runs, one thread each (default: one per CPU "
                         "core on CPU, at most 8; 1 on a GPU)")
     add_solver_argument(p, default=None)
+    add_batched_argument(p)
     add_graph_cut_argument(p)
     add_method_argument(p, None, METHODS)
 
@@ -78,7 +79,7 @@ def run_bench_command(args) -> int:
             raise TorchAKVFError("--categories: name at least one PSB category")
     device = parse_device(args.device)
     out = Path(args.out)
-    given = {"seed": seed, "solver": args.solver, "method": args.method}
+    given = {"seed": seed, "solver": args.solver, "method": args.method, "batched": args.batched}
     given = {k: v for k, v in given.items() if v is not None}
     if args.graph_cut == "off":
         given["graphcut"] = None

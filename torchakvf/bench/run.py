@@ -121,8 +121,10 @@ class BenchSettings:
     budgets: object = None
     repeats: int = 1
 
-    def checked(self) -> "BenchSettings":
-        """These settings with the device resolved and the defaults filled in; one-line errors."""
+    def checked(self, batched: bool | None = None) -> "BenchSettings":
+        """These settings with the device resolved and the defaults filled in (``batched``: the
+        options' :attr:`~torchakvf.options.SegmentOptions.batched`, which sets the default batch
+        budget); one-line errors."""
         if self.limit is not None and int(self.limit) < 1:
             raise TorchAKVFError(f"--limit must be an integer >= 1, got {self.limit}")
         if int(self.baseline_every) < 0:
@@ -131,7 +133,8 @@ class BenchSettings:
             raise TorchAKVFError(f"--repeats must be an integer >= 1, got {self.repeats}")
         device = str(resolve_device(self.device))
         coarse = int(self.coarse_faces or 0) or None
-        batch_faces = int(default_batch_faces(device, coarse) if self.batch_faces is None else self.batch_faces)
+        batch_faces = int(default_batch_faces(device, coarse, batched=batched) if self.batch_faces is None
+                          else self.batch_faces)
         if batch_faces < 1:
             raise TorchAKVFError(f"--batch-faces must be an integer >= 1, got {batch_faces}")
         workers = default_workers(device) if self.workers is None else int(self.workers)
@@ -213,8 +216,8 @@ def run_bench(psb_root, out_dir, options: SegmentOptions | None = None,
     Returns the report as a dict (what ``report.json`` holds; ``problems``: inputs left out).
     """
     mine, seg = split_overrides(overrides, BenchSettings)
-    settings = dataclasses.replace(settings or BenchSettings(), **mine).checked()
     options = eval_segment_options(options, seg)
+    settings = dataclasses.replace(settings or BenchSettings(), **mine).checked(options.batched)
     predict = PredictSettings(auto=False, n_fields=settings.n_fields, k_range=None, k_rule=None,
                               coarse_faces=settings.coarse_faces, options=options,
                               device=settings.device)

@@ -14,7 +14,7 @@ from pathlib import Path
 from ..errors import TorchAKVFError
 from ..mesh.coarse import DEFAULT_COARSE_FACES
 from ..options import METHODS
-from ..pipeline.arguments import (add_graph_cut_argument, add_method_argument, add_solver_argument,
+from ..pipeline.arguments import (add_batched_argument, add_graph_cut_argument, add_method_argument, add_solver_argument,
                                   parse_device, positive_int, register_command)
 from ..pipeline.parallel import default_workers
 
@@ -80,6 +80,10 @@ def add_eval_arguments(p) -> None:
     p.add_argument("--batch-faces", type=positive_int, default=None,
                    help="faces per batch, meshes sorted by size (default: on CPU one decimated "
                         "mesh a batch, 1000000 on cuda)")
+    p.add_argument("--batch-bytes", type=positive_int, default=None, metavar="N",
+                   help="with --batched: bytes a batch's padded solver arrays may take (default: "
+                        "half the GPU's free memory; 268435456 on the CPU)")
+    add_batched_argument(p)
     p.add_argument("--default-k", type=positive_int, default=DEFAULT_K_NO_GT,
                    help=f"parts for meshes without human segmentations (default {DEFAULT_K_NO_GT})")
     add_solver_argument(p, default=None)
@@ -94,7 +98,8 @@ def add_eval_arguments(p) -> None:
 def _segment_overrides(args) -> dict:
     """The segmentation options given on the command line (the others keep their defaults)."""
     given = {"seed": args.seed, "remedy": args.remedy, "boundary": args.boundary,
-             "min_part_fraction": args.min_part_fraction, "solver": args.solver, "method": args.method}
+             "min_part_fraction": args.min_part_fraction, "solver": args.solver, "method": args.method,
+             "batched": args.batched}
     given = {k: v for k, v in given.items() if v is not None}
     if args.graph_cut == "off":
         given["graphcut"] = None
@@ -128,11 +133,14 @@ def run_eval(args) -> int:
     if coarse < 0:
         raise TorchAKVFError(f"--coarse-faces must be >= 0, got {coarse}")
     device = parse_device(args.device)
+    # the batched path's processes (a solving one and host workers) serve given k's; k auto
+    # predicts in --workers processes that each solve, one per GPU
+    batched = (args.batched if args.batched is not None else not device.startswith("cpu")) and args.k != "auto"
     settings = EvalSettings(protocol=args.protocol, categories=categories, ids=args.ids,
                             per_category=args.per_category, k_mode=args.k, k_range=k_range,
                             default_k=args.default_k, n_fields=args.n_fields, coarse_faces=coarse or None,
-                            metrics=args.metrics, batch_faces=args.batch_faces,
-                            workers=args.workers or default_workers(device), device=device)
+                            metrics=args.metrics, batch_faces=args.batch_faces, batch_bytes=args.batch_bytes,
+                            workers=args.workers or default_workers(device, batched=batched), device=device)
     summary = evaluate_psb(psb_root, args.out, eval_segment_options(None, _segment_overrides(args), settings.auto),
                            settings, progress=not args.quiet)
     n_ok = sum(r.scored for r in summary.rows)

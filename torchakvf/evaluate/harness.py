@@ -63,11 +63,12 @@ from ..errors import TorchAKVFError
 from ..io.outputs import OutputSpaceError, atomic_write_bytes
 from ..operators import REMEDIES
 from ..options import SegmentOptions
-from ..pipeline.batches import default_batch_faces, prediction_batches
-from ..pipeline.parallel import map_batches
+from ..pipeline.batches import MemoryBudget, batch_bytes_budget, default_batch_faces, prediction_batches
+from ..pipeline.parallel import default_workers, map_batches
+from ..solvers.akvf_solver import batched_by_default
 from ..progress import progress as progress_bar
 from .plan import DEFAULT_K_NO_GT, PROTOCOLS, find_entries, human_mode, plan_meshes, select_entries
-from .predict import PredictSettings, predict_in_worker
+from .predict import PredictSettings, eval_akvf_count, predict_in_worker
 from .report import REFERENCES, EvalSummary, write_reports
 from .score import METRIC_GROUPS, METRICS, MeshScore, parse_metrics, score_mesh, score_segmentation
 from .settings import EvalSettings, eval_segment_options, prediction_record, settings_guard, split_overrides
@@ -86,10 +87,10 @@ def resolve_eval_settings(options: SegmentOptions | None, settings: EvalSettings
     settings = EvalSettings(**mine) if settings is None else EvalSettings(**{**vars(settings), **mine})
     # before any work: one line, not every mesh failed
     settings = EvalSettings(**{**vars(settings), "device": str(resolve_device(settings.device))}).checked()
-    if settings.batch_faces is None:
-        budget = default_batch_faces(settings.device, settings.coarse_faces)
-        settings = EvalSettings(**{**vars(settings), "batch_faces": budget})
     options = eval_segment_options(options, seg, auto=settings.auto)
+    if settings.batch_faces is None:
+        budget = default_batch_faces(settings.device, settings.coarse_faces, batched=options.batched)
+        settings = EvalSettings(**{**vars(settings), "batch_faces": budget})
     if options.remedy not in REMEDIES:
         raise TorchAKVFError(f"unknown remedy {options.remedy!r}; choose from {', '.join(REMEDIES)}")
     return options, settings
@@ -153,6 +154,10 @@ def _record_settings(out: Path, root: Path, entries, options, settings: EvalSett
     return recorded
 
 
+#: Meshes finished between two rewrites of the reports on the batched path.
+REPORT_EVERY = 16
+
+
 class _EvalRun:
     """One evaluation under way: its rows so far, its failures and its progress lines."""
 
@@ -171,6 +176,7 @@ class _EvalRun:
         self.failed: dict[int, str] = {}
         self.score_seconds = 0.0
         self.predict_seconds = 0.0
+        self.device_times = None
         self.tell(f"torchakvf eval: {len(plans)} meshes ({len(plans) - len(self.todo)} already "
                   f"predicted or failed), protocol {settings.protocol}{', k auto' if self.auto else ''}, "
                   f"remedy {options.remedy}, out {out}")
@@ -201,9 +207,19 @@ class _EvalRun:
                 if p.failure is not None:
                     self.tell(f"mesh {p.mesh_id} failed: {p.failure}")
 
+    @property
+    def batched(self) -> bool:
+        """Whether batches are solved as one (the accelerator's path; the device's default)."""
+        b = self.options.batched
+        return batched_by_default(self.settings.device) if b is None else bool(b)
+
     def predict(self) -> None:
         """Predict the missing (mesh, k)'s batch by batch, scoring each batch's meshes as it
-        finishes and rewriting the reports (without plots) after each."""
+        finishes and rewriting the reports (without plots) after each. A batched run with given
+        k's goes through :func:`~torchakvf.evaluate.device_run.predict_on_device` (host workers
+        feed the solving process)."""
+        if self.batched and not self.auto:
+            return self.predict_on_device()
         s = self.settings
         t_pred = time.perf_counter()
         score_before = self.score_seconds
@@ -219,7 +235,7 @@ class _EvalRun:
         for res in map_batches(batches, predict_in_worker, (predict,), workers=workers,
                                fatal=(OutputSpaceError,)):
             if res.split:
-                self.tell(f"a batch failed ({res.error}); retrying its {len(res.batch)} meshes one by one")
+                self.tell(f"a batch of {len(res.batch)} meshes failed ({res.error}); retrying its halves")
                 continue
             n_batch += 1
             self._batch_done(res, n_batch)
@@ -228,6 +244,48 @@ class _EvalRun:
                           problems=self.problems)
         self.bar.close()
         self.predict_seconds = time.perf_counter() - t_pred - (self.score_seconds - score_before)
+
+    def predict_on_device(self) -> None:
+        from .device_run import predict_on_device
+
+        s = self.settings
+        t_pred = time.perf_counter()
+        workers = default_workers(s.device, batched=True) if s.workers is None else int(s.workers)
+        n_missing = {p.mesh_id: len(p.missing(self.auto)) for p in self.todo}
+        # one solving process: consecutive batches under the face and memory budgets
+        memory = MemoryBudget(batch_bytes_budget(s.device, s.batch_bytes), eval_akvf_count(s))
+        batches = prediction_batches(self.todo, self.faces_of, n_missing, s.batch_faces,
+                                     coarse_faces=s.coarse_faces, workers=1, device=s.device, memory=memory)
+        predict = PredictSettings(auto=False, n_fields=s.n_fields, k_range=s.k_range, k_rule=s.k_rule,
+                                  coarse_faces=s.coarse_faces, options=self.options, device=s.device)
+        done = [0]
+
+        def finish(plan, mesh, error, row):
+            if error is not None:
+                self.failed[plan.mesh_id] = error
+                self.tell(f"mesh {plan.mesh_id} failed: {error}")
+                self.score(plan, mesh)
+            else:
+                self.rows[plan.mesh_id] = row
+            self.bar.update(self.faces_of[plan.mesh_id], note=f"mesh {plan.mesh_id}")
+            done[0] += 1
+            if done[0] % REPORT_EVERY == 0:
+                self.write_reports()
+
+        self.device_times = predict_on_device(batches, predict, workers,
+                                              (s.protocol, self.groups, False), finish, self.tell)
+        self.bar.close()
+        self.score_seconds += self.device_times.score     # in the host workers
+        self.predict_seconds = time.perf_counter() - t_pred - self.device_times.score
+        self.recorded["run"]["timings"] = self.device_times.record()
+        atomic_write_bytes(self.out / "settings.json", json.dumps(self.recorded, indent=2).encode())
+        t = self.device_times
+        self.tell(f"batched: {t.batches} batches on 1 solving process + {t.workers} host workers, "
+                  f"solve {t.record()['solve']:.1f}s of {t.wall:.1f}s, host share {100 * t.host_share:.0f}%")
+
+    def write_reports(self) -> None:
+        write_reports(self.out, self.rows, self.plans, self.settings, self.groups,
+                      time.perf_counter() - self.t_start, self.recorded, plot=False, problems=self.problems)
 
     def _batch_done(self, res, n_batch: int) -> None:
         if res.error is not None:

@@ -39,7 +39,11 @@ class EvalSettings:
     metrics : metric groups, e.g. "rand,hamming" (None: all)
     batch_faces : face budget of one batch (None:
         :func:`torchakvf.pipeline.batches.default_batch_faces` for the device)
-    workers : processes predicting batches side by side, one thread each (None: 1, this process)
+    batch_bytes : bytes a batch's padded solver arrays may take on the batched path (None: a
+        share of the device's free memory on a GPU, 256 MiB on the CPU;
+        :func:`torchakvf.pipeline.batches.batch_bytes_budget`)
+    workers : processes predicting batches side by side, one thread each (None: 1, this
+        process); on the batched path the solving process and its host workers
     device : torch device of the predictions (use one worker on a GPU)
     plot : write rand_index.png and the galleries
     """
@@ -56,6 +60,7 @@ class EvalSettings:
     coarse_faces: int | None = None
     metrics: object = None
     batch_faces: int | None = None
+    batch_bytes: int | None = None
     workers: int | None = None
     device: str = "cpu"
     plot: bool = True
@@ -72,6 +77,8 @@ class EvalSettings:
             raise TorchAKVFError(f"k_mode must be None or 'auto', got {self.k_mode!r}")
         if self.batch_faces is not None and int(self.batch_faces) < 1:
             raise TorchAKVFError(f"batch_faces must be positive, got {self.batch_faces}")
+        if self.batch_bytes is not None and int(self.batch_bytes) < 1:
+            raise TorchAKVFError(f"batch_bytes must be positive, got {self.batch_bytes}")
         if not isinstance(self.default_k, (int, np.integer)) or self.default_k < 1:
             raise TorchAKVFError(f"default_k must be a positive integer, got {self.default_k!r}")
         n = self.n_fields

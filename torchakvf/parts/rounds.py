@@ -4,9 +4,15 @@ k, and cuts its parts (:func:`~torchakvf.parts.cut.cut_parts`).
 Each mesh is untangled once per distinct field count and clustered once per distinct
 (fields, clusters) pair, whatever the round: a mesh's rotation and clustering depend on its own
 rows, the counts and the seed alone, so a mesh gets the bits it gets alone, in any batch.
+
+The solve phase and the cut phase can run apart (the batched pipeline solves on the device
+while host processes cut): ``segment_rounds(..., cut=False)`` yields the rounds clustered but
+not cut, :func:`mesh_cut_job` takes one mesh's share of them (small, picklable: its rows only)
+and :func:`cut_mesh_rounds` cuts it anywhere, with the bits ``cut=True`` gives.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -37,6 +43,7 @@ class KRound:
     meshes : [B] MeshSegmentation per active mesh, None for the others
     untangled : the untangled fields the round clustered (shared with rounds of equal counts)
     seconds : {"untangle": s (0 when shared), "cluster": s (k-means + cutting the parts)}
+    kmeans : the round's clustering [B, ...] (what the parts are cut from)
     """
 
     ks: list
@@ -44,13 +51,14 @@ class KRound:
     meshes: list
     untangled: UntangledFields
     seconds: dict
+    kmeans: KMeansResult | None = None
 
     def segmentation(self) -> Segmentation:
         return Segmentation(self.meshes, untangled=self.untangled)
 
 
 def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=None,
-                   untangled: UntangledFields | None = None):
+                   untangled: UntangledFields | None = None, cut: bool = True):
     """Yields one :class:`KRound` per round: round r segments every mesh with its r-th k.
 
     ks : one list of k's per mesh (or one int, or one int per mesh); meshes with fewer k's sit
@@ -58,6 +66,8 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
     n_fields : fields untangled per mesh, as :func:`field_counts` (None: from each round's k)
     untangled : the untangled fields of these AKVFs to use (their counts must be those the k's
         need): rounds whose counts agree share one untangling either way
+    cut : False: the rounds' parts are not cut (``meshes`` all None; cut them with
+        :func:`mesh_cut_job` and :func:`cut_mesh_rounds`)
     """
     batch = fields.batch
     ks = check_ks(batch, ks)
@@ -92,7 +102,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
             except ParameterError:     # that round raises it itself, after this one is yielded
                 pass
         meshes = [None] * nb
-        for b in active:
+        for b in (active if cut else ()):
             meshes[b] = cut_parts(batch, fields, unt, km, b, round_ks[b], opts, state.mesh_caches[b])
             if following is None or b not in following.active or \
                     (following.n_fields[b], following.clusters[b]) != (ns[b], km_ks[b]):
@@ -101,7 +111,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
                 state.mesh_caches[b].over = None
         t2 = time.perf_counter()
         yield KRound(ks=round_ks, active=active, meshes=meshes, untangled=unt,
-                     seconds={"untangle": t1 - t0, "cluster": t2 - t1})
+                     seconds={"untangle": t1 - t0, "cluster": t2 - t1}, kmeans=km)
 
 
 @dataclass
@@ -278,4 +288,91 @@ def _round_untangled(fields: AKVFResult, ns: list, active: list, rotations: dict
     return assembled[key]
 
 
-__all__ = ["segment_rounds", "round_plan", "RoundPlan", "KRound", "MeshClustering", "previous_centroids", "PAD_K"]
+@dataclass
+class MeshGeometry:
+    """face_area [F_b] of one mesh: the part of a KillingSystem's geometry a cut reads."""
+
+    face_area: torch.Tensor
+
+
+@dataclass
+class MeshSystem:
+    geometry: MeshGeometry
+
+
+@dataclass
+class MeshFields:
+    """One mesh's AKVF solve as :func:`~torchakvf.parts.cut.cut_parts` reads it (index 0):
+    eigenvalues [1, n], residuals [1, n], converged [1], system.geometry.face_area [F_b]."""
+
+    eigenvalues: torch.Tensor
+    residuals: torch.Tensor
+    converged: torch.Tensor
+    system: MeshSystem
+
+
+@dataclass
+class MeshUntangled:
+    """One mesh's untangled fields of one round as a cut reads them (index 0): features [F_b, n_b],
+    energies [1, n_b], n_fields [n_b]."""
+
+    features: torch.Tensor
+    energies: torch.Tensor
+    n_fields: list
+
+    def mesh_features(self, b: int) -> torch.Tensor:
+        return self.features
+
+
+@dataclass
+class MeshCutJob:
+    """Mesh b's share of a batch's rounds, everything its parts are cut from, as a batch of one:
+    batch (``MeshBatch.mesh(b)``: its tensors, clean mesh and decimation), fields
+    (:class:`MeshFields`), and per round it takes part in (k, :class:`MeshUntangled`, its
+    clustering as a one-mesh KMeansResult). Picklable: a host process cuts it."""
+
+    batch: object
+    fields: MeshFields
+    rounds: list = field(default_factory=list)
+
+
+def mesh_cut_job(fields: AKVFResult, rounds: list, b: int) -> MeshCutJob:
+    """Mesh b's :class:`MeshCutJob` from the (uncut) rounds of ``segment_rounds(fields, ...,
+    cut=False)``; the tensors are moved to the CPU (a host process cuts them)."""
+    batch = fields.batch
+    f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+    # own copies: a view would carry (and pickle) the whole batch's storage
+    cpu = lambda t: t.detach().cpu().clone()  # noqa: E731
+    area = cpu(fields.system.geometry.face_area[f0:f1])
+    one_mesh = batch.mesh(b)
+    tensors = {f.name: cpu(getattr(one_mesh, f.name)) for f in dataclasses.fields(one_mesh)
+               if isinstance(getattr(one_mesh, f.name), torch.Tensor)}
+    job = MeshCutJob(batch=dataclasses.replace(one_mesh, **tensors),
+                     fields=MeshFields(eigenvalues=cpu(fields.eigenvalues[b:b + 1]),
+                                       residuals=cpu(fields.residuals[b:b + 1]),
+                                       converged=cpu(fields.converged[b:b + 1]),
+                                       system=MeshSystem(MeshGeometry(area))))
+    for rnd in rounds:
+        if b not in rnd.active:
+            continue
+        n_b = int(rnd.untangled.n_fields[b])
+        unt = MeshUntangled(features=cpu(rnd.untangled.mesh_features(b)),
+                            energies=cpu(rnd.untangled.energies[b:b + 1, :n_b]), n_fields=[n_b])
+        km = rnd.kmeans
+        one = KMeansResult(labels=cpu(km.labels[b:b + 1, :f1 - f0]), centers=cpu(km.centers[b:b + 1]),
+                           cost=cpu(km.cost[b:b + 1]), iterations=cpu(km.iterations[b:b + 1]),
+                           restart_costs=cpu(km.restart_costs[b:b + 1]))
+        job.rounds.append((int(rnd.ks[b]), unt, one))
+    return job
+
+
+def cut_mesh_rounds(job: MeshCutJob, opts: SegmentOptions):
+    """Yields (k, MeshSegmentation) for each round of ``job`` in order: the parts
+    ``segment_rounds(..., cut=True)`` cuts for that mesh, bit for bit (one MeshCache across the
+    rounds, as there)."""
+    cache = MeshCache()
+    for k, unt, km in job.rounds:
+        yield k, cut_parts(job.batch, job.fields, unt, km, 0, k, opts, cache)
+
+
+__all__ = ["mesh_cut_job", "cut_mesh_rounds", "MeshCutJob", "segment_rounds", "round_plan", "RoundPlan", "KRound", "MeshClustering", "previous_centroids", "PAD_K"]

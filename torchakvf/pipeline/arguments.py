@@ -12,7 +12,7 @@ from ..errors import TorchAKVFError
 from ..fields.akvf import KRYLOV_MIN_EDGES, SOLVERS
 
 __all__ = ["MAX_SEED", "parse_int", "parse_float", "parse_seed", "parse_device", "parse_remedy",
-           "positive_int", "add_solver_argument", "add_graph_cut_argument", "add_method_argument",
+           "positive_int", "add_solver_argument", "add_batched_argument", "add_graph_cut_argument", "add_method_argument",
            "register_command"]
 
 #: Largest ``--seed``: every generator the package seeds (torch.Generator, numpy) takes it,
@@ -93,6 +93,16 @@ def add_solver_argument(p: argparse.ArgumentParser, default) -> None:
                    help="eigensolver of the AKVFs (default auto: on CPU ARPACK Lanczos below "
                         f"{KRYLOV_MIN_EDGES} edges and block Krylov above, both on a CHOLMOD "
                         "factor; LOBPCG on a GPU)")
+
+
+def add_batched_argument(p: argparse.ArgumentParser) -> None:
+    """``--batched``: solve each batch as one, the accelerator's path (segment, features, eval,
+    bench); True when given, else None (the device's way)."""
+    p.add_argument("--batched", action="store_const", const=True, default=None,
+                   help="solve each batch as one (one operator, the batched LOBPCG on one "
+                        "block-diagonal factor), fed by host worker processes: the default on a "
+                        "GPU; on the CPU it runs the accelerator's path there (slower than the "
+                        "per-mesh solvers, for testing it)")
 
 
 def add_method_argument(p: argparse.ArgumentParser, default, methods) -> None:

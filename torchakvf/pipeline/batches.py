@@ -12,11 +12,12 @@ depends on that mesh alone, so the grouping changes no answer, only the time:
 """
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 from ..mesh.coarse import DECIMATE_ABOVE
 
-__all__ = ["DEFAULT_BATCH_FACES", "default_batch_faces", "cut_by_budget", "plan_batches",
+__all__ = ["DEFAULT_BATCH_FACES", "BATCHED_BATCH_FACES", "default_batch_faces", "MemoryBudget",
+           "solve_bytes", "batch_bytes_budget", "cut_by_bytes", "FREE_MEMORY_SHARE", "DEFAULT_CPU_BATCH_BYTES", "cut_by_budget", "plan_batches",
            "solved_face_counts", "batches_per_worker", "make_batches", "balanced_batches",
            "mesh_work", "heaviest_first", "prediction_batches"]
 
@@ -27,11 +28,91 @@ __all__ = ["DEFAULT_BATCH_FACES", "default_batch_faces", "cut_by_budget", "plan_
 DEFAULT_BATCH_FACES = {"cpu": 20_000, "cuda": 1_000_000}
 
 
-def default_batch_faces(device, coarse_faces: int | None = None) -> int:
-    """The face budget of a batch by default: :data:`DEFAULT_BATCH_FACES` for the device; on
+#: Face cap of a batch solved as one (the batched path): the padded arrays' bytes against the
+#: device's memory (:class:`MemoryBudget`) size such a batch; this only bounds the host memory
+#: of one batch's meshes.
+BATCHED_BATCH_FACES = 1_000_000
+#: Share of the device's free memory a batch's padded solver arrays (:func:`solve_bytes`) may
+#: take: the rest holds the operator, the factor, the allocator's fragmentation and the
+#: round's untangling and k-means arrays.
+FREE_MEMORY_SHARE = 0.5
+#: Bytes of a batch's padded solver arrays on the CPU by default: a batched run there tests the
+#: accelerator's path; a few meshes per batch keep batches coming for the host workers.
+DEFAULT_CPU_BATCH_BYTES = 256 * 2**20
+#: Arrays of the batched LOBPCG, each [B, E_max, m]: the block x, its residual r, the search
+#: directions w and p and their operator images (x, rx, w, rw, p, rp), and as many again of
+#: temporaries (the Rayleigh-Ritz update and the preconditioner's solves).
+LOBPCG_BLOCKS = 12
+#: Edges per face of a closed triangle mesh (E = 3F/2); meshes with boundary have a little more.
+EDGES_PER_FACE = 1.5
+
+
+def solve_bytes(edges_max: int, count: int, n: int) -> int:
+    """Bytes of a batched solve's padded arrays: ``count`` meshes padded to ``edges_max`` edges,
+    n eigenpairs (plus the solver's room for spurious modes), float64: :data:`LOBPCG_BLOCKS`
+    arrays [B, E_max, m] with m = n + max(8, n // 2) columns, and the Gram matrices [B, 3m, 3m]
+    (two, and the eigensolver's copies of both). An estimate from the arrays
+    :func:`~torchakvf.solvers.lobpcg.segmented_lobpcg` allocates, made here for planning."""
+    from ..solvers.akvf_solver import SPURIOUS_MARGIN
+
+    n = int(n) + SPURIOUS_MARGIN
+    m = n + max(8, n // 2)
+    return 8 * int(count) * (LOBPCG_BLOCKS * int(edges_max) * m + 4 * (3 * m) ** 2)
+
+
+def batch_bytes_budget(device, given: int | None = None) -> int:
+    """Bytes a batch's padded arrays may take on ``device``: ``given``, else on CUDA
+    :data:`FREE_MEMORY_SHARE` of ``torch.cuda.mem_get_info``'s free memory, on the CPU
+    :data:`DEFAULT_CPU_BATCH_BYTES`."""
+    if given is not None:
+        return int(given)
+    if str(device).startswith("cuda"):
+        import torch
+
+        free, _ = torch.cuda.mem_get_info(torch.device(device))
+        return int(FREE_MEMORY_SHARE * free)
+    return DEFAULT_CPU_BATCH_BYTES
+
+
+class MemoryBudget(NamedTuple):
+    """A batched solve's memory budget: ``bytes`` for the padded arrays of ``n`` eigenpairs."""
+
+    bytes: int
+    n: int
+
+    def fits(self, faces: Sequence[int]) -> bool:
+        """Whether meshes of these (solved) face counts fit as one batch."""
+        edges = int(EDGES_PER_FACE * max(faces)) + 1
+        return solve_bytes(edges, len(faces), self.n) <= self.bytes
+
+
+def cut_by_bytes(items: Sequence, faces: Callable, memory: MemoryBudget) -> list[list]:
+    """Consecutive ``items`` grouped into batches whose padded arrays fit ``memory``
+    (``faces(item)``: the faces solved); an item alone above it is a batch alone (the solve
+    then says whether it fits). The order is kept."""
+    batches: list[list] = []
+    cur: list = []
+    for it in items:
+        if cur and not memory.fits([faces(x) for x in cur] + [faces(it)]):
+            batches.append(cur)
+            cur = []
+        cur.append(it)
+    if cur:
+        batches.append(cur)
+    return batches
+
+
+def default_batch_faces(device, coarse_faces: int | None = None, batched: bool | None = None) -> int:
+    """The face budget of a batch by default: a batch solved as one (``batched``, or by the
+    device's default: every device but the CPU) :data:`BATCHED_BATCH_FACES`, its size then set
+    by memory (:class:`MemoryBudget`); otherwise :data:`DEFAULT_BATCH_FACES` for the device; on
     the CPU with decimation to about ``coarse_faces`` faces (evaluation, bench), one decimated
     mesh per batch (the cores are used by worker processes instead, and a batch re-solves
     every mesh when one of them needs more eigenpairs)."""
+    if batched is None:
+        batched = not str(device).startswith("cpu")
+    if batched:
+        return BATCHED_BATCH_FACES
     if coarse_faces and str(device).startswith("cpu"):
         return int(DECIMATE_ABOVE * coarse_faces)
     kind = str(device).split(":")[0]
@@ -133,7 +214,7 @@ def heaviest_first(batches: list, faces_of: dict, ks_of: dict) -> list:
 
 
 def prediction_batches(plans, faces_of: dict, ks_of: dict, budget: int, *, coarse_faces=None,
-                       workers: int = 1, device="cpu") -> list:
+                       workers: int = 1, device="cpu", memory: MemoryBudget | None = None) -> list:
     """The batches of an evaluation's (or the bench's) predictions, in the order to run them.
 
     plans : objects with ``.mesh_id``
@@ -143,9 +224,12 @@ def prediction_batches(plans, faces_of: dict, ks_of: dict, budget: int, *, coars
 
     Sorted by (k's, faces, id): a batch's meshes then need about the same number of
     segmentation rounds and have similar sizes (little padding); then cut by
-    :func:`make_batches` and handed out :func:`heaviest_first`."""
+    :func:`make_batches` and handed out :func:`heaviest_first`. With ``memory`` (a batched
+    solve), each batch is cut further so that its padded arrays fit (:func:`cut_by_bytes`)."""
     order = sorted(plans, key=lambda p: (ks_of[p.mesh_id], faces_of[p.mesh_id], p.mesh_id))
     solved = solved_face_counts(faces_of, coarse_faces)
     batches = make_batches(order, solved, int(budget), workers=int(workers),
                            work_of=mesh_work(faces_of, ks_of), per_worker=batches_per_worker(device))
+    if memory is not None:
+        batches = [b for batch in batches for b in cut_by_bytes(batch, lambda p: solved[p.mesh_id], memory)]
     return heaviest_first(batches, faces_of, ks_of)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ..errors import TorchAKVFError
 from ..options import DEFAULT_METHOD, METHODS
-from .arguments import (add_graph_cut_argument, add_method_argument, add_solver_argument, parse_device,
+from .arguments import (add_batched_argument, add_graph_cut_argument, add_method_argument, add_solver_argument, parse_device,
                         parse_float, parse_int, parse_remedy, parse_seed)
 
 log = logging.getLogger("torchakvf")
@@ -34,6 +34,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="run the batches on N Ray actors (pip install 'torchakvf[ray]'; joins the "
                         "cluster of RAY_ADDRESS or `ray start`, else a local one; with --device cuda "
                         "one GPU each). Default 0: no Ray")
+    add_batched_argument(p)
 
 
 def _ray_workers(args) -> int:
@@ -54,7 +55,7 @@ def _run(args, task, device: str) -> int:
         if importlib.util.find_spec("ray") is None:
             raise TorchAKVFError("--ray-workers needs ray: pip install 'torchakvf[ray]'")
     batch_faces = (parse_int(args.batch_faces, "--batch-faces", 1) if args.batch_faces is not None
-                   else default_batch_faces(device))
+                   else default_batch_faces(device, batched=args.batched))
     paths = discover_inputs(args.inputs, exclude=out)
     check_output_dir(out)   # before any work: an unwritable --out is one line, not N failures
     log.info("%s: %d meshes -> %s (device %s, batches of <= %d faces)", task.name, len(paths), out,
@@ -122,7 +123,7 @@ def run_segment(args) -> int:
     eps = parse_float(args.eps, "--eps", 0.0, 2.0, " (a cosine distance never exceeds 2)")
     options = SegmentOptions(eps=eps, seed=parse_seed(args.seed),
                              remedy=parse_remedy(args.remedy or DEFAULT_REMEDY), solver=args.solver,
-                             method=args.method, graphcut=args.graph_cut == "on")
+                             method=args.method, graphcut=args.graph_cut == "on", batched=args.batched)
     task = SegmentTask(k, options, n_fields=n_fields, coarse_faces=coarse or None,
                        formats=parse_formats(args.formats), subdivide=args.subdivide)
     return _run(args, task, parse_device(args.device, check_available=not _ray_workers(args)))
@@ -160,7 +161,7 @@ def run_features(args) -> int:
     max_faces = parse_int(args.max_faces, "--max-faces", 1) if args.max_faces is not None else None
     device = parse_device(args.device, check_available=not _ray_workers(args))
     task = FeaturesTask(n, seed=seed, remedy=remedy, face_vectors=args.face_vectors, cache_dir=args.cache,
-                        coarse_faces=coarse, max_faces=max_faces)
+                        coarse_faces=coarse, max_faces=max_faces, batched=args.batched, device=device)
     return _run(args, task, device)
 
 

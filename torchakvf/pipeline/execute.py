@@ -112,7 +112,7 @@ def process_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> 
     """Load, compute and write one batch; returns one manifest record per item (any order).
 
     A mesh that fails to load, or to write, gets its ``failed`` record here; an error of the
-    batch's computation propagates (:func:`run_batch` then retries the meshes one by one).
+    batch's computation propagates (:func:`run_batch` then retries its halves).
     Self-contained (plain inputs and outputs) so any executor can map it over batches.
     """
     records: list[dict] = []
@@ -189,13 +189,13 @@ def _free_device_memory(device) -> None:
 
 def run_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> list[dict]:
     """:func:`process_batch` through the shared split-and-retry of
-    :func:`~.parallel.map_batches`: when the batch's computation fails, its meshes are retried
-    one by one, so only the culprit fails. One record per item."""
+    :func:`~.parallel.map_batches`: when the batch's computation fails, its halves are retried
+    (bisection), so only the culprit fails and no finished mesh is lost. One record per item."""
     records: list[dict] = []
     for outcome in map_batches([items], process_batch, (task, out_dir, device, seed),
                                fatal=(OutputSpaceError,)):
         if outcome.split:
-            log.warning("batch of %d meshes failed (%s); retrying them one by one",
+            log.warning("batch of %d meshes failed (%s); retrying its halves",
                         len(outcome.batch), outcome.error)
         elif outcome.error is not None:
             records.append(failed_record(outcome.batch[0], task, seed, outcome.error))

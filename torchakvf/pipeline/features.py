@@ -59,6 +59,25 @@ def estimate_bytes(faces: int, n: int) -> int:
     return BYTES_FIXED + int(faces) * int(n) * BYTES_PER_FACE_FIELD
 
 
+def device_memory(device) -> int | None:
+    """The memory a solve on ``device`` may use: on CUDA the GPU's free memory
+    (``torch.cuda.mem_get_info``), elsewhere the machine's physical memory."""
+    if str(device).startswith("cuda"):
+        import torch
+
+        return int(torch.cuda.mem_get_info(torch.device(device))[0])
+    return _physical_memory()
+
+
+def estimate_device_bytes(faces: int, n: int) -> int:
+    """About how many bytes of a GPU's memory a batched solve of one mesh of ``faces`` faces and
+    ``n`` fields takes: its padded solver arrays (:func:`~torchakvf.pipeline.batches.solve_bytes`),
+    with :data:`~torchakvf.pipeline.batches.FREE_MEMORY_SHARE` left for the rest."""
+    from .batches import EDGES_PER_FACE, FREE_MEMORY_SHARE, solve_bytes
+
+    return int(solve_bytes(int(EDGES_PER_FACE * faces) + 1, 1, n) / FREE_MEMORY_SHARE)
+
+
 def _physical_memory() -> int | None:
     try:
         return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
@@ -75,16 +94,21 @@ class FeaturesTask:
     def __init__(self, n: int = 32, *, seed: int = 0, remedy: str = DEFAULT_REMEDY,
                  untangle_restarts: int = DEFAULT_RESTARTS, tol: float = 1e-6, face_vectors: bool = False,
                  cache_dir=None, coarse_faces: int | None = None, max_faces: int | None = None,
-                 memory_bytes: int | None = None):
+                 memory_bytes: int | None = None, batched: bool | None = None, device="cpu"):
         """coarse_faces : solve meshes above 1.25x this many faces decimated to about this many
         (None: full resolution). max_faces : refuse a mesh whose solve has more faces (None:
-        no limit but memory). memory_bytes : the memory a solve may use (default: the
-        machine's physical memory)."""
+        no limit but memory). memory_bytes : the memory a solve may use (default
+        :func:`device_memory`: on a GPU its free memory, checked against
+        :func:`estimate_device_bytes`; else the machine's, against :func:`estimate_bytes`).
+        batched : solve each batch as one (the accelerator's path; None: the device's way).
+        device : where the solve runs (sets the memory checked)."""
         self.n, self.seed, self.remedy = int(n), int(seed), remedy
         self.untangle_restarts, self.tol, self.face_vectors = int(untangle_restarts), float(tol), bool(face_vectors)
         self.coarse_faces = int(coarse_faces) if coarse_faces else None
         self.max_faces = int(max_faces) if max_faces is not None else None
-        self.memory_bytes = int(memory_bytes) if memory_bytes is not None else _physical_memory()
+        self.on_device = str(device).startswith("cuda")
+        self.memory_bytes = int(memory_bytes) if memory_bytes is not None else device_memory(device)
+        self.batched = None if batched is None else bool(batched)
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         if self.cache_dir is not None:
             from .outdir import check_output_dir
@@ -94,10 +118,13 @@ class FeaturesTask:
 
     @property
     def params(self) -> dict:
-        return {"n": self.n, "seed": self.seed, "remedy": self.remedy,
-                "untangle_restarts": self.untangle_restarts, "tol": self.tol,
-                "face_vectors": self.face_vectors, "coarse_faces": self.coarse_faces,
-                "descriptor_counts": list(counts_for(self.n))}
+        params = {"n": self.n, "seed": self.seed, "remedy": self.remedy,
+                  "untangle_restarts": self.untangle_restarts, "tol": self.tol,
+                  "face_vectors": self.face_vectors, "coarse_faces": self.coarse_faces,
+                  "descriptor_counts": list(counts_for(self.n))}
+        if self.batched is not None:    # the default leaves earlier manifests resumable
+            params["batched"] = self.batched
+        return params
 
     def output_paths(self, out_dir, stem: str) -> list[Path]:
         return [Path(out_dir) / f"{stem}.npz"]
@@ -113,12 +140,14 @@ class FeaturesTask:
     def check_size(self, path, faces: int) -> None:
         """Refuse, before any work, a mesh too big for ``max_faces`` or for the memory."""
         solved = self.solved_faces(faces)
-        need = estimate_bytes(solved, self.n)
+        estimate = estimate_device_bytes if self.on_device else estimate_bytes
+        need = estimate(solved, self.n)
         fits = [SUGGESTED_COARSE_FACES]
         if self.max_faces is not None:
             fits.append(self.max_faces)
         if self.memory_bytes is not None:
-            fits.append((self.memory_bytes - BYTES_FIXED) // (self.n * BYTES_PER_FACE_FIELD))
+            fits.append(int(solved * self.memory_bytes / max(need, 1)) if self.on_device
+                        else (self.memory_bytes - BYTES_FIXED) // (self.n * BYTES_PER_FACE_FIELD))
         suggest = max(min(fits), 100)
         fix = (f"solve it decimated with --coarse-faces {suggest}" if not self.coarse_faces
                else f"lower --coarse-faces (now {self.coarse_faces})")
@@ -126,8 +155,9 @@ class FeaturesTask:
             raise ParameterError(f"{path}: {solved:,} faces to solve is above --max-faces {self.max_faces} "
                                  f"(about {need / 2**30:.1f} GB for --n {self.n}); {fix}, or raise --max-faces")
         if self.memory_bytes is not None and need > self.memory_bytes:
+            where = "free on the GPU" if self.on_device else "of memory"
             raise ParameterError(f"{path}: {solved:,} faces need about {need / 2**30:.1f} GB for --n {self.n}, "
-                                 f"more than the {self.memory_bytes / 2**30:.1f} GB of memory; {fix}")
+                                 f"more than the {self.memory_bytes / 2**30:.1f} GB {where}; {fix}")
 
     def validate(self, item) -> None:
         from ..mesh.size_check import check_fields_fit
@@ -142,7 +172,7 @@ class FeaturesTask:
         t0 = time.perf_counter()
         batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
                                       coarse_faces=self.coarse_faces)
-        fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol)
+        fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol, batched=self.batched)
         t1 = time.perf_counter()
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
         counts = counts_for(self.n)

@@ -4,8 +4,8 @@ On a CPU the per-mesh work (a sparse factorization, ARPACK, small SVDs, GEMMs of
 thousand rows) gains little from intra-op threads, and two OpenMP threads on a busy 2-core
 machine spin-wait on each other; one process per core, each on one thread, keeps every core
 busy with useful work. :func:`map_batches` runs a queue of batches either inline
-(``workers=1``) or on a spawned process pool, retries a failing multi-mesh batch one mesh at a
-time, and reports every outcome to the caller as it finishes, so results are written (by the
+(``workers=1``) or on a spawned process pool, retries a failing multi-mesh batch by halves
+(bisection) until the culprit fails alone, and reports every outcome to the caller as it finishes, so results are written (by the
 function itself, atomically) and counted as they come and an interrupt loses nothing finished.
 """
 from __future__ import annotations
@@ -16,7 +16,8 @@ import multiprocessing
 import os
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -30,23 +31,34 @@ RECYCLE_AFTER = 250
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "IGL_NUM_THREADS")
 
 
-def default_workers(device: str = "cpu") -> int:
-    """Worker processes by default: one per usable CPU core (at most 8) on CPU, 1 elsewhere
-    (one process owns a GPU)."""
+#: Processes of a batched run at most by default (the solving process and its host workers):
+#: a 16-core GPU machine keeps all its cores on the host stages.
+MAX_BATCHED_PROCESSES = 16
+
+
+def usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def default_workers(device: str = "cpu", batched: bool = False) -> int:
+    """Processes by default: one per usable CPU core (at most 8) on CPU; 1 elsewhere (one
+    process owns a GPU); for a batched run (one solving process fed by host workers) one per
+    core, at most :data:`MAX_BATCHED_PROCESSES`, on any device."""
+    if batched:
+        return max(1, min(usable_cores(), MAX_BATCHED_PROCESSES))
     if not str(device).startswith("cpu"):
         return 1
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(cores, 8))
+    return max(1, min(usable_cores(), 8))
 
 
 @dataclass
 class BatchOutcome:
     """One finished batch: its items, what ``fn`` returned (None on failure), the error text
-    (None on success), its wall seconds, and ``split``: the batch failed as a whole and is
-    being retried one item at a time (then neither result nor a final error is given)."""
+    (None on success), its wall seconds, and ``split``: the batch failed as a whole and its
+    two halves are retried (:func:`halves`; then neither result nor a final error is given)."""
 
     batch: list
     result: Any
@@ -108,7 +120,8 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
     fn must be a module-level function (pickled to the workers) that writes its own outputs;
     its return value comes back to this process. With ``workers`` > 1 the batches run on a
     pool of spawned processes, each on one thread. A batch of several items that raises is
-    split and its items retried alone; a single item that raises is reported with its error.
+    bisected: its halves are retried (recursively), so a bad item ends alone and is reported
+    with its error, and every other item is run again at most about log2(batch size) times.
     A programming error (:func:`is_programming_error`: TypeError, IndexError, ...) is not a bad
     item: it propagates, with its traceback, and ends the map; so does an exception of a type
     in ``fatal`` (e.g. :class:`~torchakvf.io.OutputSpaceError`: no item is to blame).
@@ -173,13 +186,59 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
                 os.environ[v] = old
 
 
+def halves(batch: list) -> list[list]:
+    """A failed batch's two halves (the first the larger), retried before the rest of the queue:
+    bisection finds one bad item among m in about 2 log2(m) runs instead of m, and the meshes of
+    a half that succeeds keep the batch's sharing (one solve) instead of each paying alone."""
+    mid = (len(batch) + 1) // 2
+    return [batch[:mid], batch[mid:]]
+
+
+class InlineExecutor:
+    """The :class:`concurrent.futures.Executor` calls :func:`host_pool` gives with no worker:
+    each call runs at once, in this process, and returns a finished future."""
+
+    def submit(self, fn, *args, **kwargs) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except Exception as exc:  # noqa: BLE001 - handed to the caller through the future
+            fut.set_exception(exc)
+        return fut
+
+    def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
+        pass
+
+
+@contextmanager
+def host_pool(workers: int):
+    """An executor of ``workers`` spawned single-threaded processes for the host stages of a
+    batched run (0: :class:`InlineExecutor`, everything in this process, in call order)."""
+    if workers <= 0:
+        yield InlineExecutor()
+        return
+    saved = {v: os.environ.get(v) for v in _THREAD_VARS}
+    os.environ.update({v: "1" for v in _THREAD_VARS})   # inherited by the spawned workers
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_init_worker, initargs=(1,))
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        for v, old in saved.items():
+            if old is None:
+                os.environ.pop(v, None)
+            else:
+                os.environ[v] = old
+
+
 def _outcome(queue, batch, result, error, seconds):
     if error is not None and len(batch) > 1:
-        queue.extendleft([[item] for item in reversed(batch)])
+        queue.extendleft(reversed(halves(batch)))
         yield BatchOutcome(batch, None, error, seconds, split=True)
     else:
         yield BatchOutcome(batch, result, error, seconds)
 
 
-__all__ = ["map_batches", "BatchOutcome", "default_workers", "error_text", "is_programming_error",
+__all__ = ["map_batches", "halves", "host_pool", "InlineExecutor", "usable_cores", "MAX_BATCHED_PROCESSES", "BatchOutcome", "default_workers", "error_text", "is_programming_error",
            "PROGRAMMING_ERRORS"]

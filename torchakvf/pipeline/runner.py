@@ -14,8 +14,8 @@ What it guarantees:
   leaves every finished mesh usable, and the next run picks up where it stopped and removes
   the killed run's temporary files. One run at a time holds an output folder (``.lock``).
 * **One bad mesh fails alone; a bug stops the run.** A mesh that cannot be loaded, cleaned or
-  validated gets a ``failed`` line with its error; if a batch's computation raises, its meshes
-  are retried one by one so only the culprit fails (:mod:`.execute`). The run goes on; the
+  validated gets a ``failed`` line with its error; if a batch's computation raises, its halves
+  are retried (bisection) so only the culprit fails (:mod:`.execute`). The run goes on; the
   summary and the exit code say how many failed. A programming error (TypeError, IndexError,
   ...) is no bad mesh: it ends the run with its traceback, the manifest flushed.
 

@@ -76,7 +76,8 @@ class SegmentTask:
         graph cut included) redoes its meshes."""
         o = self.options
         n_fields = self.n_fields if self.n_fields is not None else "auto"
-        return {"k": self.k, "eps": float(o.eps), "seed": int(o.seed), "n_fields": n_fields,
+        batched = {} if o.batched is None else {"batched": o.batched}   # earlier manifests resume
+        return {**batched, "k": self.k, "eps": float(o.eps), "seed": int(o.seed), "n_fields": n_fields,
                 "remedy": o.remedy, "formats": list(self.formats),
                 "untangle_restarts": int(o.untangle_restarts), "kmeans_restarts": o.kmeans_restarts,
                 "coarse_faces": self.coarse_faces, "subdivide": self.subdivide, "solver": o.solver,
