@@ -223,6 +223,9 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
             z, rz = torch.cat([x, w, p], 2), torch.cat([rx, rw, rp], 2)
         x, rx, lam, c = _rayleigh_ritz(z, rz, s_l, m)
         p = z[:, :, m:] @ c[:, m:, :]
+        # The basis and its products go now, not when the next iteration rebinds them: they
+        # would be alive beside the next basis (about 19 P·m arrays at once instead of 16).
+        del z, rz, w, rw, res
     if live:    # out of iterations: the meshes still live keep where they got, unless converged
         final_x[live_t] = torch.where(done_l[:, None, None], final_x[live_t], x[:, :, :n])
         final_lam[live_t] = torch.where(done_l[:, None], final_lam[live_t], lam[:, :n])
@@ -250,6 +253,24 @@ def _live_slots(live: list[int], sizes: list[int], ptr: list[int], e_max: int, d
     slots = torch.cat([torch.arange(j * e_max, j * e_max + sizes[b]) for j, b in enumerate(live)])
     rows = torch.cat([torch.arange(ptr[b], ptr[b + 1]) for b in live])
     return slots.to(dev), rows.to(dev)
+
+
+def working_bytes(edges: list[int], n: int, guard: int | None = None) -> int:
+    """Bytes of the arrays :func:`segmented_lobpcg` holds at once, at its peak (an iteration
+    with every mesh live and a P block), for meshes of ``edges`` edges and ``n`` pairs: a
+    budget for sizing batches against a device's free memory. The factor's own memory (its
+    sparse Cholesky factor) and the operator are not included.
+
+    Counted from the arrays the code allocates, float64, padded to P = B·Emax rows (B meshes,
+    Emax the largest edge count), m = n + guard columns: during the Rayleigh-Ritz step 16 P·m
+    (X, R X, the residuals, W, R W, P, R P: 7; the basis Z and R Z: 6; S Z: 3), the converged
+    pairs P·n, the mass and its inverse square root 2 P, the mask P bytes, the start blocks kept
+    ΣE·m, and the B Gram-sized [3m, 3m] matrices of the step (6 of them)."""
+    guard = max(8, n // 2) if guard is None else guard
+    m, b, e_max, total = n + guard, len(edges), max(edges), sum(edges)
+    rows = b * e_max
+    floats = 16 * rows * m + rows * n + 2 * rows + total * m + 6 * b * (3 * m) ** 2
+    return 8 * floats + rows
 
 
 def _start_blocks(start, sizes: list[int], m: int, names: list[str]) -> list:
