@@ -258,14 +258,17 @@ class AKVFSolver:
                 pieces.update(more)
         return self._assemble(pieces, settings)
 
+    def _fixable(self, failed: dict) -> bool:
+        """Whether every failure of ``failed`` {mesh: exception} is a :class:`SolverError` of a
+        decimated mesh that the fallback may solve at full resolution."""
+        return self.full_resolution_fallback and all(
+            isinstance(e, SolverError) and self.batch.coarse_of(b) is not None for b, e in failed.items())
+
     def _raise_unless_decimated(self, failed: dict, decimated: bool = True) -> None:
-        """Raise the first failure of ``failed`` {mesh: exception} unless every one is a
-        :class:`SolverError` of a decimated mesh that the fallback may solve at full resolution;
-        the exception carries ``failed_meshes``, the batch indices of all of them."""
-        fixable = (decimated and self.full_resolution_fallback
-                   and all(isinstance(e, SolverError) and self.batch.coarse_of(b) is not None
-                           for b, e in failed.items()))
-        if not fixable:
+        """Raise the first failure of ``failed`` {mesh: exception} unless the fallback may solve
+        every one at full resolution (never where ``decimated`` is False); the exception
+        carries ``failed_meshes``, the batch indices of all of them."""
+        if not (decimated and self._fixable(failed)):
             exc = failed[min(failed)]
             exc.failed_meshes = sorted(failed)
             raise exc
@@ -273,7 +276,8 @@ class AKVFSolver:
     def _solve_meshes(self, settings: _Settings, meshes: list[int]) -> tuple[dict, dict]:
         """({mesh: its piece of the result}, {mesh: the exception it failed with}) for
         ``meshes``: pieces are one-mesh :class:`AKVFResult` s (one mesh at a time) or
-        (:class:`_Pairs`, pairs solved) (a batch solved as one)."""
+        (:class:`_Pairs`, pairs solved) (a batch solved as one). A failure the fallback cannot
+        fix stops the work there: the solve will raise, and its mates' results would be lost."""
         if self._alone is None:
             pairs, counts, failed = self._solve_with_room(settings, meshes)
             return {b: (pairs[b], counts[b]) for b in pairs}, failed
@@ -283,6 +287,8 @@ class AKVFSolver:
                 pieces[b] = self._alone[b]._solve(settings)
             except SolverError as exc:
                 failed[b] = exc
+                if not self._fixable(failed):
+                    break
         return pieces, failed
 
     def _assemble(self, pieces: dict, settings: _Settings) -> AKVFResult:
@@ -309,6 +315,8 @@ class AKVFSolver:
                   for b in meshes}
         pairs: dict = {}
         failed = self._without_shift(meshes)
+        if failed and not self._fixable(failed):
+            return pairs, counts, failed        # the solve raises: no work for the mates
         todo = [b for b in meshes if b not in failed]
         for _ in range(SPURIOUS_SOLVES):
             for group in self._groups(todo, counts):
