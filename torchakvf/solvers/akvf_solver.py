@@ -160,8 +160,9 @@ class AKVFSolver:
         shift-invert, CPU, one mesh at a time), "krylov" (block shift-invert Krylov, one mesh at
         a time) or "auto" (:func:`solver_for`, decided per mesh)
     device : device of the batch built from Mesh inputs (a MeshBatch given is moved there)
-    batched : solve the batch as one (one operator, the batched LOBPCG for "auto"), as on an
-        accelerator, or one mesh at a time (each mesh as a batch of its own); default
+    batched : solve the batch as one (one operator; for "auto" the batched LOBPCG with one
+        block-diagonal factor at each mesh's own shift), as on an accelerator, or one mesh at a
+        time (each mesh as a batch of its own); default
         (None): :func:`batched_by_default` for the batch's device (one at a time on the CPU).
         ``batched=True`` on the CPU runs the accelerator's path there.
     full_resolution_fallback : a decimated mesh (``MeshBatch.from_meshes(coarse_faces=)``) that
@@ -189,14 +190,15 @@ class AKVFSolver:
         #: [(mesh index, error text)] of the meshes solved at full resolution because their
         #: decimated version could not be solved
         self.fell_back: list[tuple[int, str]] = []
+        self._shifts: dict[int, float] = {}
+        self._alone: list[AKVFSolver] | None = None
         self._use(as_batch(meshes, device=device))
 
     def _use(self, batch: MeshBatch, changed=None) -> None:
         """Solve ``batch`` from now on. ``changed``: the meshes re-packed (indices); the others'
         shifts and one-mesh solvers are kept (None: nothing built for another batch is kept)."""
-        kept = {} if changed is None else {b: v for b, v in self.__dict__.get("_shifts", {}).items()
-                                            if b not in changed}
-        kept_alone = None if changed is None else self.__dict__.get("_alone")
+        kept = {} if changed is None else {b: v for b, v in self._shifts.items() if b not in changed}
+        kept_alone = None if changed is None else self._alone
         check_factor_device(batch.device)
         self.batch = batch
         #: whether the batch is solved as one (else one mesh at a time)

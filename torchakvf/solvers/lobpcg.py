@@ -11,6 +11,12 @@ instead of depending on the tiny gap after λ_n, and block methods keep every co
 a loose tolerance was seen to drop some).
 
 Residuals are recomputed at the end from R and S1, not taken from the iteration.
+
+On a GPU the host waits for the device wherever a value comes back to Python: the loop reads
+which meshes converged once every :data:`CHECK_EVERY` iterations and indexes the padded arrays
+with index tensors, not boolean masks, so an iteration's only other synchronizations are the
+two dense ``eigh`` of the Rayleigh-Ritz step (torch reads their error codes).
+:func:`working_bytes` gives the padded arrays' peak size, for sizing batches.
 """
 from __future__ import annotations
 
