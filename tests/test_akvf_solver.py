@@ -349,3 +349,129 @@ def test_without_decimated_meshes_the_error_is_raised(monkeypatch):
     monkeypatch.setattr(akvf_solver, "mesh_factor", refuse)
     with pytest.raises(ta.SolverError, match="no shift made"):
         akvf_falling_back(ta.MeshBatch.from_meshes([mesh_of(shapes.icosphere(2))]), n=6, solver="lanczos")
+
+
+# ---------------------------------------------------------------------------------------------
+# a batch solved as one: each mesh's shift first, failures kept to their mesh
+# ---------------------------------------------------------------------------------------------
+
+def _edges(batch, b: int) -> int:
+    return int(batch.edge_ptr[b + 1] - batch.edge_ptr[b])
+
+
+def assert_mates_equal_alone(got, batch, mates, n, tol):
+    """Each mate's eigenvalues as the per-mesh path gives them (each mesh alone, its own
+    factor): both converge to residual <= tol = 1e-8, so eigenvalues agree to ~tol² over gaps
+    of order 1; 1e-9 relative leaves room for clusters. Its shift is its own ladder's."""
+    for b in mates:
+        alone = ta.akvf(batch.mesh(b), n=n, tol=tol, solver="lobpcg", batched=False)
+        torch.testing.assert_close(got.eigenvalues[b], alone.eigenvalues[0], rtol=1e-9, atol=1e-9)
+        assert float(got.shifts[b]) == float(alone.shifts[0]), b
+
+
+def test_batched_factor_takes_each_mesh_shift_first(monkeypatch):
+    """A batch whose meshes need different shifts (the sliver sphere -64, its mates -1: a disk and a tube), solved
+    as one: each mesh's own ladder runs once, then one factor of the whole batch at the shifts
+    found, never a trial of the whole batch at -1 first; each mesh's eigenvalues and shift are
+    the per-mesh path's."""
+    from helpers.eigen_checks import SolveLog, sliver_sphere
+    meshes = [mesh_of(shapes.flat_disk(), "disk"), sliver_sphere(), mesh_of(shapes.open_tube(n_around=24), "tube")]
+    batch = ta.MeshBatch.from_meshes(meshes)
+    log = SolveLog(monkeypatch)
+    got = ta.akvf(batch, n=8, tol=1e-8, batched=True)
+    total = int(batch.edge_ptr[-1])
+    assert log.sizes.count(total) == 1                       # one block factor, no trial
+    # each mesh's own ladder, once: -1 for the mates, -1, -8, -64 for the sliver
+    assert [log.sizes.count(_edges(batch, b)) for b in range(3)] == [1, 3, 1]
+    assert got.shifts.tolist() == [-1.0, -64.0, -1.0]
+    assert bool(got.converged.all())
+    assert_mates_equal_alone(got, batch, range(3), 8, 1e-8)
+
+
+def test_unsolvable_mesh_leaves_its_batch(monkeypatch):
+    """With the ladder cut at -8 the sliver sphere cannot be solved (and was not decimated):
+    the batch raises its SolverError (naming it, ``failed_meshes`` [1]) after the meshes' own
+    ladders only, before any batch work (no block factor, no LOBPCG call): a caller can solve
+    the mates again without it."""
+    from helpers.eigen_checks import SolveLog, sliver_sphere
+    from torchakvf.solvers import factor
+    monkeypatch.setattr(factor, "SHIFTS", (-1.0, -8.0))
+    meshes = [mesh_of(shapes.icosphere(2), "ico"), sliver_sphere(), mesh_of(shapes.open_tube(n_around=24), "tube")]
+    batch = ta.MeshBatch.from_meshes(meshes)
+    log = SolveLog(monkeypatch)
+    with pytest.raises(ta.SolverError, match="sliver") as exc:
+        ta.akvf(batch, n=8, batched=True)
+    assert exc.value.failed_meshes == [1]
+    assert log.groups == []
+    assert log.sizes == [_edges(batch, 0), _edges(batch, 1), _edges(batch, 1), _edges(batch, 2)]
+
+
+def test_decimated_mesh_that_fails_is_solved_alone_at_full_resolution(monkeypatch):
+    """A decimated mesh with no shift leaves the batch: its mates are solved once, together;
+    it is solved alone at full resolution (its edges never pad theirs) and takes its place in
+    batch order. A second solve keeps it alone."""
+    from helpers.eigen_checks import SolveLog
+    sphere, disk = mesh_of(shapes.icosphere(4), "sphere"), mesh_of(shapes.flat_disk(), "disk")
+    blob = mesh_of(shapes.three_blobs(n_around=24), "blobs")
+    batch = ta.MeshBatch.from_meshes([sphere, disk, blob], coarse_faces=1000)
+    decimated_sphere_edges = _edges(batch, 0)
+    real = akvf_solver.mesh_shift
+
+    def refuse_the_decimated_sphere(system, b, name):
+        if name == "sphere" and int(system.edge_ptr[b + 1] - system.edge_ptr[b]) == decimated_sphere_edges:
+            raise ta.SolverError("sphere: no shift made R - σS1 positive definite")
+        return real(system, b, name)
+
+    monkeypatch.setattr(akvf_solver, "mesh_shift", refuse_the_decimated_sphere)
+    log = SolveLog(monkeypatch)
+    s = AKVFSolver(batch, batched=True)
+    got = s.solve(8, tol=1e-8)
+    assert [b for b, _ in s.fell_back] == [0] and "full resolution" in s.fell_back[0][1]
+    assert log.groups == [["disk", "blobs"], ["sphere"]]
+    assert _edges(s.batch, 0) == 7680 and got.batch is s.batch
+    s.solve(6, tol=1e-8)
+    assert log.groups[2:] == [["sphere"], ["disk", "blobs"]]
+    assert_mates_equal_alone(got, s.batch, [0, 1, 2], 8, 1e-8)
+
+
+def test_a_batch_failing_for_no_known_mesh_is_bisected(monkeypatch):
+    """A group solve that fails without a mesh known beforehand (a device error, simulated on
+    the LOBPCG call of any group holding "bad") is split in halves, not singletons: 5 calls
+    for 4 meshes, and the error names the mesh and lists it in ``failed_meshes``."""
+    names = ["a", "b", "bad", "c"]
+    meshes = [mesh_of(shapes.icosphere(1), x) for x in names]
+    calls = []
+    real = akvf_solver.segmented_lobpcg
+
+    def failing(system, n, **kw):
+        calls.append(kw["names"])
+        if "bad" in kw["names"]:
+            raise ta.SolverError(f"{', '.join(kw['names'])}: the device's solve failed its check")
+        return real(system, n, **kw)
+
+    monkeypatch.setattr(akvf_solver, "segmented_lobpcg", failing)
+    with pytest.raises(ta.SolverError, match="bad") as exc:
+        ta.akvf(meshes, n=6, batched=True)
+    assert exc.value.failed_meshes == [2]
+    assert calls == [names, ["a", "b"], ["bad", "c"], ["bad"], ["c"]]
+
+
+def test_psb_114_leaves_its_batch(psb, monkeypatch):
+    """PSB meshes decimated to 2000 faces that need -1, -64, -512 and none (114: no shift makes
+    it definite), solved as one batch: one block factor of the four mates at their own shifts,
+    114 alone at full resolution; each mate's eigenvalues and shift are the per-mesh path's."""
+    from helpers.eigen_checks import SolveLog
+    ids = [1, 241, 181, 114, 21]
+    meshes = [ta.load_mesh(psb / "meshes" / f"{i}.off.gz") for i in ids]
+    batch = ta.MeshBatch.from_meshes(meshes, coarse_faces=2000)
+    log = SolveLog(monkeypatch)
+    s = AKVFSolver(batch, batched=True)
+    got = s.solve(8, tol=1e-8)
+    assert [b for b, _ in s.fell_back] == [3]
+    mates = [0, 1, 2, 4]
+    assert log.sizes.count(sum(_edges(batch, b) for b in mates)) == 1
+    assert int(batch.edge_ptr[-1]) not in log.sizes
+    name = s.batch.names[3]
+    assert [name] in log.groups and all(g == [name] for g in log.groups if name in g)   # 114 alone
+    assert got.shifts[[0, 1, 2, 4]].tolist() == [-1.0, -64.0, -512.0, -1.0]
+    assert_mates_equal_alone(got, s.batch, mates, 8, 1e-8)

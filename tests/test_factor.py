@@ -163,3 +163,63 @@ def test_too_many_eigenvalues_below_halves_then_gives_up(monkeypatch, per_pair, 
     else:
         assert isinstance(f, InteriorFactor) and f.sigma == sigma
         assert f.below == int((lam < sigma).sum()) <= need
+
+
+# ---------------------------------------------------------------------------------------------
+# errors that surface: the device cholespy can use, a failed solve on the device
+# ---------------------------------------------------------------------------------------------
+
+def test_a_cuda_device_other_than_the_first_is_refused(monkeypatch):
+    """cholespy always factors on the first visible GPU: cuda:1 is refused in one line naming
+    the device and the fix (no GPU needed: the check reads the device's index only)."""
+    from torchakvf.solvers.factor import check_factor_device
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert check_factor_device("cpu") == torch.device("cpu")
+    assert check_factor_device("cuda:0") == torch.device("cuda:0")
+    with pytest.raises(ta.ParameterError, match="cuda:1") as exc:
+        check_factor_device("cuda:1")
+    assert "CUDA_VISIBLE_DEVICES=1" in str(exc.value) and "\n" not in str(exc.value)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "current_device", lambda: 2)
+    with pytest.raises(ta.ParameterError, match="CUDA_VISIBLE_DEVICES=2"):
+        check_factor_device("cuda")
+
+
+class _PrintsInsteadOfRaising:
+    """A cholespy solver whose device call failed: like cholespy, it prints the error and
+    leaves the output as it was (here: zeros, or NaN)."""
+
+    def __init__(self, fill: float):
+        self.fill = fill
+
+    def solve(self, rhs, out):
+        out.fill_(self.fill)
+
+
+@pytest.mark.parametrize("fill", [0.0, float("nan")])
+def test_a_failed_device_solve_raises_naming_the_mesh(monkeypatch, fill):
+    """The first solve of a new cholespy factor is checked on a known right-hand side: a solve
+    that leaves zeros or NaN raises a SolverError naming the mesh (the batch's meshes for a
+    block factor), for a factor of one mesh and for the block factor of a batch solved as one."""
+    from torchakvf.solvers import factor
+    system = batch_with_a_low_mesh()
+    monkeypatch.setattr(factor, "_cholesky", lambda pattern, diagonal, engine=None:
+                        (_PrintsInsteadOfRaising(fill), None))
+    with pytest.raises(ta.SolverError, match="mesh 1: the sparse factor's solve on cpu failed its check"):
+        factor.mesh_factor(system, 1, "mesh 1")
+    with pytest.raises(ta.SolverError, match="a, b, c: the sparse factor"):
+        factor.BlockDiagonalFactor(system, names=["a", "b", "c"], shifts=[-1.0, -8.0, -1.0])
+
+
+def test_a_working_cholespy_factor_passes_its_check():
+    """cholespy's own CPU factor (where it is installed) passes the first-solve check, whose
+    backward error is at round-off level (far below BACKWARD_ERROR_MAX) at every shift."""
+    cholespy = pytest.importorskip("cholespy")
+    from torchakvf.solvers import factor
+    system = batch_with_a_low_mesh()
+    idx, vals = system.stiffness.indices(), system.stiffness.values()
+    pattern = factor._lower_pattern(idx[0], idx[1], vals, len(system.mass))
+    diagonal = 8.0 * system.mass.to(torch.float64)
+    solver, err = factor._cholesky(pattern, diagonal, engine=None)
+    assert isinstance(solver, cholespy.CholeskySolverD)
+    factor.check_first_solve(solver, torch.device("cpu"), pattern, diagonal, "batch")

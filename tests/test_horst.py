@@ -111,7 +111,13 @@ def test_horst_one_mesh_equals_the_batched_path(n, e, r, dtype, tol):
     y, a = _horst_problem(n, e, r, seed=n + r)
     fast_a, fast_iters = horst_mod.horst_one_mesh(y, a, tol, 500, dtype)
     ref_a, ref_iters = horst_mod.horst_batched(y, a, tol, 500, dtype)
-    assert torch.equal(fast_a, ref_a)
+    # The batched path keeps a stopped restart's slot until its cycle ends (one host read per
+    # cycle), so its products can be wider than the one-mesh path's: float64 GEMMs gave the
+    # same bits here, float32 ones differ in round-off (1.3e-7 seen on rotation entries <= 1).
+    if dtype == torch.float64:
+        assert torch.equal(fast_a, ref_a)
+    else:
+        assert float((fast_a - ref_a).abs().max()) <= 1e-6
     assert torch.equal(fast_iters, ref_iters)
     assert fast_iters.dtype == ref_iters.dtype and fast_a.shape == ref_a.shape
     if r > 1:

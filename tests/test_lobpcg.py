@@ -105,3 +105,57 @@ def test_lobpcg_warm_start():
         segmented_lobpcg(system, n, guard=guard, start=[torch.cat([full[0], full[0][:, :1]], 1), None])
     with pytest.raises(ta.ParameterError):
         segmented_lobpcg(system, n, guard=guard, start=[None])
+
+
+def test_host_synchronizations_per_iteration_have_a_ceiling():
+    """Calls that would make the host wait for a GPU (tests/helpers/syncs.py), per iteration of
+    the batched LOBPCG with one block factor (the device's path), counted on the CPU as the
+    difference between 10 and 4 iterations (no mesh converges at tol 1e-30, so the start and
+    end cancel): the two dense eigh of the Rayleigh-Ritz step (torch reads their error code)
+    and one read of which meshes converged every CHECK_EVERY iterations; no mask indexing, no
+    nonzero, no list to the device. The factor's solve is the factor library's and is not
+    counted."""
+    from helpers.syncs import SyncCounter
+    from torchakvf.solvers import lobpcg
+    from torchakvf.solvers.factor import BlockDiagonalFactor
+    system = batch_with_a_low_mesh()
+    block = BlockDiagonalFactor(system)
+
+    def counted(iterations: int) -> SyncCounter:
+        counter = SyncCounter()
+        real = block.solve
+
+        def solve(rhs):
+            with counter.paused():
+                return real(rhs)
+
+        block.solve = solve
+        with counter:
+            lobpcg.segmented_lobpcg(system, 8, tol=1e-30, max_iter=iterations, factors=block)
+        del block.solve
+        return counter
+
+    short, long = counted(4), counted(10)
+    per_iteration = (long.counts - short.counts)
+    assert per_iteration["linalg.eigh"] == 2 * 6
+    others = sum(per_iteration.values()) - per_iteration["linalg.eigh"]
+    assert others <= 6 / lobpcg.CHECK_EVERY, per_iteration      # was 8 per iteration
+
+
+def test_working_bytes_bound_the_arrays_allocated():
+    """lobpcg.working_bytes (a batch's memory budget) against a tensor-size audit of the
+    solve (tests/helpers/allocations.py: the peak bytes of the storages alive at once): never
+    below it, and within 15% above it (the formula counts the Rayleigh-Ritz step's arrays; the
+    audit saw 1-5% less), for several n, with every mesh live (tol 1e-30) past the second
+    iteration (the first has no P block)."""
+    from helpers.allocations import PeakBytes
+    from torchakvf.solvers import lobpcg
+    from torchakvf.solvers.factor import BlockDiagonalFactor
+    system = batch_with_a_low_mesh()
+    block = BlockDiagonalFactor(system)
+    edges = (system.edge_ptr[1:] - system.edge_ptr[:-1]).tolist()
+    for n in (4, 16):
+        with PeakBytes(min_bytes=1024) as audit:
+            lobpcg.segmented_lobpcg(system, n, tol=1e-30, max_iter=3, factors=block)
+        budget = lobpcg.working_bytes(edges, n)
+        assert audit.peak <= budget <= 1.15 * audit.peak, (n, audit.peak, budget)

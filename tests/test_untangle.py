@@ -166,3 +166,25 @@ def _assert_same_blob_spans(reference, other, what: str) -> None:
         # principal angles between the two orthonormal column sets: all cosines 1
         cosines = torch.linalg.svdvals(a.T @ c)
         assert cosines.min() > 1 - 1e-6, (what, j, cosines.min())
+
+
+def test_host_synchronizations_per_untangling_step_have_a_ceiling():
+    """Calls that would make the host wait for a GPU (tests/helpers/syncs.py) per Horst step of
+    the batched untangling (two meshes, the device's path), counted on the CPU as the difference
+    between 12 and 3 steps per phase (float32 then float64, tol 1e-30: no restart stops): the SVD
+    of each step (torch reads its error code; the extrapolated step has a second one) and one
+    read of the active restarts per SQUAREM cycle; no mask indexing, no nonzero."""
+    from helpers.syncs import SyncCounter
+    gen = torch.Generator().manual_seed(0)
+    y = torch.randn(2, 300, 6, generator=gen, dtype=torch.float64)
+
+    def counted(steps: int) -> SyncCounter:
+        with SyncCounter() as counter:
+            untangle_mod.orthomax(y, 3, 0, 1e-30, steps, torch.float32)
+        return counter
+
+    per = counted(12).counts - counted(3).counts
+    steps = 2 * 9                                     # both phases
+    assert per["linalg.svd"] == steps + steps // 3    # one per step, two per extrapolated step
+    others = sum(per.values()) - per["linalg.svd"]
+    assert others <= steps / horst_mod.SLOTS_EVERY, per     # was 7.3 per step

@@ -60,3 +60,36 @@ def batch_with_a_low_mesh():
                                     check_invariants=False)
     return KillingSystem(stiffness=stiff, mass=system.mass, edge_ptr=system.edge_ptr,
                          star1_raw=system.star1_raw, geometry=system.geometry)
+
+
+def sliver_sphere(name: str = "sliver") -> ta.Mesh:
+    """icosphere(2) with one vertex moved to 1e-4 of its edge's length from a neighbour: two
+    slivers whose Killing operator (remedy "smooth") needs the shift -64 where its mates take
+    -1 (and that no shift of a ladder cut at -8 makes definite)."""
+    s = shapes.icosphere(2)
+    v = s.vertices.copy()
+    a, b = s.faces[0][0], s.faces[0][1]
+    v[a] = v[a] + 0.9999 * (v[b] - v[a])
+    return ta.Mesh(v, s.faces, name)
+
+
+class SolveLog:
+    """Counts, through monkeypatching, the numeric factorizations a solve makes (every trial
+    shift: ``sizes``, the matrix order of each) and the LOBPCG calls (``groups``: the mesh names
+    of each)."""
+
+    def __init__(self, monkeypatch):
+        from torchakvf.solvers import akvf_solver, factor
+        self.sizes, self.groups = [], []
+        real_cholesky, real_lobpcg = factor._cholesky, akvf_solver.segmented_lobpcg
+
+        def cholesky(pattern, diagonal, engine=None):
+            self.sizes.append(int(pattern[0]))
+            return real_cholesky(pattern, diagonal, engine)
+
+        def lobpcg(system, n, **kw):
+            self.groups.append(list(kw.get("names") or []))
+            return real_lobpcg(system, n, **kw)
+
+        monkeypatch.setattr(factor, "_cholesky", cholesky)
+        monkeypatch.setattr(akvf_solver, "segmented_lobpcg", lobpcg)

@@ -67,10 +67,11 @@ def akvf_falling_back(batch: MeshBatch, n: int = 32, **kwargs) -> tuple[AKVFResu
     solving at full resolution the meshes whose decimated version cannot be solved.
 
     A decimated surface can be worse than its original (holes that could not be closed, whose
-    boundary terms make R - σS1 indefinite at every shift): on a :class:`SolverError` each
-    decimated mesh is solved alone to find the ones that fail, and the batch is solved again
-    with those at full resolution. Returns (the result, [(mesh index, error text)] of the
-    meshes that fell back). A batch without decimated meshes raises as :func:`akvf` does.
+    boundary terms make R - σS1 indefinite at every shift): a decimated mesh that fails is
+    solved alone at full resolution and takes its place in batch order; its mates keep what
+    they got (see :class:`~torchakvf.solvers.akvf_solver.AKVFSolver`). Returns (the result,
+    [(mesh index, error text)] of the meshes that fell back). A mesh that was not decimated,
+    or fails at full resolution too, raises as :func:`akvf` does.
     ``kwargs``: :func:`akvf`'s.
     """
     solve = {k: kwargs.pop(k) for k in ("tol", "seed", "max_iter") if k in kwargs}

@@ -188,8 +188,11 @@ def horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int
     well under half its steps to the same or a better objective (see docs/design.md).
 
     All restarts of all meshes step in lockstep (every cycle has three steps; a restart stops
-    only after a plain step). Each step the live meshes' active restarts are gathered into
-    slots, the results scattered back."""
+    only after a plain step). The live meshes' active restarts are gathered into slots, the
+    results scattered back where the restart is still active. Which restarts are active is read
+    on the host once per cycle (:data:`SLOTS_EVERY` steps; a read is a host synchronization on a
+    GPU): a restart that stops within a cycle keeps its slot, computed but never written back,
+    until the next read."""
     nb, e_max, n = ypad.shape
     dev = ypad.device
     r = a.shape[1]
@@ -198,37 +201,45 @@ def horst_batched(ypad: torch.Tensor, a: torch.Tensor, tol: float, max_iter: int
     iters = torch.zeros(nb, r, dtype=torch.long, device=dev)
 
     whole = horst_gradient(ypad, r, iteration_dtype, moments)
+    live_host = list(range(nb))
     live = torch.arange(nb, device=dev)
     gradient = whole
     for step in range(max_iter):
-        # Only restarts still moving iterate: converged ones (and meshes whose restarts have all
-        # converged) drop out, so neither a slow mesh nor a slow restart makes the others pay.
-        # Each live mesh's q active restarts go first; shorter lists are padded with converged
-        # restarts, computed but not written back.
-        still = torch.nonzero(active.any(dim=1)).reshape(-1)
-        if len(still) == 0:
-            break
-        if len(still) != len(live):
-            live, gradient = still, whole.select(still)
-        m = len(live)
-        act = active[live]                                            # [m, R]
-        q = int(act.sum(dim=1).max())
-        slot = torch.argsort((~act).to(torch.int8), dim=1, stable=True)[:, :q]
-        valid = torch.gather(act, 1, slot)                            # [m, q]
-        rows = torch.arange(m, device=dev)[:, None]
-        sel = (rows.expand(m, q)[valid], slot[valid])
+        if step % SLOTS_EVERY == 0:
+            # Only restarts still moving iterate: converged ones (and meshes whose restarts have
+            # all converged) drop out, so neither a slow mesh nor a slow restart makes the others
+            # pay. Each live mesh's q active restarts go first; shorter lists are padded with
+            # converged restarts, computed but not written back. One read: the counts.
+            counts = active.sum(dim=1).tolist()
+            still = [b for b, c in enumerate(counts) if c > 0]
+            if not still:
+                break
+            if still != live_host:
+                live_host, live = still, torch.tensor(still, device=dev)
+                gradient = whole.select(live)
+            m, q = len(live_host), max(counts)
+            act = active[live]                                        # [m, R]
+            slot = torch.argsort((~act).to(torch.int8), dim=1, stable=True)[:, :q]
+            rows = torch.arange(m, device=dev)[:, None]
+        valid = torch.gather(active[live], 1, slot)                   # [m, q], on the device
         pick = lambda t: t[live][rows, slot]                          # noqa: E731  [m, q, ...]
 
         def put(t, v):
             tl = t[live]
-            tl[sel] = v[valid]
+            keep = valid.reshape(valid.shape + (1,) * (v.dim() - 2))
+            tl[rows, slot] = torch.where(keep, v, tl[rows, slot])
             t[live] = tl
 
         done = squarem_step(step % 3, state, pick, put, gradient, tol)
-        iters[live] += act.long()
-        active[live] = act.scatter(1, slot, valid & ~done)
+        iters[live] += active[live].long()
+        active[live] = active[live].scatter(1, slot, valid & ~done)
     return state["a"], iters
 
 
+#: Steps between host reads of which restarts are still active in :func:`horst_batched`: one
+#: SQUAREM cycle.
+SLOTS_EVERY = 3
+
+
 __all__ = ["horst", "horst_step", "horst_one_mesh", "horst_batched", "horst_gradient", "Products", "extrapolated",
-           "squarem_state", "squarem_step", "SQUAREM_MAX_STEP"]
+           "squarem_state", "squarem_step", "SQUAREM_MAX_STEP", "SLOTS_EVERY"]

@@ -12,8 +12,15 @@ Policy, in the order it applies:
   (at most :data:`SPURIOUS_SOLVES` solves in all) where it has more spurious modes than room.
 * **Krylov to Lanczos**: a mesh the block Krylov solver does not converge is solved by ARPACK
   on its definite factor.
+* **A batch solved as one** (``batched``): each mesh's shift is found first, by its own ladder
+  (:func:`~torchakvf.solvers.factor.mesh_shift`); a mesh that no shift makes definite leaves
+  the batch before any batch work, and the others get one block-diagonal factor at their shifts.
+* **Failures stay with their mesh**: a group whose solve fails for a reason no mesh was named
+  for beforehand is bisected (halves, then their halves), so the meshes that fail are found
+  and their mates are solved once.
 * **Decimated to full resolution** (``full_resolution_fallback``): a decimated mesh that cannot
-  be solved is solved at full resolution instead (:attr:`AKVFSolver.fell_back`).
+  be solved is solved at full resolution instead, alone (its edge count never pads its mates'
+  arrays), and its result takes its place in batch order (:attr:`AKVFSolver.fell_back`).
 """
 from __future__ import annotations
 
@@ -33,7 +40,7 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
-from .factor import ShiftedFactor, interior_factor, mesh_factor
+from .factor import BlockDiagonalFactor, ShiftedFactor, check_factor_device, interior_factor, mesh_factor, mesh_shift
 from . import lobpcg
 from .krylov import block_krylov
 from .lanczos import shift_invert_lanczos
@@ -153,14 +160,17 @@ class AKVFSolver:
         shift-invert, CPU, one mesh at a time), "krylov" (block shift-invert Krylov, one mesh at
         a time) or "auto" (:func:`solver_for`, decided per mesh)
     device : device of the batch built from Mesh inputs (a MeshBatch given is moved there)
-    batched : solve the batch as one (one operator, the batched LOBPCG for "auto"), as on an
-        accelerator, or one mesh at a time (each mesh as a batch of its own); default
+    batched : solve the batch as one (one operator; for "auto" the batched LOBPCG with one
+        block-diagonal factor at each mesh's own shift), as on an accelerator, or one mesh at a
+        time (each mesh as a batch of its own); default
         (None): :func:`batched_by_default` for the batch's device (one at a time on the CPU).
         ``batched=True`` on the CPU runs the accelerator's path there.
-    full_resolution_fallback : on a :class:`SolverError`, find the decimated meshes
-        (``MeshBatch.from_meshes(coarse_faces=)``) that cannot be solved, each alone, and solve
-        the batch again with those at full resolution (:attr:`fell_back` lists them; ``batch``
-        is then the re-packed batch). A batch without decimated meshes raises either way.
+    full_resolution_fallback : a decimated mesh (``MeshBatch.from_meshes(coarse_faces=)``) that
+        cannot be solved is solved alone at full resolution (:attr:`fell_back` lists them;
+        ``batch`` is then the re-packed batch); its mates keep what they got. Without it, or for
+        a mesh that was not decimated or fails at full resolution too, the
+        :class:`SolverError` of the first failing mesh is raised, with ``failed_meshes`` (the
+        batch indices of every mesh that failed) set on it.
 
     ``solve(n, tol=, seed=, max_iter=)`` returns an :class:`AKVFResult`; a second call reuses
     the operator and the factors (the Krylov solver's interior factor per n). The factors are
@@ -180,10 +190,16 @@ class AKVFSolver:
         #: [(mesh index, error text)] of the meshes solved at full resolution because their
         #: decimated version could not be solved
         self.fell_back: list[tuple[int, str]] = []
+        self._shifts: dict[int, float] = {}
+        self._alone: list[AKVFSolver] | None = None
         self._use(as_batch(meshes, device=device))
 
-    def _use(self, batch: MeshBatch) -> None:
-        """Solve ``batch`` from now on (nothing built for another batch is kept)."""
+    def _use(self, batch: MeshBatch, changed=None) -> None:
+        """Solve ``batch`` from now on. ``changed``: the meshes re-packed (indices); the others'
+        shifts and one-mesh solvers are kept (None: nothing built for another batch is kept)."""
+        kept = {} if changed is None else {b: v for b, v in self._shifts.items() if b not in changed}
+        kept_alone = None if changed is None else self._alone
+        check_factor_device(batch.device)
         self.batch = batch
         #: whether the batch is solved as one (else one mesh at a time)
         self.batched = batched_by_default(batch.device) if self._batched is None else bool(self._batched)
@@ -193,10 +209,13 @@ class AKVFSolver:
                                    for e in self.edges]
         self._factors: dict[int, ShiftedFactor] = {}
         self._interior: dict[tuple[int, int], object] = {}
+        self._blocks: dict[tuple[int, ...], BlockDiagonalFactor] = {}
+        self._shifts: dict[int, float] = kept
         self._system: KillingSystem | None = None
         self._alone: list[AKVFSolver] | None = None
         if len(batch) > 1 and not self.batched:
-            self._alone = [AKVFSolver(batch.mesh(b), remedy=self.remedy, solver=self.solver,
+            self._alone = [kept_alone[b] if kept_alone is not None and b not in changed else
+                           AKVFSolver(batch.mesh(b), remedy=self.remedy, solver=self.solver,
                                       boundary_correction=self.boundary_correction, batched=False,
                                       full_resolution_fallback=False) for b in range(len(batch))]
         else:
@@ -225,78 +244,142 @@ class AKVFSolver:
         _warn_unconverged(self.batch.names, out.residuals, out.converged, tol)
         return out
 
-    # -- the decimated -> full-resolution fallback ------------------------------------------
+    # -- failures kept to their meshes, the decimated -> full-resolution fallback ------------
 
     def _solve_falling_back(self, settings: _Settings) -> AKVFResult:
-        try:
-            return self._solve(settings)
-        except SolverError as exc:
-            decimated = [b for b in range(len(self.batch)) if self.batch.coarse_of(b) is not None]
-            if not self.full_resolution_fallback or not decimated:
-                raise
-            failed = self._failing(decimated, settings)
-            if not failed:   # no decimated mesh is to blame
-                raise exc
-        self.fell_back += failed
-        self._use(self.batch.at_full_resolution([b for b, _ in failed]))
-        return self._solve(settings)
+        """Every mesh solved; the meshes that fail (and only they) at full resolution, alone."""
+        pieces, failed = self._solve_meshes(settings, list(range(len(self.batch))))
+        if failed:
+            self._raise_unless_decimated(failed)
+            self.fell_back += [(b, str(failed[b])) for b in sorted(failed)]
+            self._use(self.batch.at_full_resolution(sorted(failed)), changed=set(failed))
+            for b in sorted(failed):
+                more, still = self._solve_meshes(settings, [b])
+                if still:
+                    self._raise_unless_decimated(still, decimated=False)
+                pieces.update(more)
+        return self._assemble(pieces, settings)
 
-    def _failing(self, meshes: list[int], settings: _Settings) -> list[tuple[int, str]]:
-        """[(mesh, error text)] of ``meshes`` whose packed (decimated) mesh, solved alone,
-        raises a :class:`SolverError`."""
-        failed = []
+    def _fixable(self, failed: dict) -> bool:
+        """Whether every failure of ``failed`` {mesh: exception} is a :class:`SolverError` of a
+        decimated mesh that the fallback may solve at full resolution."""
+        return self.full_resolution_fallback and all(
+            isinstance(e, SolverError) and self.batch.coarse_of(b) is not None for b, e in failed.items())
+
+    def _raise_unless_decimated(self, failed: dict, decimated: bool = True) -> None:
+        """Raise the first failure of ``failed`` {mesh: exception} unless the fallback may solve
+        every one at full resolution (never where ``decimated`` is False); the exception
+        carries ``failed_meshes``, the batch indices of all of them."""
+        if not (decimated and self._fixable(failed)):
+            exc = failed[min(failed)]
+            exc.failed_meshes = sorted(failed)
+            raise exc
+
+    def _solve_meshes(self, settings: _Settings, meshes: list[int]) -> tuple[dict, dict]:
+        """({mesh: its piece of the result}, {mesh: the exception it failed with}) for
+        ``meshes``: pieces are one-mesh :class:`AKVFResult` s (one mesh at a time) or
+        (:class:`_Pairs`, pairs solved) (a batch solved as one). A failure the fallback cannot
+        fix stops the work there: the solve will raise, and its mates' results would be lost."""
+        if self._alone is None:
+            pairs, counts, failed = self._solve_with_room(settings, meshes)
+            return {b: (pairs[b], counts[b]) for b in pairs}, failed
+        pieces, failed = {}, {}
         for b in meshes:
-            alone = MeshBatch.from_meshes([self.batch.meshes[b]], device=self.batch.device,
-                                          dtype=self.batch.dtype)
             try:
-                AKVFSolver(alone, remedy=self.remedy, boundary_correction=self.boundary_correction,
-                           solver=self.solver, batched=self.batched,
-                           full_resolution_fallback=False)._solve(settings)
+                pieces[b] = self._alone[b]._solve(settings)
             except SolverError as exc:
-                failed.append((b, str(exc)))
-        return failed
+                failed[b] = exc
+                if not self._fixable(failed):
+                    break
+        return pieces, failed
+
+    def _assemble(self, pieces: dict, settings: _Settings) -> AKVFResult:
+        order = range(len(self.batch))
+        if self._alone is not None:
+            return AKVFResult.concatenate([pieces[b] for b in order], self.batch, self.system)
+        return self._result([pieces[b][0] for b in order], [pieces[b][1] for b in order], settings)
 
     # -- one solve of the current batch ------------------------------------------------------
 
     def _solve(self, settings: _Settings) -> AKVFResult:
-        if self._alone is not None:
-            parts = [s._solve(settings) for s in self._alone]
-            return AKVFResult.concatenate(parts, self.batch, self.system)
-        pairs, counts = self._solve_with_room(settings)
-        return self._result(pairs, counts, settings)
+        """Every mesh solved (raising the first failure)."""
+        pieces, failed = self._solve_meshes(settings, list(range(len(self.batch))))
+        if failed:
+            self._raise_unless_decimated(failed, decimated=False)
+        return self._assemble(pieces, settings)
 
-    def _solve_with_room(self, settings: _Settings) -> tuple[list[_Pairs], list[int]]:
-        """Each mesh's eigenpairs and how many were solved: n plus room for spurious modes
-        (capped below the mesh's edge count), solved again with more room where they
-        outnumber it."""
+    def _solve_with_room(self, settings: _Settings, meshes: list[int]) -> tuple[dict, dict, dict]:
+        """Each mesh's eigenpairs {b: _Pairs}, how many were solved {b: count} (n plus room for
+        spurious modes, capped below the mesh's edge count, solved again with more room where
+        they outnumber it) and the meshes that failed {b: exception}."""
         n = settings.n
-        counts = [n + (min(SPURIOUS_MARGIN, max(e - n - 1, 0)) if self.drops_spurious else 0)
-                  for e in self.edges]
-        pairs: list = [None] * len(self.batch)
-        todo = list(range(len(self.batch)))
+        counts = {b: n + (min(SPURIOUS_MARGIN, max(self.edges[b] - n - 1, 0)) if self.drops_spurious else 0)
+                  for b in meshes}
+        pairs: dict = {}
+        failed = self._without_shift(meshes)
+        if failed and not self._fixable(failed):
+            return pairs, counts, failed        # the solve raises: no work for the mates
+        todo = [b for b in meshes if b not in failed]
         for _ in range(SPURIOUS_SOLVES):
             for group in self._groups(todo, counts):
-                eig = self._eigensolve(group, counts[group[0]], self.solvers[group[0]], settings)
-                vecs = self.batch.split(eig.vectors, self._group_ptr(group))
-                for j, b in enumerate(group):
-                    pairs[b] = _Pairs(eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j],
-                                      eig.shifts[j])
-                    counts[b] = max(counts[b], eig.eigenvalues.shape[1])
+                self._solve_group(group, counts[group[0]], settings, pairs, counts, failed)
+            todo = [b for b in todo if b not in failed]
             if not self.drops_spurious:
                 break
             todo = self._short_of_room(todo, pairs, counts, n)
             if not todo:
                 break
-        return pairs, counts
+        return pairs, counts, failed
+
+    def _solve_group(self, group: list[int], count: int, settings: _Settings, pairs: dict, counts: dict,
+                     failed: dict) -> None:
+        """``group`` solved as one into ``pairs`` and ``counts``; where that fails, its halves
+        are (and theirs, down to single meshes, whose failures go to ``failed``)."""
+        try:
+            eig = self._eigensolve(group, count, self.solvers[group[0]], settings)
+        except (SolverError, torch.cuda.OutOfMemoryError) as exc:
+            if len(group) == 1:
+                failed[group[0]] = exc
+                return
+            half = len(group) // 2
+            for part in (group[:half], group[half:]):
+                self._solve_group(part, count, settings, pairs, counts, failed)
+            return
+        vecs = self.batch.split(eig.vectors, self._group_ptr(group))
+        for j, b in enumerate(group):
+            pairs[b] = _Pairs(eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j], eig.shifts[j])
+            counts[b] = max(counts[b], eig.eigenvalues.shape[1])
+
+    def _without_shift(self, meshes: list[int]) -> dict:
+        """{mesh: SolverError} of the meshes that no shift makes definite, found by each mesh's
+        own ladder where the batch is solved as one by LOBPCG (one block factor at the shifts
+        found): such a mesh leaves its group before any batch work."""
+        failed = {}
+        if not self.batched or self._alone is not None:
+            return failed
+        for b in meshes:
+            if self.solvers[b] == "lobpcg" and b not in self._shifts:
+                try:
+                    self._shifts[b] = mesh_shift(self.system, b, self.batch.names[b])
+                except SolverError as exc:
+                    advice = remedy_advice(self.remedy, self.batch.coarse_of(b) is not None)
+                    failed[b] = SolverError(f"{exc}; {advice}")
+        return failed
 
     def _groups(self, todo: list[int], counts: list[int]) -> list[list[int]]:
         """Meshes needing the same count from the same solver are solved together. The Krylov
         solver works one mesh at a time and makes room for spurious modes itself (it returns
         more pairs where they need it): each of its meshes is a group of one."""
-        others = [b for b in todo if self.solvers[b] != "krylov"]
-        return [[b] for b in todo if self.solvers[b] == "krylov"] + [
+        alone = {b for b in todo if self.solvers[b] == "krylov" or self._full_resolution(b)}
+        others = [b for b in todo if b not in alone]
+        return [[b] for b in todo if b in alone] + [
             [b for b in others if (counts[b], self.solvers[b]) == key]
             for key in sorted({(counts[b], self.solvers[b]) for b in others})]
+
+    def _full_resolution(self, b: int) -> bool:
+        """Mesh b fell back to full resolution: it is solved alone, so that its edge count does
+        not pad its mates' arrays."""
+        return any(b == i for i, _ in self.fell_back)
 
     def _short_of_room(self, todo: list[int], pairs: list[_Pairs], counts: list[int], n: int) -> list[int]:
         """The meshes of ``todo`` with more spurious modes than room, their counts raised (in
@@ -340,11 +423,21 @@ class AKVFSolver:
 
     def _lobpcg(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
         # Where LOBPCG takes one factor per mesh, the solver's own are passed (and kept); a batch
-        # solved as one takes one block-diagonal factor of the batch (as on lobpcg.BLOCK_FACTOR_ON).
-        per_mesh = not self.batched
+        # solved as one takes one block-diagonal factor of the group at the meshes' own shifts.
+        factors = self._block(group) if self.batched else [self.factor(b) for b in group]
         return segmented_lobpcg(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
-                                names=self._names(group), max_iter=settings.max_iter,
-                                factors=[self.factor(b) for b in group] if per_mesh else None)
+                                names=self._names(group), max_iter=settings.max_iter, factors=factors)
+
+    def _block(self, group: list[int]) -> BlockDiagonalFactor:
+        """The group's block-diagonal factor at its meshes' own shifts (made once, then kept)."""
+        key = tuple(group)
+        if key not in self._blocks:
+            missing = self._without_shift(group)    # shifts not found yet (a caller's own group)
+            if missing:
+                raise missing[min(missing)]
+            self._blocks[key] = BlockDiagonalFactor(self._subsystem(group), self._names(group),
+                                                    shifts=[self._shifts[b] for b in group])
+        return self._blocks[key]
 
     def _krylov(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
         """Only the n kept pairs (and the spurious ones below them) must converge; the room for

@@ -45,14 +45,16 @@ class ShiftedFactor:
     def __init__(self, rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor,
                  mass: torch.Tensor, name: str = "mesh", shifts=None):
         shifts = SHIFTS if shifts is None else tuple(shifts)
-        self.device = mass.device
+        self.device = check_factor_device(mass.device)
         pattern = _lower_pattern(rows, cols, vals, len(mass))
         engine = _engine(pattern, self.device)
         last = None
         for sigma in shifts:
-            self._solver, last = _cholesky(pattern, -sigma * mass.to(torch.float64), engine)
+            diagonal = -sigma * mass.to(torch.float64)
+            self._solver, last = _cholesky(pattern, diagonal, engine)
             if self._solver is not None:
                 self.sigma = sigma
+                check_first_solve(self._solver, self.device, pattern, diagonal, name)
                 return
         # No advice here: what to try next depends on what was tried (the caller adds it).
         raise SolverError(f"{name}: the Killing operator has eigenvalues below {shifts[-1]} "
@@ -148,10 +150,10 @@ class BlockDiagonalFactor:
     costs.
 
     system : a :class:`~torchakvf.operators.killing.KillingSystem`; names : one per mesh
-    shifts : [B] the σ_b to use; default: SHIFTS[0] for every mesh in one trial factor, and
-        where that fails (some mesh needs a lower shift) each mesh's own ladder
-        (:class:`ShiftedFactor`, which names a mesh that no shift makes definite), then the
-        block factor at the shifts found.
+    shifts : [B] the σ_b to use; default: each mesh's own ladder first (:func:`mesh_shift`, on
+        the CPU, which names a mesh that no shift makes definite), then the one block factor at
+        the shifts found. Never a trial factor of the whole batch: one mesh needing a lower
+        shift would make it fail, and the batch would be factored twice.
 
     ``sigma`` is [B] float64 on the system's device; ``solve(rhs)`` solves the block-diagonal
     system for packed rhs [ΣE, k] (a mesh's rows of the solution depend on its rows of rhs only).
@@ -160,32 +162,23 @@ class BlockDiagonalFactor:
     def __init__(self, system, names: list[str] | None = None, shifts=None):
         nb = system.n_meshes
         names = names or [f"mesh {b}" for b in range(nb)]
-        self.device = system.mass.device
-        idx, vals = system.stiffness.indices(), system.stiffness.values()
-        pattern = _lower_pattern(idx[0], idx[1], vals, len(system.mass))
-        sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).to(self.device)
-        mass = system.mass.to(torch.float64)
-
-        engine = _engine(pattern, self.device)
-
-        def factor_at(sig: list[float]):
-            self.sigma = torch.tensor(sig, dtype=torch.float64, device=self.device)
-            return _cholesky(pattern, -torch.repeat_interleave(self.sigma, sizes) * mass, engine)
-
+        self.device = check_factor_device(system.mass.device)
         if shifts is None:
-            self._solver, last = factor_at([SHIFTS[0]] * nb)
-            if self._solver is not None:
-                return
-            # Some mesh needs a lower shift: each mesh's own ladder says which, and how low
-            # (on the CPU: these factors are only asked for their shift).
-            shifts = [mesh_factor(system, b, names[b], device="cpu").sigma for b in range(nb)]
+            shifts = [mesh_shift(system, b, names[b]) for b in range(nb)]
         shifts = [float(x) for x in shifts]
         if len(shifts) != nb:
             raise ParameterError(f"BlockDiagonalFactor: {len(shifts)} shifts for {nb} meshes")
-        self._solver, last = factor_at(shifts)
+        idx, vals = system.stiffness.indices(), system.stiffness.values()
+        pattern = _lower_pattern(idx[0], idx[1], vals, len(system.mass))
+        sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).to(self.device)
+        self.sigma = torch.tensor(shifts, dtype=torch.float64, device=self.device)
+        diagonal = -torch.repeat_interleave(self.sigma, sizes, output_size=len(system.mass)) \
+            * system.mass.to(torch.float64)
+        self._solver, last = _cholesky(pattern, diagonal, _engine(pattern, self.device))
         if self._solver is None:
             raise SolverError(f"{', '.join(names)}: R - σS1 is not positive definite at the "
                               f"shifts {shifts} ({last})")
+        check_first_solve(self._solver, self.device, pattern, diagonal, ", ".join(names))
 
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
         """The block-diagonal system's solution for packed rhs [ΣE, k] (float64)."""
@@ -248,8 +241,11 @@ def _cholesky(pattern, diagonal: torch.Tensor, engine=None):
 
     n, r, c, base = pattern
     x = torch.cat([base, diagonal.to(base.device)]).contiguous()
+    # CHOLMOD's "not positive definite" of a trial shift is muted on the CPU only: on a GPU the
+    # same channel carries CUDA errors, which must be seen.
+    quiet = _quiet_stderr() if x.device.type == "cpu" else contextlib.nullcontext()
     try:
-        with _quiet_stderr():
+        with quiet:
             return cholespy.CholeskySolverD(n, r, c, x, cholespy.MatrixType.COO), None
     except ValueError as exc:               # "Matrix is not positive definite!"
         return None, exc
@@ -297,6 +293,67 @@ def mesh_factor(system, b: int, name: str, device=None) -> ShiftedFactor:
     if device is not None:
         r, c, v, mass = (t.to(device) for t in (r, c, v, mass))
     return ShiftedFactor(r, c, v, mass, name=name)
+
+
+def mesh_shift(system, b: int, name: str) -> float:
+    """The shift of mesh b's own ladder (:data:`SHIFTS`): the first that makes its block of
+    R - σ S1 positive definite, found on the CPU (a :class:`SolverError` naming the mesh where
+    none does)."""
+    return mesh_factor(system, b, name, device="cpu").sigma
+
+
+def check_factor_device(device) -> torch.device:
+    """``device`` as a torch.device, or a :class:`ParameterError` for a CUDA device that
+    cholespy cannot factor on: cholespy always solves on the first visible GPU (its CUDA
+    context is device 0's), so any other index would solve with another device's factor."""
+    device = torch.device(device)
+    if device.type != "cuda":
+        return device
+    index = device.index
+    if index is None and torch.cuda.is_available():
+        index = torch.cuda.current_device()
+    if index not in (None, 0):
+        raise ParameterError(f"device {device}: the sparse factor (cholespy) runs on the first "
+                             f"visible GPU only; run with CUDA_VISIBLE_DEVICES={index} and device "
+                             "'cuda' (or 'cuda:0')")
+    return device
+
+
+#: Largest normwise backward error ||A x - b|| / (||A|| ||x|| + ||b||) (max norms) of the known
+#: right-hand side's solve (:func:`check_first_solve`). A Cholesky solve is backward stable: its
+#: backward error is a small multiple of eps (1e-16) whatever the conditioning, so this is met
+#: with room by any working factor, while a failed device call leaves zeros, garbage or NaN
+#: (backward error of order 1).
+BACKWARD_ERROR_MAX = 1e-10
+
+
+def check_first_solve(solver, device: torch.device, pattern, diagonal: torch.Tensor, name: str) -> None:
+    """Solve A x = b for a known b (A = R + diag(diagonal), b = A·1) with a new cholespy factor
+    and raise a :class:`SolverError` naming ``name`` where the result is not finite or its
+    backward error exceeds :data:`BACKWARD_ERROR_MAX`. cholespy prints CUDA errors instead of
+    raising them (a failed allocation or launch leaves the output unwritten): this is where they
+    surface. CHOLMOD called directly raises its own errors and is not checked."""
+    if isinstance(solver, cholmod.CholmodFactor):
+        return
+    n, r, c, base = pattern
+    vals = torch.cat([base.to(device), diagonal.to(device, torch.float64)])
+    r, c = r.to(device).long(), c.to(device).long()
+
+    def times(x: torch.Tensor) -> torch.Tensor:          # A x from A's lower triangle
+        off = r != c
+        y = torch.zeros_like(x).index_add_(0, r, vals * x[c])
+        return y.index_add_(0, c[off], vals[off] * x[r[off]])
+
+    b = times(torch.ones(n, dtype=torch.float64, device=device))
+    x = _solve(solver, device, b[:, None])[:, 0]
+    norm_a = torch.zeros(n, dtype=torch.float64, device=device).index_add_(0, r, vals.abs())
+    norm_a = norm_a.index_add_(0, c[r != c], vals[r != c].abs()).max()
+    err = (times(x) - b).abs().max() / (norm_a * x.abs().max() + b.abs().max())
+    if not bool(torch.isfinite(x).all()) or not float(err) <= BACKWARD_ERROR_MAX:
+        raise SolverError(f"{name}: the sparse factor's solve on {device} failed its check (backward "
+                          f"error {float(err):.1e} > {BACKWARD_ERROR_MAX:.0e}, or not finite): a "
+                          "device error (out of memory?) was printed above; free memory or make the "
+                          "batch smaller")
 
 
 @contextlib.contextmanager

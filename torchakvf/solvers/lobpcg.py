@@ -11,6 +11,12 @@ instead of depending on the tiny gap after λ_n, and block methods keep every co
 a loose tolerance was seen to drop some).
 
 Residuals are recomputed at the end from R and S1, not taken from the iteration.
+
+On a GPU the host waits for the device wherever a value comes back to Python: the loop reads
+which meshes converged once every :data:`CHECK_EVERY` iterations and indexes the padded arrays
+with index tensors, not boolean masks, so an iteration's only other synchronizations are the
+two dense ``eigh`` of the Rayleigh-Ritz step (torch reads their error codes).
+:func:`working_bytes` gives the padded arrays' peak size, for sizing batches.
 """
 from __future__ import annotations
 
@@ -20,7 +26,7 @@ from dataclasses import dataclass
 import torch
 
 from ..threads import single_threaded
-from ..errors import FieldCountError, ParameterError
+from ..errors import FieldCountError, ParameterError, SolverError
 from ..mesh.batch import owner_index
 from ..operators.killing import KillingSystem
 from .factor import BlockDiagonalFactor, mesh_factor
@@ -37,6 +43,10 @@ _BIG = 1e30
 #: the batch by default (see :class:`~torchakvf.solvers.factor.BlockDiagonalFactor`): where a
 #: solve call costs its levels, not its rows. On the CPU the two take the same time.
 BLOCK_FACTOR_ON = ("cuda",)
+#: Iterations between host reads of which meshes converged (a read is a host synchronization on
+#: a GPU). A mesh's pairs are recorded when it converges whatever this is: only when it leaves
+#: the iteration (its padded rows stop costing work) waits for the next read.
+CHECK_EVERY = 3
 
 
 @dataclass
@@ -82,7 +92,8 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     guard : extra block vectors, default max(8, n // 2)
     seed : the random start of each mesh is drawn from ``torch.Generator().manual_seed(seed)``
         alone, so a mesh gets the same start (and result) in any batch
-    factors : optional precomputed :class:`ShiftedFactor` per mesh
+    factors : optional precomputed :class:`ShiftedFactor` per mesh, or one
+        :class:`BlockDiagonalFactor` of ``system`` (then used whatever ``block_factor`` says)
     block_factor : precondition with one :class:`BlockDiagonalFactor` of the whole batch (one
         solve call per iteration for every live mesh, the converged meshes' rows solved too)
         instead of one factor per mesh (one call per live mesh, on its unconverged columns);
@@ -112,15 +123,14 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
 
     if block_factor is None:
         block_factor = dev.type in BLOCK_FACTOR_ON
-    block = None
-    if factors is None and block_factor:
+    block = factors if isinstance(factors, BlockDiagonalFactor) else None
+    if block is not None:
+        factors = None
+    elif factors is None and block_factor:
         block = BlockDiagonalFactor(system, names)
     elif factors is None:
         factors = [mesh_factor(system, b, names[b]) for b in range(nb)]
     ptr = system.edge_ptr.tolist()
-
-    def packed_rows(meshes: list[int]) -> torch.Tensor:   # rows of ``meshes`` in the packing
-        return torch.cat([torch.arange(ptr[b], ptr[b + 1], device=dev) for b in meshes])
 
     mask = torch.zeros(nb, e_max, dtype=torch.bool, device=dev)
     for b, e in enumerate(sizes):
@@ -132,26 +142,37 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     # the live meshes only (``live``: their indices in the batch), and R is the live meshes'
     # block-diagonal part, rebuilt when one leaves (at most B times): the finished ones cost
     # nothing more (without locking a batch costs about 1.5x its meshes solved one by one).
+    # Which meshes converged is read on the host every CHECK_EVERY iterations only (a read is a
+    # host synchronization on a GPU); in between, a mesh that converges has its pairs recorded
+    # on the device, as they are when it converges, and iterates on uncounted until it leaves.
     live = list(range(nb))
     stiff = system.stiffness.to(dt)
-    mask_l, s_l, inv_l = mask, s, inv_sqrt_s
-    rows_l = packed_rows(live) if block is not None else None
+    s_l, inv_l = s, inv_sqrt_s
+    # Index tensors in place of boolean masks (a mask index is a host synchronization): the
+    # padded slots [L·Emax] of the live meshes' packed rows, and those rows in the packing.
+    slots_l, rows_l = _live_slots(live, sizes, ptr, e_max, dev)
+    live_t = torch.arange(nb, device=dev)
 
     def r_mul(x: torch.Tensor) -> torch.Tensor:          # [L, Emax, k] -> [L, Emax, k]
-        out = torch.zeros_like(x)
-        out[mask_l] = torch.sparse.mm(stiff, x[mask_l])
-        return out
+        flat = x.reshape(-1, x.shape[2])
+        out = torch.zeros_like(flat)
+        out.index_copy_(0, slots_l, torch.sparse.mm(stiff, flat.index_select(0, slots_l)))
+        return out.view(x.shape)
 
     def precondition(res: torch.Tensor, todo: torch.Tensor) -> torch.Tensor:
         out = torch.zeros_like(res)
         if block is not None:
-            rhs = res.new_zeros(len(system.mass), res.shape[2])
-            rhs[rows_l] = res[mask_l]
-            out[mask_l] = block.solve(rhs)[rows_l].to(dt)
+            flat, k = out.view(-1, res.shape[2]), res.shape[2]
+            rhs = res.new_zeros(len(system.mass), k)
+            rhs.index_copy_(0, rows_l, res.reshape(-1, k).index_select(0, slots_l))
+            flat.index_copy_(0, slots_l, block.solve(rhs).index_select(0, rows_l).to(dt))
             return out * todo[:, None, :]
-        for j in torch.nonzero(todo.any(dim=1)).reshape(-1).tolist():
+        todo_host = todo.tolist()             # one read for every mesh's columns
+        for j, cols_host in enumerate(todo_host):
+            if not any(cols_host):
+                continue
             b = live[j]
-            cols = torch.nonzero(todo[j]).reshape(-1)
+            cols = torch.tensor([c for c, t in enumerate(cols_host) if t], device=dev)
             out[j, :sizes[b], cols] = factors[b].solve(res[j, :sizes[b]][:, cols]).to(dt)
         return out
 
@@ -170,28 +191,31 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
     x, rx, lam, _ = _rayleigh_ritz(x, r_mul(x), s, m)
     final_x = torch.zeros(nb, e_max, n, dtype=dt, device=dev)
     final_lam = torch.zeros(nb, n, dtype=dt, device=dev)
+    done_l = torch.zeros(nb, dtype=torch.bool, device=dev)   # converged, not yet locked
     p = None
     iters = torch.zeros(nb, dtype=torch.long, device=dev)
-    for _ in range(max_iter):
+    for it in range(max_iter):
         res = rx - s_l[..., None] * x * lam[:, None, :]
         rel = torch.linalg.norm(res * inv_l[..., None], dim=1) / lam.abs().clamp(min=1.0)
-        done = (rel[:, :n] <= tol).all(dim=1)
-        if bool(done.any()):
-            gone = torch.nonzero(done).reshape(-1)
-            at = torch.tensor([live[j] for j in gone.tolist()], device=dev)
-            final_x[at], final_lam[at] = x[gone, :, :n], lam[gone, :n]
-            stay = torch.nonzero(~done).reshape(-1)
+        new = (rel[:, :n] <= tol).all(dim=1) & ~done_l
+        # Pairs recorded on the device as they are when their mesh converges.
+        final_x[live_t] = torch.where(new[:, None, None], x[:, :, :n], final_x[live_t])
+        final_lam[live_t] = torch.where(new[:, None], lam[:, :n], final_lam[live_t])
+        done_l = done_l | new
+        if it % CHECK_EVERY == 0 and bool(done_l.any()):
+            stay = torch.nonzero(~done_l).reshape(-1)
             if len(stay) == 0:
                 live = []
                 break
             live = [live[j] for j in stay.tolist()]
+            live_t, done_l = live_t[stay], done_l[stay]
             x, rx, lam, res, rel = x[stay], rx[stay], lam[stay], res[stay], rel[stay]
             p = None if p is None else p[stay]
-            mask_l, s_l, inv_l = mask[live], s[live], inv_sqrt_s[live]
+            s_l, inv_l = s[live_t], inv_sqrt_s[live_t]
             stiff = system.select(live).stiffness.to(dt)
-            rows_l = packed_rows(live) if block is not None else None
-        iters[torch.tensor(live, device=dev)] += 1
-        w = precondition(res, rel > tol)
+            slots_l, rows_l = _live_slots(live, sizes, ptr, e_max, dev)
+        iters.index_add_(0, live_t, (~done_l).long())
+        w = precondition(res, (rel > tol) & ~done_l[:, None])
         # Orthogonalize the new directions against X (S-inner product) for a well-conditioned basis.
         w = _orthogonalize(w, x, s_l)
         rw = r_mul(w)
@@ -205,14 +229,21 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
             z, rz = torch.cat([x, w, p], 2), torch.cat([rx, rw, rp], 2)
         x, rx, lam, c = _rayleigh_ritz(z, rz, s_l, m)
         p = z[:, :, m:] @ c[:, m:, :]
-    if live:    # out of iterations: the meshes still live keep where they got
-        at = torch.tensor(live, device=dev)
-        final_x[at], final_lam[at] = x[:, :, :n], lam[:, :n]
+        # The basis and its products go now, not when the next iteration rebinds them: they
+        # would be alive beside the next basis (about 19 P·m arrays at once instead of 16).
+        del z, rz, w, rw, res
+    if live:    # out of iterations: the meshes still live keep where they got, unless converged
+        final_x[live_t] = torch.where(done_l[:, None, None], final_x[live_t], x[:, :, :n])
+        final_lam[live_t] = torch.where(done_l[:, None], final_lam[live_t], lam[:, :n])
 
     vectors = final_x[mask]
     values = final_lam
     residuals = relative_residuals(system, vectors, values)
     converged = (residuals <= tol).all(dim=1)
+    if not bool(torch.isfinite(values).all()):
+        bad = torch.nonzero(~torch.isfinite(values).all(dim=1)).reshape(-1).tolist()
+        raise SolverError(f"{', '.join(names[b] for b in bad)}: the eigensolver's results are not "
+                          "finite (a failed solve on the device?)")
     for b in torch.nonzero(~converged).reshape(-1).tolist():
         log.warning("%s: eigensolver stopped after %d iterations with residual %.2e > tol %.1e",
                     names[b], int(iters[b]), float(residuals[b].max()), tol)
@@ -220,6 +251,32 @@ def segmented_lobpcg(system: KillingSystem, n: int, tol: float = 1e-6, max_iter:
               else torch.tensor([f.sigma for f in factors], dtype=dt, device=dev))
     return EigenResult(eigenvalues=values, vectors=vectors, residuals=residuals, iterations=iters,
                        shifts=shifts, converged=converged)
+
+
+def _live_slots(live: list[int], sizes: list[int], ptr: list[int], e_max: int, dev):
+    """([ΣE_live] slots of the live meshes' rows in their padded [L·Emax] arrays, [ΣE_live]
+    those rows in the batch's packing), in the same order, built on the host."""
+    slots = torch.cat([torch.arange(j * e_max, j * e_max + sizes[b]) for j, b in enumerate(live)])
+    rows = torch.cat([torch.arange(ptr[b], ptr[b + 1]) for b in live])
+    return slots.to(dev), rows.to(dev)
+
+
+def working_bytes(edges: list[int], n: int, guard: int | None = None) -> int:
+    """Bytes of the arrays :func:`segmented_lobpcg` holds at once, at its peak (an iteration
+    with every mesh live and a P block), for meshes of ``edges`` edges and ``n`` pairs: a
+    budget for sizing batches against a device's free memory. The factor's own memory (its
+    sparse Cholesky factor) and the operator are not included.
+
+    Counted from the arrays the code allocates, float64, padded to P = B·Emax rows (B meshes,
+    Emax the largest edge count), m = n + guard columns: during the Rayleigh-Ritz step 16 P·m
+    (X, R X, the residuals, W, R W, P, R P: 7; the basis Z and R Z: 6; S Z: 3), the converged
+    pairs P·n, the mass and its inverse square root 2 P, the mask P bytes, the start blocks kept
+    ΣE·m, and the B Gram-sized [3m, 3m] matrices of the step (6 of them)."""
+    guard = max(8, n // 2) if guard is None else guard
+    m, b, e_max, total = n + guard, len(edges), max(edges), sum(edges)
+    rows = b * e_max
+    floats = 16 * rows * m + rows * n + 2 * rows + total * m + 6 * b * (3 * m) ** 2
+    return 8 * floats + rows
 
 
 def _start_blocks(start, sizes: list[int], m: int, names: list[str]) -> list:
