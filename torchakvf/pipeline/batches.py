@@ -39,25 +39,19 @@ FREE_MEMORY_SHARE = 0.5
 #: Bytes of a batch's padded solver arrays on the CPU by default: a batched run there tests the
 #: accelerator's path; a few meshes per batch keep batches coming for the host workers.
 DEFAULT_CPU_BATCH_BYTES = 256 * 2**20
-#: Arrays of the batched LOBPCG, each [B, E_max, m]: the block x, its residual r, the search
-#: directions w and p and their operator images (x, rx, w, rw, p, rp), and as many again of
-#: temporaries (the Rayleigh-Ritz update and the preconditioner's solves).
-LOBPCG_BLOCKS = 12
 #: Edges per face of a closed triangle mesh (E = 3F/2); meshes with boundary have a little more.
 EDGES_PER_FACE = 1.5
 
 
 def solve_bytes(edges_max: int, count: int, n: int) -> int:
     """Bytes of a batched solve's padded arrays: ``count`` meshes padded to ``edges_max`` edges,
-    n eigenpairs (plus the solver's room for spurious modes), float64: :data:`LOBPCG_BLOCKS`
-    arrays [B, E_max, m] with m = n + max(8, n // 2) columns, and the Gram matrices [B, 3m, 3m]
-    (two, and the eigensolver's copies of both). An estimate from the arrays
-    :func:`~torchakvf.solvers.lobpcg.segmented_lobpcg` allocates, made here for planning."""
+    n eigenpairs plus the solver's room for spurious modes
+    (:data:`~torchakvf.solvers.akvf_solver.SPURIOUS_MARGIN`), as
+    :func:`~torchakvf.solvers.lobpcg.working_bytes` counts them from the arrays it allocates."""
     from ..solvers.akvf_solver import SPURIOUS_MARGIN
+    from ..solvers.lobpcg import working_bytes
 
-    n = int(n) + SPURIOUS_MARGIN
-    m = n + max(8, n // 2)
-    return 8 * int(count) * (LOBPCG_BLOCKS * int(edges_max) * m + 4 * (3 * m) ** 2)
+    return working_bytes([int(edges_max)] * int(count), int(n) + SPURIOUS_MARGIN)
 
 
 def batch_bytes_budget(device, given: int | None = None) -> int:
