@@ -78,7 +78,7 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--ids", default="1-400")
     p.add_argument("--n", type=int, default=24)
-    p.add_argument("--coarse-faces", type=int, default=4000)
+    p.add_argument("--coarse-faces", type=int, default=4000, help="0: full resolution")
     p.add_argument("--solve", action="store_true", help="also solve the paper's operator")
     p.add_argument("--out", default="/tmp/remedy_auto.csv")
     a = p.parse_args()
@@ -92,7 +92,7 @@ def main() -> None:
             batch, cat = ta.MeshBatch.from_meshes([ta.Mesh(shape.vertices, shape.faces, name=name)]), "builtin"
         else:
             mesh = ta.load_mesh(src.mesh_path)
-            batch, cat = ta.MeshBatch.from_meshes([mesh], coarse_faces=a.coarse_faces), category_of(int(name))
+            batch, cat = ta.MeshBatch.from_meshes([mesh], coarse_faces=a.coarse_faces or None), category_of(int(name))
         row = dict(mesh=name, category=cat, faces=len(batch.faces), decimated=int(batch.coarse_of(0) is not None),
                    **mesh_quality(batch), **decision(batch), **(outcome(batch, a.n) if a.solve else {}))
         print(row, flush=True)
