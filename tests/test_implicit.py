@@ -4,9 +4,6 @@ faces per part; and what the default segmentation makes of them at k = n_parts, 
 (The table and the mug are checked in test_merge.py, where their failure modes are.)"""
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -19,8 +16,7 @@ from torchakvf.mesh import face_areas
 from torchakvf.options import SegmentOptions
 from torchakvf.parts.field_counts import akvf_count
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_shapes import _face_angles_deg, check_mesh  # noqa: E402
+from test_shapes import _face_angles_deg, check_mesh
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
