@@ -299,7 +299,7 @@ def test_default_remedy_is_the_one_everywhere():
     from torchakvf.operators import killing_operator
     from torchakvf.operators.killing import DEFAULT_REMEDY
     from torchakvf.parts import DEFAULT_REMEDY as parts_default
-    assert DEFAULT_REMEDY == "smooth" and parts_default is DEFAULT_REMEDY
+    assert DEFAULT_REMEDY == "auto" and parts_default is DEFAULT_REMEDY
     for fn in (ta.akvf, killing_operator):
         assert inspect.signature(fn).parameters["remedy"].default == DEFAULT_REMEDY, fn
     assert ta.SegmentOptions().remedy == DEFAULT_REMEDY     # segment's, through its options

@@ -261,13 +261,13 @@ def cpu_segments():
     return ks, ta.segment(_meshes(), k=ks, seed=0)
 
 
-def _assert_same_parts(ref, got, min_agree=0.98):
+def _assert_same_parts(ref, got, min_agree=0.98, eig_tol=2e-6):
     for a, b in zip(ref.meshes, got.meshes):
         assert b.converged and b.labels.shape == a.labels.shape
         assert len(set(b.labels.tolist()) - {-1}) == len(set(a.labels.tolist()) - {-1}), a.name
         agree = matched_agreement(b.labels, a.labels)
         assert agree >= min_agree, (a.name, agree)
-        np.testing.assert_allclose(b.eigenvalues, a.eigenvalues, rtol=2e-6, atol=2e-6)
+        np.testing.assert_allclose(b.eigenvalues, a.eigenvalues, rtol=eig_tol, atol=eig_tol)
 
 
 def test_segment_labels(device, cpu_segments):
@@ -283,7 +283,9 @@ def test_segment_float32_batch(device, cpu_segments):
     batch = ta.MeshBatch.from_meshes(_meshes(), device=device, dtype=torch.float32)
     got = ta.segment(batch, k=ks, seed=0)
     assert got.untangled.features.dtype == torch.float32
-    _assert_same_parts(ref, got)
+    # float32 coordinates move the paper operator's eigenvalues (these clean shapes get it) by
+    # up to 6e-6 here: the float32 bound of docs/design.md#precision is 1e-4
+    _assert_same_parts(ref, got, eig_tol=1e-4)
 
 
 # ---- the corpus runner -------------------------------------------------------------------

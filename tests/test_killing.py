@@ -119,6 +119,30 @@ def test_batch_is_block_diagonal_of_each_alone(meshes):
         assert total == system.stiffness.values().numel()
 
 
+def test_a_remedy_per_mesh_is_each_mesh_alone_with_its_remedy(meshes):
+    """A list of remedies (what remedy="auto" decides) assembles each mesh's block as that mesh
+    alone under its own remedy: floors, curvature rings and raw weights stay within a mesh."""
+    names = ["icosphere3", "hemisphere3", "square_patch", "ellipsoid3"]
+    remedies = ["smooth", "none", "clamp", "smooth"]
+    meshes = dict(meshes, ellipsoid3=ta.Mesh(shapes.ellipsoid(level=3).vertices, shapes.ellipsoid(level=3).faces))
+    batch = ta.MeshBatch.from_meshes([meshes[k] for k in names])
+    system = killing_operator(batch, remedy=remedies)
+    assert system.remedies == remedies
+    for b, (k, remedy) in enumerate(zip(names, remedies)):
+        alone = killing_operator(ta.MeshBatch.from_meshes([meshes[k]]), remedy=remedy)
+        r, c, v, size = system.block(b)
+        Rb = sp.csr_matrix((v.numpy(), (r.numpy(), c.numpy())), shape=(size, size))
+        Ra = as_scipy(alone.stiffness)
+        assert abs(Rb - Ra).max() <= 1e-13 * abs(Ra).max()
+        lo, hi = int(batch.edge_ptr[b]), int(batch.edge_ptr[b + 1])
+        np.testing.assert_allclose(system.mass[lo:hi].numpy(), alone.mass.numpy(), rtol=1e-14)
+        # and the remedy did change this block (so the comparison can fail)
+        other = killing_operator(ta.MeshBatch.from_meshes([meshes[k]]), remedy="none" if remedy != "none" else "smooth")
+        assert abs(as_scipy(other.stiffness) - Ra).max() > 1e-9 * abs(Ra).max()
+    sub = system.select([3, 1])
+    assert sub.remedies == ["smooth", "none"]
+
+
 # ---------------------------------------------------------------------------------------------
 # what the operator means: rigid motions are (nearly) in its kernel
 # ---------------------------------------------------------------------------------------------

@@ -232,9 +232,11 @@ def test_segment_task_records_convergence_for_the_manifest(batch_seg):
 
     task = SegmentTask(np.int64(3), n_fields=np.int64(16), solver="lanczos")
     ms = batch_seg[1]
-    assert task.manifest_fields((ms, None)) == {"converged": True, "max_residual": ms.max_residual}
+    # the remedy its operator got: a clean shape keeps the paper's (remedy "auto")
+    assert task.manifest_fields((ms, None)) == {"converged": True, "max_residual": ms.max_residual,
+                                                "remedy": "none"}
     ms_bad = type(ms)(**{**ms.__dict__, "converged": False, "max_residual": 3e-4})
-    assert task.manifest_fields((ms_bad, None)) == {"converged": False, "max_residual": 3e-4}
+    assert task.manifest_fields((ms_bad, None)) == {"converged": False, "max_residual": 3e-4, "remedy": "none"}
     assert task.params["solver"] == "lanczos" and task.params["method"] == "merge"   # the default
     assert SegmentTask(3, method="paper").params["method"] == "paper"
     with pytest.raises(ta.ParameterError, match="method"):

@@ -196,7 +196,8 @@ class SegmentOptions:
     #: same parts in any batch
     seed: int = 0
     #: mesh-quality remedy of the Killing operator (:mod:`torchakvf.operators.killing`; "none"
-    #: is the paper's operator); the default suits the corpus' irregular meshes
+    #: is the paper's operator); the default, "auto", decides per mesh: the paper's operator on
+    #: well-shaped meshes, "smooth" on irregular ones (:mod:`torchakvf.operators.remedy_choice`)
     remedy: str = DEFAULT_REMEDY
     #: the eigensolver of the AKVFs: "auto" (each mesh's fastest), "lanczos", "krylov" or
     #: "lobpcg" (:func:`torchakvf.fields.akvf.akvf`)

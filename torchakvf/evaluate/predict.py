@@ -124,6 +124,7 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None):
         meta["seconds"] = float(meta.get("seconds", 0.0)) + float(seconds[b])
         meta["eigenvalues"] = eig[b].tolist()
         meta["converged"], meta["max_residual"] = solve_quality(fields, b)
+        meta["remedy"] = fields.remedies[b]
         meta.setdefault("costs", {}).update(costs[b])
         meta.update(extra[b])
         meta["coarse_faces"] = None if mb.coarse_of(b) is None else len(mb.coarse_of(b).coarse.faces)

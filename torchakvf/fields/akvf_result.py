@@ -31,7 +31,8 @@ class AKVFResult:
     dropped : [B] spurious negative modes (λ·area < :data:`~torchakvf.solvers.akvf_solver.SPURIOUS_BELOW`)
         skipped under a remedy
     solved : [B] eigenpairs computed per mesh (n + room for spurious modes; decided per mesh)
-    batch : the :class:`MeshBatch`; ``system``: its :class:`KillingSystem`
+    batch : the :class:`MeshBatch`; ``system``: its :class:`KillingSystem` (``remedies``: the
+        remedy of each mesh)
     """
 
     eigenvalues: torch.Tensor
@@ -45,6 +46,13 @@ class AKVFResult:
     batch: MeshBatch
     system: KillingSystem
     solved: torch.Tensor | None = None
+
+    @property
+    def remedies(self) -> list[str] | None:
+        """[B] the mesh-quality remedy each mesh's operator was built with ("none": the paper's
+        operator; with ``remedy="auto"`` decided per mesh, see
+        :func:`~torchakvf.operators.remedy_choice.choose_remedies`)."""
+        return self.system.remedies
 
     @property
     def n(self) -> int:

@@ -22,12 +22,16 @@ from ..mesh.batch import MeshBatch, owner_index
 from . import dec
 from .geometry import BatchGeometry, batch_geometry
 
-#: Mesh-quality remedies (see :func:`killing_operator`).
-REMEDIES = ("none", "clamp", "smooth")
-#: The remedy every entry point uses by default (akvf, segment, features, the CLI): "none"
-#: (the paper's operator) leaves badly shaped real meshes without a positive definite shift
-#: or with eigenvalues far below zero; "smooth" solves them (see docs/design.md).
-DEFAULT_REMEDY = "smooth"
+#: The remedies a mesh's operator can be built with (see :func:`killing_operator`).
+MESH_REMEDIES = ("none", "clamp", "smooth")
+#: Mesh-quality remedies a caller may ask for: one for every mesh, or "auto", decided per mesh
+#: (:func:`~torchakvf.operators.remedy_choice.choose_remedies`).
+REMEDIES = MESH_REMEDIES + ("auto",)
+#: The remedy every entry point uses by default (akvf, segment, features, the CLI): "auto", the
+#: paper's operator ("none") on well-shaped meshes and "smooth" on the badly shaped ones, which
+#: "none" leaves without a positive definite shift or with eigenvalues far below zero
+#: (see docs/design.md).
+DEFAULT_REMEDY = "auto"
 #: Rings of curvature averaging per remedy.
 CURVATURE_RINGS = {"none": 0, "clamp": 0, "smooth": 4}
 
@@ -45,6 +49,8 @@ class KillingSystem:
     edge_ptr : [B+1] offsets of each mesh's edges
     star1_raw : [ΣE] cotangent weights before any floor or remedy
     geometry : the unit-area :class:`BatchGeometry` the operator was built from
+    remedies : [B] the remedy each mesh's operator was built with (one of :data:`MESH_REMEDIES`;
+        None for a system assembled by hand)
     """
 
     stiffness: torch.Tensor
@@ -52,6 +58,7 @@ class KillingSystem:
     edge_ptr: torch.Tensor
     star1_raw: torch.Tensor
     geometry: BatchGeometry
+    remedies: list[str] | None = None
 
     @property
     def n_meshes(self) -> int:
@@ -70,8 +77,10 @@ class KillingSystem:
         dev = self.mass.device
         stiff = torch.sparse_coo_tensor(torch.stack([torch.cat(rows), torch.cat(cols)]), torch.cat(vals),
                                         (ptr[-1], ptr[-1]), check_invariants=False).coalesce()
+        remedies = None if self.remedies is None else [self.remedies[int(b)] for b in meshes]
         return KillingSystem(stiffness=stiff, mass=torch.cat(mass), star1_raw=torch.cat(raw),
-                             edge_ptr=torch.tensor(ptr, dtype=torch.long, device=dev), geometry=None)
+                             edge_ptr=torch.tensor(ptr, dtype=torch.long, device=dev), geometry=None,
+                             remedies=remedies)
 
     @classmethod
     def concatenate(cls, systems: list, edge_ptr: torch.Tensor) -> "KillingSystem":
@@ -86,8 +95,9 @@ class KillingSystem:
         geos = [s.geometry for s in systems]
         geometry = None if any(g is None for g in geos) else BatchGeometry(
             **{name: torch.cat([getattr(g, name) for g in geos]) for name in BatchGeometry.__dataclass_fields__})
+        remedies = None if any(s.remedies is None for s in systems) else [r for s in systems for r in s.remedies]
         return cls(stiffness=stiff, mass=torch.cat([s.mass for s in systems]), edge_ptr=edge_ptr,
-                   star1_raw=torch.cat([s.star1_raw for s in systems]), geometry=geometry)
+                   star1_raw=torch.cat([s.star1_raw for s in systems]), geometry=geometry, remedies=remedies)
 
     def block(self, b: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
         """COO entries (rows, cols, vals) of mesh b's block with local indices, and its size."""
@@ -109,17 +119,30 @@ def _per_mesh_mean(x: torch.Tensor, ptr: torch.Tensor) -> torch.Tensor:
     return (total / (ptr[1:] - ptr[:-1]).to(x.dtype))[owner]
 
 
-def mass_star1(star1: torch.Tensor, edge_ptr: torch.Tensor, remedy: str = DEFAULT_REMEDY) -> torch.Tensor:
-    """The positive star1 used as S1 under ``remedy`` ([ΣE] -> [ΣE]).
+def _check_remedy(remedy: str | list[str], n_meshes: int) -> None:
+    if isinstance(remedy, str):
+        if remedy not in REMEDIES:
+            raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
+    elif len(remedy) != n_meshes or any(r not in MESH_REMEDIES for r in remedy):
+        raise ParameterError(f"a list of remedies needs one of {MESH_REMEDIES} per mesh "
+                             f"({n_meshes}), got {list(remedy)!r}")
+
+
+def mass_star1(star1: torch.Tensor, edge_ptr: torch.Tensor, remedy: str | list[str] = "smooth") -> torch.Tensor:
+    """The positive star1 used as S1 under ``remedy`` ([ΣE] -> [ΣE]; ``remedy`` one of
+    :data:`MESH_REMEDIES`, or a list of one per mesh).
 
     "none": the paper's cotan weights, floored at MASS_FLOOR * mean |star1| only so that the
-    mass matrix stays positive definite. "clamp": floored at 0.1 * mean |star1|, which also
-    removes the large negative curvature terms that obtuse pairs put into R.
+    mass matrix stays positive definite. "clamp" and "smooth": floored at 0.1 * mean |star1|,
+    which also removes the large negative curvature terms that obtuse pairs put into R.
     """
-    if remedy not in REMEDIES:
-        raise ParameterError(f"remedy must be one of {REMEDIES}, got {remedy!r}")
-    fraction = MASS_FLOOR if remedy == "none" else 0.1
-    floor = fraction * _per_mesh_mean(star1.abs(), edge_ptr)
+    remedies = [remedy] * (len(edge_ptr) - 1) if isinstance(remedy, str) else list(remedy)
+    for r in remedies:
+        if r not in MESH_REMEDIES:
+            raise ParameterError(f"remedy must be one of {MESH_REMEDIES}, got {r!r}")
+    fraction = torch.tensor([MASS_FLOOR if r == "none" else 0.1 for r in remedies],
+                            dtype=star1.dtype, device=star1.device)
+    floor = fraction[owner_index(edge_ptr)] * _per_mesh_mean(star1.abs(), edge_ptr)
     return torch.maximum(star1, floor)
 
 
@@ -152,7 +175,21 @@ def _ring_average_curvature(batch: MeshBatch, theta: torch.Tensor, a_v: torch.Te
     return (num / den)[:, 0]
 
 
-def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy: str = DEFAULT_REMEDY,
+def _mesh_curvature(batch: MeshBatch, theta: torch.Tensor, a_v: torch.Tensor, rings: list[int]) -> torch.Tensor:
+    """[ΣV] :func:`_ring_average_curvature` with ``rings[b]`` rings on mesh b (rings stay within
+    a mesh: each count is averaged over the whole batch and kept on its meshes' vertices)."""
+    counts = sorted(set(rings))
+    if len(counts) == 1:
+        return _ring_average_curvature(batch, theta, a_v, counts[0])
+    per_vertex = torch.tensor(rings, device=theta.device)[batch.vert_to_mesh]
+    k_v = torch.empty_like(theta)
+    for count in counts:
+        mine = per_vertex == count
+        k_v[mine] = _ring_average_curvature(batch, theta, a_v, count)[mine]
+    return k_v
+
+
+def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy: str | list[str] = DEFAULT_REMEDY,
                      dtype: torch.dtype = torch.float64,
                      curvature_rings: int | None = None) -> KillingSystem:
     """Assemble R and S1 for every mesh of ``batch`` (on the batch's device).
@@ -162,23 +199,43 @@ def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy:
     boundary_correction : add the boundary-flux and boundary terms on open meshes (without
         them the operator's kernel is the Neumann-harmonic fields, not the Killing fields).
     remedy : mesh-quality remedy, one of :data:`REMEDIES` (default :data:`DEFAULT_REMEDY`;
-        "none" is the paper's operator, see :func:`mass_star1`).
+        "none" is the paper's operator, see :func:`mass_star1`; "auto" decides per mesh), or a
+        list of one of :data:`MESH_REMEDIES` per mesh; ``KillingSystem.remedies`` says which
+        each mesh got.
+    curvature_rings : rings of curvature averaging on every mesh (default: the remedy's,
+        :data:`CURVATURE_RINGS`).
     dtype : float type of the assembly; float64 unless a float32 check says otherwise.
     """
+    _check_remedy(remedy, len(batch))
+    if remedy != "auto":
+        remedies = [remedy] * len(batch) if isinstance(remedy, str) else list(remedy)
+        return _assemble(batch, boundary_correction, remedies, dtype, curvature_rings)
+    from .remedy_choice import choose_remedies
+    paper = _assemble(batch, boundary_correction, ["none"] * len(batch), dtype, curvature_rings)
+    remedies = choose_remedies(paper)
+    if all(r == "none" for r in remedies):
+        return paper
+    return _assemble(batch, boundary_correction, remedies, dtype, curvature_rings)
+
+
+def _assemble(batch: MeshBatch, boundary_correction: bool, remedies: list[str], dtype: torch.dtype,
+              curvature_rings: int | None) -> KillingSystem:
+    """R and S1 of the batch with ``remedies[b]`` on mesh b."""
     geo = batch_geometry(batch, dtype)
     n_e, n_v = len(batch.edges), len(batch.verts)
     dev = batch.verts.device
     fe = batch.face_edges
     sign = batch.face_edge_sign.to(dtype)
     s1_raw = dec.star1(batch, geo)
-    s1 = mass_star1(s1_raw, batch.edge_ptr, remedy)
+    s1 = mass_star1(s1_raw, batch.edge_ptr, remedies)
     # The paper's operator keeps the raw cotan weights inside R and floors only the mass
     # matrix; the remedies use their floored weights throughout (that is what they change).
-    s1_op = s1_raw if remedy == "none" else s1
+    paper = torch.tensor([r == "none" for r in remedies], device=dev)
+    s1_op = torch.where(paper[owner_index(batch.edge_ptr)], s1_raw, s1)
     a_v = dec.star0(batch, geo)
     theta = dec.angle_defect(batch, geo)
-    rings = CURVATURE_RINGS.get(remedy, 0) if curvature_rings is None else curvature_rings
-    k_v = _ring_average_curvature(batch, theta, a_v, rings)
+    rings = [CURVATURE_RINGS[r] if curvature_rings is None else curvature_rings for r in remedies]
+    k_v = _mesh_curvature(batch, theta, a_v, rings)
     k_e = 0.5 * (k_v[batch.edges[:, 0]] + k_v[batch.edges[:, 1]])
 
     parts = []
@@ -223,7 +280,8 @@ def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy:
     cols = torch.cat([p[1].reshape(-1) for p in parts])
     vals = torch.cat([p[2].reshape(-1) for p in parts])
     r = dec.sparse_coo(rows, cols, vals, (n_e, n_e))
-    return KillingSystem(stiffness=r, mass=s1, edge_ptr=batch.edge_ptr, star1_raw=s1_raw, geometry=geo)
+    return KillingSystem(stiffness=r, mass=s1, edge_ptr=batch.edge_ptr, star1_raw=s1_raw, geometry=geo,
+                         remedies=remedies)
 
 
 @dataclass

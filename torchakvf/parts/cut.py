@@ -175,7 +175,8 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         features=clean.to_input_faces(feats), eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
         generators=gens,
         refined=refine_along_isolines(clean.vertices, clean.faces, cut.vdist) if opts.refine else None,
-        cost=cut.cost, params=recorded_params(batch, b, k, n_b, k_cluster, floor, opts, cut.merge_next),
+        cost=cut.cost, params={**recorded_params(batch, b, k, n_b, k_cluster, floor, opts, cut.merge_next),
+                               "remedy": fields.remedies[b]},
         converged=converged, max_residual=residual)
 
 

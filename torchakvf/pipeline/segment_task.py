@@ -120,7 +120,7 @@ class SegmentTask:
         """Per mesh, what the manifest records beside the runner's own fields: whether its
         eigensolve converged and its largest eigenpair residual (``out``: from :meth:`process`)."""
         ms, _ = out
-        return {"converged": bool(ms.converged), "max_residual": float(ms.max_residual)}
+        return {"converged": bool(ms.converged), "max_residual": float(ms.max_residual), "remedy": ms.params["remedy"]}
 
     def write(self, item, out, out_dir) -> list[Path]:
         ms, vectors = out

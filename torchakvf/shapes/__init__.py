@@ -1,7 +1,7 @@
 """Built-in triangle meshes generated in code (pure numpy + scipy), one module a family:
 :mod:`.shape` (the record), :mod:`.icosphere`, :mod:`.revolution`, :mod:`.planar`,
-:mod:`.composites` (known parts), :mod:`.implicit` (a table and a mug: voxel and
-level-set surfaces with known parts) and :mod:`.deformations`.
+:mod:`.composites` (known parts), :mod:`.implicit` (a table, a mug, a four-legged animal
+and a fish: voxel and level-set surfaces with known parts) and :mod:`.deformations`.
 
 They serve two purposes:
 
@@ -30,7 +30,7 @@ from .revolution import capped_cylinder, ellipsoid_of_revolution, open_tube, tor
 from .planar import flat_disk, square_patch
 from .composites import BUILTIN_SHAPES, dumbbell, sphere_with_two_ellipsoids, three_blobs, torus_chain
 from .deformations import bend
-from .implicit import mug, table
+from .implicit import fish, mug, quadruped, table
 
 __all__ = [
     "Shape",
@@ -49,6 +49,8 @@ __all__ = [
     "torus_chain",
     "table",
     "mug",
+    "quadruped",
+    "fish",
     "bend",
     "BUILTIN_SHAPES",
 ]

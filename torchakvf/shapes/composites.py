@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .shape import Shape
+from .implicit import fish, quadruped
 from .revolution import blob_profile, revolve_profile, torus
 
 
@@ -142,5 +143,8 @@ BUILTIN_SHAPES = {
     "three_blobs": three_blobs,
     "sphere_two_ellipsoids": sphere_with_two_ellipsoids,
     "torus_chain": torus_chain,
+    "quadruped": quadruped,
+    "fish": fish,
 }
-"""Composite shapes with ground-truth parts: name -> zero-argument constructor."""
+"""Composite shapes with ground-truth parts: name -> zero-argument constructor (the last two are
+implicit surfaces, :mod:`.implicit`)."""

@@ -1,9 +1,12 @@
-"""Built-in shapes for two failure modes of k-means on untangled fields (flat regions cut into stripes,
-boundaries across smooth surface): a table and a mug, closed, with ground-truth parts.
+"""Built-in shapes for failure modes of segmentation, closed, with ground-truth parts: a table and
+a mug (k-means on untangled fields cuts flat regions into stripes and boundaries across smooth
+surface), a four-legged animal and a fish (protrusions people mark as parts: legs, head, thin
+fins).
 
-numpy only. The table is the boundary of a union of voxels (exact flat boxes); the mug is a
-marching-tetrahedra surface of a signed distance function, relaxed tangentially and projected
-back onto the surface so that its triangles are well shaped.
+numpy only. The table is the boundary of a union of voxels (exact flat boxes); the others are
+marching-tetrahedra surfaces of a signed distance function (a smooth union of primitives, one
+per part), relaxed tangentially and projected back onto the surface so that their triangles
+are well shaped.
 """
 from __future__ import annotations
 
@@ -152,20 +155,114 @@ def _mug_sdf(x: np.ndarray) -> np.ndarray:
     return np.minimum(*_mug_sdfs(x))
 
 
+def _implicit_shape(name: str, parts, lo, hi, h: float, blend: float, relax: int = 15) -> Shape:
+    """The zero set of the smooth union of the signed distance functions ``parts`` (a function
+    [N, 3] -> [P, N], negative inside) over the box [lo, hi] at grid step h: marching
+    tetrahedra, relaxed onto the surface, faces turned outward; the part of a face is the
+    primitive nearest its centroid. ``blend`` (length units; 0: a plain union) rounds the
+    creases where primitives meet; ``relax``: steps of tangential relaxation (thin parts need
+    more to lose the slivers marching tetrahedra leaves across them)."""
+    def sdf(x):
+        return _smooth_union(parts(x), blend)
+    v, f = _marching_tetrahedra(sdf, lo, hi, h)
+    v = _relax_onto(sdf, v, f, iterations=relax)
+    tri = v[f]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    outward = np.einsum("ij,ij->i", normal, _gradient(sdf, tri.mean(1))) > 0
+    f = np.where(outward[:, None], f, f[:, ::-1])
+    labels = np.argmin(parts(v[f].mean(1)), axis=0).astype(np.int64)
+    return Shape(name, v, f, labels, int(labels.max()) + 1)
+
+
+def _smooth_union(d: np.ndarray, blend: float) -> np.ndarray:
+    """[P, N] distances -> [N]: min over the primitives, its creases rounded over ``blend``
+    (the polynomial smooth minimum, applied pairwise in order)."""
+    out = d[0]
+    for other in d[1:]:
+        if blend <= 0:
+            out = np.minimum(out, other)
+            continue
+        mix = np.maximum(blend - np.abs(out - other), 0.0) / blend
+        out = np.minimum(out, other) - mix * mix * blend / 4
+    return out
+
+
+def _ellipsoid_sdf(x: np.ndarray, center, axes) -> np.ndarray:
+    """Approximate signed distance to an axis-aligned ellipsoid (exact zero set; distances
+    scaled by the smallest semi-axis)."""
+    q = (x - np.asarray(center)) / np.asarray(axes)
+    return (np.linalg.norm(q, axis=1) - 1.0) * min(axes)
+
+
+def _capsule_sdf(x: np.ndarray, a, b, radius: float) -> np.ndarray:
+    """Signed distance to the capsule of ``radius`` around the segment a-b."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    ab = b - a
+    t = np.clip((x - a) @ ab / (ab @ ab), 0.0, 1.0)
+    return np.linalg.norm(x - a - t[:, None] * ab, axis=1) - radius
+
+
+def _mug_parts(x: np.ndarray) -> np.ndarray:
+    return np.stack(_mug_sdfs(x))
+
+
 def mug(h: float = 0.06) -> Shape:
     """A mug: a closed rounded can (radius 0.5, height 1.2) with a ring handle on its side.
 
     Closed genus-1 mesh (about 10,000 faces at the default grid step ``h``), meeting the
     handle at concave creases; ``part_labels`` 0 = body, 1 = handle; ``n_parts`` 2.
     """
-    v, f = _marching_tetrahedra(_mug_sdf, (-0.65, -0.65, -0.7), (0.95, 0.65, 0.7), h)
-    v = _relax_onto(_mug_sdf, v, f)
-    tri = v[f]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    outward = np.einsum("ij,ij->i", normal, _gradient(_mug_sdf, tri.mean(1))) > 0
-    f = np.where(outward[:, None], f, f[:, ::-1])
-    body, handle = _mug_sdfs(v[f].mean(1))
-    return Shape("mug", v, f, (handle < body).astype(np.int64), 2)
+    return _implicit_shape("mug", _mug_parts, (-0.65, -0.65, -0.7), (0.95, 0.65, 0.7), h, blend=0.0)
 
 
-__all__ = ["table", "mug"]
+#: The quadruped's legs: hip points (x, y) under the body, each leg straight down to z = -1.0.
+_LEG_XY = ((0.55, 0.22), (0.55, -0.22), (-0.55, 0.22), (-0.55, -0.22))
+
+
+def _quadruped_parts(x: np.ndarray) -> np.ndarray:
+    body = _ellipsoid_sdf(x, (0.0, 0.0, 0.0), (0.95, 0.4, 0.38))
+    head = np.minimum(_ellipsoid_sdf(x, (1.25, 0.0, 0.42), (0.3, 0.2, 0.2)),
+                      _capsule_sdf(x, (0.8, 0.0, 0.12), (1.1, 0.0, 0.38), 0.14))
+    legs = [_capsule_sdf(x, (lx, ly, -0.1), (lx, ly, -0.92), 0.12) for lx, ly in _LEG_XY]
+    return np.stack([body, head, *legs])
+
+
+def quadruped(h: float = 0.1) -> Shape:
+    """A four-legged animal: an ellipsoidal body (1.9 long), a head on a short neck in front
+    and four straight legs (radius 0.12, 0.8 below the body) at its corners.
+
+    Closed genus-0 mesh (about 5,700 faces at the default grid step ``h``), the parts
+    joined by rounded creases; ``part_labels`` 0 = body, 1 = head (with the neck), 2..5 = legs
+    (front left, front right, hind left, hind right); ``n_parts`` 6. People cut the legs and
+    the head off the body: protrusions, which a segmentation must separate before it halves
+    the body.
+    """
+    return _implicit_shape("quadruped", _quadruped_parts, (-1.1, -0.55, -1.1), (1.65, 0.55, 0.7), h,
+                           blend=0.08, relax=30)
+
+
+#: Half the thickness of the fish's fins (its body is 0.6 wide and 0.9 high).
+_FIN = 0.09
+
+
+def _fish_parts(x: np.ndarray) -> np.ndarray:
+    body = _ellipsoid_sdf(x, (0.0, 0.0, 0.0), (1.0, 0.3, 0.45))
+    tail = _ellipsoid_sdf(x, (-1.2, 0.0, 0.0), (0.35, _FIN, 0.45))
+    dorsal = _ellipsoid_sdf(x, (0.0, 0.0, 0.5), (0.4, _FIN, 0.25))
+    fins = [_ellipsoid_sdf(x, (0.3, side * 0.35, -0.15), (0.25, 0.22, _FIN)) for side in (1, -1)]
+    return np.stack([body, tail, dorsal, *fins])
+
+
+def fish(h: float = 0.08) -> Shape:
+    """A fish: an ellipsoidal body (2.0 long), a tail fin behind it, a dorsal fin on top and
+    two pectoral fins on its sides; the fins are thin (0.18 thick).
+
+    Closed genus-0 mesh (about 7,700 faces at the default grid step ``h``); ``part_labels``
+    0 = body, 1 = tail, 2 = dorsal fin, 3 and 4 = pectoral fins (left, right); ``n_parts`` 5.
+    The fins are thin protrusions that people mark as parts.
+    """
+    return _implicit_shape("fish", _fish_parts, (-1.7, -0.65, -0.6), (1.1, 0.65, 0.85), h, blend=0.06,
+                           relax=30)
+
+
+__all__ = ["table", "mug", "quadruped", "fish"]

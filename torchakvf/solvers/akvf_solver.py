@@ -120,7 +120,7 @@ def field_count(n) -> int:
 def remedy_advice(remedy: str, decimated: bool = False) -> str:
     """What to try after a failed solve under ``remedy`` (never what was just tried)."""
     if remedy != "smooth":
-        return f"it was solved with remedy={remedy!r}; try remedy='smooth' (the default)"
+        return f"it was solved with remedy={remedy!r}; try remedy='smooth'"
     if decimated:
         return ("it was solved decimated with remedy='smooth', the strongest remedy; solve it at "
                 "full resolution (akvf_falling_back does) or repair the input mesh")
@@ -230,10 +230,10 @@ class AKVFSolver:
             self._system = KillingSystem.concatenate([s.system for s in self._alone], self.batch.edge_ptr)
         return self._system
 
-    @property
-    def drops_spurious(self) -> bool:
-        """Whether spurious modes (below :data:`SPURIOUS_BELOW`) are skipped: under any remedy."""
-        return self.remedy != "none"
+    def drops_spurious(self, b: int) -> bool:
+        """Whether mesh b's spurious modes (below :data:`SPURIOUS_BELOW`) are skipped: under any
+        remedy its operator was built with (``KillingSystem.remedies``, decided per mesh)."""
+        return self.system.remedies[b] != "none"
 
     def solve(self, n: int = 32, *, tol: float = 1e-6, seed: int = 0, max_iter: int = 60) -> AKVFResult:
         """The ``n`` smallest AKVFs of each mesh (see :func:`~torchakvf.fields.akvf.akvf` for
@@ -313,7 +313,7 @@ class AKVFSolver:
         spurious modes, capped below the mesh's edge count, solved again with more room where
         they outnumber it) and the meshes that failed {b: exception}."""
         n = settings.n
-        counts = {b: n + (min(SPURIOUS_MARGIN, max(self.edges[b] - n - 1, 0)) if self.drops_spurious else 0)
+        counts = {b: n + (min(SPURIOUS_MARGIN, max(self.edges[b] - n - 1, 0)) if self.drops_spurious(b) else 0)
                   for b in meshes}
         pairs: dict = {}
         failed = self._without_shift(meshes)
@@ -324,9 +324,7 @@ class AKVFSolver:
             for group in self._groups(todo, counts):
                 self._solve_group(group, counts[group[0]], settings, pairs, counts, failed)
             todo = [b for b in todo if b not in failed]
-            if not self.drops_spurious:
-                break
-            todo = self._short_of_room(todo, pairs, counts, n)
+            todo = self._short_of_room([b for b in todo if self.drops_spurious(b)], pairs, counts, n)
             if not todo:
                 break
         return pairs, counts, failed
@@ -362,7 +360,7 @@ class AKVFSolver:
                 try:
                     self._shifts[b] = mesh_shift(self.system, b, self.batch.names[b])
                 except SolverError as exc:
-                    advice = remedy_advice(self.remedy, self.batch.coarse_of(b) is not None)
+                    advice = remedy_advice(self.system.remedies[b], self.batch.coarse_of(b) is not None)
                     failed[b] = SolverError(f"{exc}; {advice}")
         return failed
 
@@ -412,7 +410,7 @@ class AKVFSolver:
             raise
         except SolverError as exc:
             decimated = any(self.batch.coarse_of(b) is not None for b in group)
-            raise SolverError(f"{exc}; {remedy_advice(self.remedy, decimated)}") from None
+            raise SolverError(f"{exc}; {remedy_advice(self.system.remedies[group[0]], decimated)}") from None
 
     def _lanczos(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
         # ARPACK needs CPU factors; on CPU they are kept for a re-solve with more room.
@@ -446,7 +444,7 @@ class AKVFSolver:
         together) is solved by ARPACK on the definite factor."""
         n = settings.n
         eig = block_krylov(self.system, count, tol=settings.tol, seed=settings.seed, names=self._names(group),
-                           need=n, skip_below=SPURIOUS_BELOW if self.drops_spurious else None,
+                           need=n, skip_below=SPURIOUS_BELOW if self.drops_spurious(group[0]) else None,
                            factors=[self._interior_factor(b, n) for b in group], grow=len(group) == 1,
                            meshes=group)
         if len(group) == 1 and not bool(eig.converged[0]) and self.system.mass.device.type == "cpu":
@@ -480,8 +478,9 @@ class AKVFSolver:
         Whitney vectors, in the batch's dtype."""
         n = settings.n
         lam, forms, res, dropped = [], [], [], []
-        for p in pairs:
-            spurious = p.values < SPURIOUS_BELOW if self.drops_spurious else torch.zeros_like(p.values, dtype=torch.bool)
+        for b, p in enumerate(pairs):
+            spurious = (p.values < SPURIOUS_BELOW if self.drops_spurious(b)
+                        else torch.zeros_like(p.values, dtype=torch.bool))
             keep = torch.argsort(spurious.to(torch.int8), stable=True)[:n]
             # Column slices where the kept pairs lead (no spurious ones): a view, not a gather.
             cols = slice(0, n) if bool((keep == torch.arange(len(keep), device=keep.device)).all()) else keep
