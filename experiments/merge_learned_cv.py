@@ -6,7 +6,7 @@ only the merge. Every cost compared is linear in the pair terms of
 :func:`torchakvf.parts.merge_terms.pair_terms` (the default's too: its symmetry, concavity,
 convexity, share and size terms are columns of it), so a candidate is a weight vector:
 
-* ``default``: MergeWeights() as the package has it;
+* ``default``: the hand-set cost (MergeWeights.hand_set(), the default before the learned one);
 * ``learned``: weights fitted by logistic regression of "the two parts lie in one human segment"
   (soft target: the chance that a face of each lies in one segment, per human) on the states the
   merge passes through (every adjacent pair once, as it appears), rows weighted by the pair's
@@ -54,10 +54,10 @@ def rand_error(a: np.ndarray, b: np.ndarray) -> float:
     return float((c2(sa) + c2(sb) - 2 * c2(cell)) / total)
 
 
-def default_vector(w: MergeWeights | None = None, k_scale: bool = False) -> np.ndarray:
-    """The default cost as weights on TERM_NAMES (size's k-free term is folded at k = 1 / k
-    where it matters: the sweep keeps size = part_size = 0, as the defaults do)."""
-    w = MergeWeights() if w is None else w
+def default_vector(w: MergeWeights | None = None) -> np.ndarray:
+    """The hand-set cost (the default before the learned one; None: MergeWeights.hand_set()) as
+    weights on TERM_NAMES (its size terms are 0)."""
+    w = MergeWeights.hand_set() if w is None else w
     v = np.zeros(T)
     v[0], v[1], v[2], v[3], v[4] = w.symmetry, w.concavity, w.convexity, w.cut, w.part_size
     return v

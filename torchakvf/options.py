@@ -91,22 +91,22 @@ class MergeWeights:
 
     #: weight of 1 - cos between the parts' mean unit feature rows (two parts moved by the same
     #: fields are one symmetric part cut in two)
-    symmetry: float = 4.102
+    symmetry: float = 4.099
     #: weight of the length-weighted mean concave bending along the shared boundary (the minima
     #: rule: a boundary on smooth or convex surface is a poor cut)
-    concavity: float = 29.39
+    concavity: float = 28.69
     #: weight of the smaller part's share of the whole surface (0: off)
     size: float = 0.0
     #: over-segmentation factor k' = ceil(ratio k), >= 1: 3 leaves the merge room to choose
     ratio: float = 3.0
     #: weight of the smaller part's area relative to the target part size A / k (0: off)
-    part_size: float = 0.9053
+    part_size: float = 0.7441
     #: weight of the length-weighted mean convex bending along the boundary (a sharp ridge is
     #: also a cut people make, e.g. on mechanical parts)
-    convexity: float = 2.135
+    convexity: float = -0.206
     #: weight of the boundary share 1 - L_ij / min(P_i, P_j) (a part mostly enclosed by its
     #: neighbour is cheap to merge into it)
-    cut: float = -0.01768
+    cut: float = -0.4207
     #: radians in (0, π] at which a crease's bending counts fully (π: linear in the angle)
     crease_angle: float = math.pi
     #: at most this many clusters beyond k (None: ceil(ratio k) at every k); 16 keeps the merge
@@ -118,18 +118,18 @@ class MergeWeights:
     min_k: int = 8
     #: weight of log(A_max / A_min), the two parts' size ratio (> 0: a small part is kept off a
     #: large one, as a protrusion off a body)
-    size_ratio: float = 0.3909
+    size_ratio: float = 0.3394
     #: weight of log(L_ij / sqrt(A_min)), the shared boundary against the smaller part's size
     #: (the short-cut rule; < 0: a short cut is a good one, merging across it costs more)
-    short_cut: float = -0.1933
+    short_cut: float = -0.2115
     #: weight of |log(t_i / t_j)|, t a part's mean shape diameter (a thin fin or leg off a thick
     #: body); != 0 here or in ``thin`` computes the thickness of every mesh (igl rays)
-    thickness: float = 1.639
+    thickness: float = 1.718
     #: weight of log(t_small / t_median), the smaller part's thickness against the mesh's median
-    thin: float = -0.2073
+    thin: float = -0.1241
     #: weight of (d_small - d_large) / R, the smaller part's distance from the surface's centroid
     #: beyond the larger one's, R the RMS radius (a protrusion lies further out)
-    centricity: float = -0.1113
+    centricity: float = -0.1763
 
     #: the cost's form. None: the weighted sum s above is the cost. A number γ >= 0: s is read as
     #: the log-odds that the two parts lie in one part people cut, p = sigmoid(intercept - s),
@@ -137,7 +137,7 @@ class MergeWeights:
     #: (γ = 1; 0 orders pairs as s does)
     rand_gamma: float | None = 0.5
     #: the log-odds of "one part" where s = 0 (read only with ``rand_gamma``)
-    intercept: float = 3.394
+    intercept: float = 3.038
 
     #: terms whose weight may be negative (their sign is learned, not known beforehand)
     SIGNED = ("convexity", "cut", "short_cut", "thin", "centricity", "intercept")
