@@ -86,7 +86,7 @@ def main():
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cuts", default="0.3:10,1:10,3:10,1:0", help="smoothness:beta,...")
     a = ap.parse_args()
-    w = MergeWeights(**{kv.split("=")[0]: float(kv.split("=")[1]) for kv in a.weights.split(",")})
+    w = MergeWeights.hand_set(**{kv.split("=")[0]: float(kv.split("=")[1]) for kv in a.weights.split(",")})
     V2.RATIOS = (w.ratio,)
     CUTS = [GraphCut(smoothness=s, beta=b, crease_angle=math.radians(45), band=6)
             for s, b in [tuple(float(x) for x in c.split(":")) for c in a.cuts.split(",")]]

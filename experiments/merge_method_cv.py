@@ -93,7 +93,7 @@ def main():
     meshes = load_cache(Path(a.cache))
     cats = sorted({category_of(i) for i in meshes}, key=lambda c: min(i for i in meshes if category_of(i) == c))
     paper = category_table(meshes, None)
-    grid = [MergeWeights(symmetry=s, concavity=c, size=z, ratio=r)
+    grid = [MergeWeights.hand_set(symmetry=s, concavity=c, size=z, ratio=r)
             for r, s, c, z in itertools.product(ratios, SYMMETRY, CONCAVITY, SIZE)
             if (s, c, z) != (0.0, 0.0, 0.0)]
     tables = {w: category_table(meshes, w) for w in grid}
@@ -137,10 +137,10 @@ def main():
     # Ablation: each term off at the chosen setting (the others kept), and the ratio.
     lines += ["", "## Ablation (at the setting chosen on all; one change at a time)", "",
               "| setting | overall | " + " | ".join(cats) + " |", "|---|---:|" + "---:|" * len(cats)]
-    variants = [("chosen", chosen), ("w_sym = 0", MergeWeights(0.0, chosen.concavity, chosen.size, chosen.ratio)),
-                ("w_cav = 0", MergeWeights(chosen.symmetry, 0.0, chosen.size, chosen.ratio)),
-                ("w_size = 0", MergeWeights(chosen.symmetry, chosen.concavity, 0.0, chosen.ratio))]
-    variants += [(f"ratio {r:g}", MergeWeights(chosen.symmetry, chosen.concavity, chosen.size, r))
+    variants = [("chosen", chosen), ("w_sym = 0", MergeWeights.hand_set(symmetry=0.0, concavity=chosen.concavity, size=chosen.size, ratio=chosen.ratio)),
+                ("w_cav = 0", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=0.0, size=chosen.size, ratio=chosen.ratio)),
+                ("w_size = 0", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity, size=0.0, ratio=chosen.ratio))]
+    variants += [(f"ratio {r:g}", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity, size=chosen.size, ratio=r))
                  for r in RATIOS if r != chosen.ratio]   # all cached ratios, also those not allowed
     lines.append(f"| paper (no merging) | {overall(paper, cats):.4f} | " + " | ".join(f"{paper[c]:.3f}" for c in cats) + " |")
     for name, w in variants:

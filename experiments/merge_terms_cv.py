@@ -97,7 +97,7 @@ def overall(t, cats):
 
 
 def fmt(w: MergeWeights) -> str:
-    d = MergeWeights(crease_angle=math.pi)
+    d = MergeWeights.hand_set(crease_angle=math.pi)
     parts = [f"ratio {w.ratio:g}", f"sym {w.symmetry:g}", f"cav {w.concavity:g}"]
     for name in ("size", "part_size", "convexity", "cut"):
         if getattr(w, name):
@@ -131,7 +131,7 @@ def main():
     paper = table(None)
     # the former default (ratio 2, symmetry and concavity only); at the smallest ratio swept
     # when 2 is not among them
-    old = MergeWeights(symmetry=1.0, concavity=16.0, size=0.0, ratio=2.0 if 2.0 in ratios else min(ratios),
+    old = MergeWeights.hand_set(symmetry=1.0, concavity=16.0, size=0.0, ratio=2.0 if 2.0 in ratios else min(ratios),
                        part_size=0.0, convexity=0.0, cut=0.0, crease_angle=math.pi)
 
     def with_(w, **kw):

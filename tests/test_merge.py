@@ -40,7 +40,7 @@ def test_merge_cost_and_order_by_hand():
                     mean=np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
                     length=np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]], dtype=float),
                     concave=np.array([[0, 1, 0.5], [1, 0, 0], [0.5, 0, 0]], dtype=float))
-    w = MergeWeights(symmetry=1.0, concavity=2.0, size=1.0, ratio=2.0, part_size=0.0, convexity=0.0, cut=0.0)
+    w = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, size=1.0, ratio=2.0, part_size=0.0, convexity=0.0, cut=0.0)
     cost = merge_costs(g, w)
     # (0,1): same features, κ = 1/2 -> 0 + 2 (1/2) + 1/4; (0,2): orthogonal -> 1 + 1 + 1/4.
     np.testing.assert_allclose(cost[0, 1], 1.25)
@@ -54,13 +54,42 @@ def test_merge_cost_and_order_by_hand():
     np.testing.assert_array_equal(greedy_merge(g, 2, w)[0], [0, 0, 1])
 
 
+def test_learned_rand_cost_by_hand():
+    """The default's form: s (the weighted terms) read as the log-odds against one part, the
+    cost (a_i a_j)^γ tanh((s - intercept) / 2) = (a_i a_j)^γ (1 - 2 p); k auto reads s - intercept."""
+    g = RegionGraph(labels=np.array([0, 1, 2]), area=np.array([1.0, 1.0, 2.0]),
+                    mean=np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
+                    length=np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]], dtype=float),
+                    concave=np.array([[0, 1, 0.5], [1, 0, 0], [0.5, 0, 0]], dtype=float))
+    w = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, convexity=0.0, cut=0.0, rand_gamma=0.5, intercept=1.5)
+    # s(0,1) = 0 + 2 (1/2) = 1, s(0,2) = 1 + 2 (1/2) = 2; area shares 1/4, 1/4, 1/2
+    p01, p02 = 1 / (1 + np.exp(-(1.5 - 1.0))), 1 / (1 + np.exp(-(1.5 - 2.0)))
+    cost = merge_costs(g, w)
+    np.testing.assert_allclose(cost[0, 1], (1 / 16) ** 0.5 * (1 - 2 * p01))
+    np.testing.assert_allclose(cost[0, 2], (1 / 8) ** 0.5 * (1 - 2 * p02))
+    assert cost[0, 1] < 0 < cost[0, 2]                 # likely one part: merging it gains
+    np.testing.assert_array_equal(greedy_merge(g, 2, w)[0], [0, 0, 1])
+    # k auto: the least log-odds against one part among the merged parts' pairs
+    v, f = hinge(np.pi / 2)
+    # orthogonal features across a right-angle valley: s = 1 + 2 (1/2) = 2, minus 1.5
+    assert next_merge_cost(np.array([0, 1]), dual_edges(v, f), np.eye(2), np.ones(2), w) == pytest.approx(0.5)
+
+
+def test_same_seed_same_labels_with_the_learned_default():
+    s = shapes.table()
+    mesh = ta.Mesh(s.vertices, s.faces)
+    a = ta.segment(mesh, k=5, seed=3)[0].labels
+    b = ta.segment(mesh, k=5, seed=3)[0].labels
+    np.testing.assert_array_equal(a, b)
+
+
 def test_convexity_boundary_share_and_part_size_terms_by_hand():
     g = RegionGraph(labels=np.array([0, 1, 2]), area=np.array([1.0, 1.0, 2.0]),
                     mean=np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
                     length=np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]], dtype=float),
                     concave=np.array([[0, 1, 0.5], [1, 0, 0], [0.5, 0, 0]], dtype=float),
                     convex=np.array([[0, 0.4, 0], [0.4, 0, 0], [0, 0, 0]], dtype=float))
-    w = MergeWeights(symmetry=0.0, concavity=0.0, convexity=1.0, cut=1.0, part_size=1.0)
+    w = MergeWeights.hand_set(symmetry=0.0, concavity=0.0, convexity=1.0, cut=1.0, part_size=1.0)
     # perimeters 3, 2, 1. (0,1): convex 0.4/2 + (1 - 2/min(3,2)) + k min(1,1)/4;
     # (0,2): 0 + (1 - 1/min(3,1)) + k min(1,2)/4.
     cost = merge_costs(g, w, k=2)
@@ -78,11 +107,12 @@ def _adjacent_label_pairs(labels, faces):
     return {(int(x), int(y)) for x, y in zip(a, b) if x != y}
 
 
-@pytest.mark.parametrize("k,weights", [(1, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
-                                       (2, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
-                                       (4, MergeWeights(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
-                                       (3, MergeWeights(convexity=2.0, cut=1.0, part_size=0.3,
-                                                        crease_angle=0.5))])
+@pytest.mark.parametrize("k,weights", [(1, MergeWeights.hand_set(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+                                       (2, MergeWeights.hand_set(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+                                       (4, MergeWeights.hand_set(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+                                       (3, MergeWeights.hand_set(convexity=2.0, cut=1.0, part_size=0.3,
+                                                        crease_angle=0.5)),
+                                       (3, MergeWeights()), (2, MergeWeights(crease_angle=0.5))])
 def test_merging_only_joins_adjacent_parts(k, weights):
     s = shapes.icosphere(3)
     rng = np.random.default_rng(0)
@@ -182,7 +212,7 @@ def test_partition_cost_by_hand():
 
 def test_next_merge_cost_and_the_merge_rule_of_k_auto():
     v, f = hinge(np.pi / 2)
-    w = MergeWeights(symmetry=1.0, concavity=2.0, part_size=0.0, convexity=0.0, cut=0.0)
+    w = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, part_size=0.0, convexity=0.0, cut=0.0)
     # orthogonal features (1 - cos = 1) across a right-angle valley (κ = 1/2): 1 + 2 (1/2)
     assert next_merge_cost(np.array([0, 1]), dual_edges(v, f), np.eye(2), np.ones(2), w) == pytest.approx(2.0)
     assert next_merge_cost(np.array([0, 0]), dual_edges(v, f), np.eye(2), np.ones(2), w) == np.inf
@@ -204,7 +234,7 @@ def test_greedy_merge_round_off_tie_goes_to_the_first_pair():
     g = RegionGraph(labels=np.array([0, 1, 2]), area=np.ones(3), mean=mean,
                     length=np.array([[0, 1, 1], [1, 0, 0], [1, 0, 0]], dtype=float),
                     concave=np.zeros((3, 3)))
-    w = MergeWeights(symmetry=1.0, concavity=0.0, size=0.0, part_size=0.0, convexity=0.0, cut=0.0)
+    w = MergeWeights.hand_set(symmetry=1.0, concavity=0.0, size=0.0, part_size=0.0, convexity=0.0, cut=0.0)
     cost = merge_costs(g, w)
     # (0, 2) is cheaper by round-off only: the tie the rule is for
     assert cost[0, 2] < cost[0, 1] and cost[0, 1] - cost[0, 2] < 1e-12 * cost[0, 1]

@@ -82,30 +82,35 @@ def is_int(value, minimum: int) -> bool:
 @dataclass(frozen=True)
 class MergeWeights:
     """Weights of the merge cost (:mod:`torchakvf.parts.merge`) and the over-segmentation
-    k' = ceil(ratio max(k, min_k)). Every weight is dimensionless and >= 0.
+    k' = ceil(ratio max(k, min_k)). Every weight is dimensionless; those of terms whose sign is
+    learned (:attr:`SIGNED`) may be negative, the others are >= 0.
 
-    The defaults were chosen by cross-validation across the labelled PSB categories (see
-    docs/design.md): symmetry and concavity carry the cost, convex creases and the boundary share
-    help, the two size terms never helped robustly (they stay for ablations, default 0)."""
+    The default is a learned merge decision: the weights of the pair terms
+    (:func:`~torchakvf.parts.merge_terms.pair_terms`) and ``intercept`` are a logistic regression
+    of "the two adjacent parts lie in one part people cut" on the 15 labelled PSB categories
+    (experiments/train_merge.py), and the cost is the expected change of the Rand disagreement
+    with the size exponent ``rand_gamma`` chosen by leave-one-category-out (see
+    docs/design.md). ``MergeWeights.hand_set()`` gives the former hand-set cost (symmetry 1,
+    concavity 16, convexity 4, boundary share 0.25, no size terms, the weighted sum as cost)."""
 
     #: weight of 1 - cos between the parts' mean unit feature rows (two parts moved by the same
     #: fields are one symmetric part cut in two)
-    symmetry: float = 1.0
+    symmetry: float = 4.099
     #: weight of the length-weighted mean concave bending along the shared boundary (the minima
     #: rule: a boundary on smooth or convex surface is a poor cut)
-    concavity: float = 16.0
+    concavity: float = 28.69
     #: weight of the smaller part's share of the whole surface (0: off)
     size: float = 0.0
     #: over-segmentation factor k' = ceil(ratio k), >= 1: 3 leaves the merge room to choose
     ratio: float = 3.0
     #: weight of the smaller part's area relative to the target part size A / k (0: off)
-    part_size: float = 0.0
+    part_size: float = 0.7441
     #: weight of the length-weighted mean convex bending along the boundary (a sharp ridge is
     #: also a cut people make, e.g. on mechanical parts)
-    convexity: float = 4.0
+    convexity: float = -0.206
     #: weight of the boundary share 1 - L_ij / min(P_i, P_j) (a part mostly enclosed by its
     #: neighbour is cheap to merge into it)
-    cut: float = 0.25
+    cut: float = -0.4207
     #: radians in (0, π] at which a crease's bending counts fully (π: linear in the angle)
     crease_angle: float = math.pi
     #: at most this many clusters beyond k (None: ceil(ratio k) at every k); 16 keeps the merge
@@ -115,11 +120,49 @@ class MergeWeights:
     #: so the small k's of a mesh share one untangling and one k-means, merged down to each k;
     #: 1: every k its own. 8 scored better than 1 (see docs/design.md)
     min_k: int = 8
+    #: weight of log(A_max / A_min), the two parts' size ratio (> 0: a small part is kept off a
+    #: large one, as a protrusion off a body)
+    size_ratio: float = 0.3394
+    #: weight of log(L_ij / sqrt(A_min)), the shared boundary against the smaller part's size
+    #: (the short-cut rule; < 0: a short cut is a good one, merging across it costs more)
+    short_cut: float = -0.2115
+    #: weight of |log(t_i / t_j)|, t a part's mean shape diameter (a thin fin or leg off a thick
+    #: body); != 0 here or in ``thin`` computes the thickness of every mesh (igl rays)
+    thickness: float = 1.718
+    #: weight of log(t_small / t_median), the smaller part's thickness against the mesh's median
+    thin: float = -0.1241
+    #: weight of (d_small - d_large) / R, the smaller part's distance from the surface's centroid
+    #: beyond the larger one's, R the RMS radius (a protrusion lies further out)
+    centricity: float = -0.1763
+
+    #: the cost's form. None: the weighted sum s above is the cost. A number γ >= 0: s is read as
+    #: the log-odds that the two parts lie in one part people cut, p = sigmoid(intercept - s),
+    #: and the cost is the expected change of the Rand disagreement, (A_i A_j / A^2)^γ (1 - 2p)
+    #: (γ = 1; 0 orders pairs as s does)
+    rand_gamma: float | None = 0.5
+    #: the log-odds of "one part" where s = 0 (read only with ``rand_gamma``)
+    intercept: float = 3.038
+
+    #: terms whose weight may be negative (their sign is learned, not known beforehand)
+    SIGNED = ("convexity", "cut", "short_cut", "thin", "centricity", "intercept")
+
+    @classmethod
+    def hand_set(cls, **changes) -> "MergeWeights":
+        """The hand-set cost chosen by cross-validation before the learned one (the weighted
+        sum of symmetry 1, concavity 16, convexity 4, boundary share 0.25), with ``changes``."""
+        base = dict(symmetry=1.0, concavity=16.0, part_size=0.0, convexity=4.0, cut=0.25, size_ratio=0.0,
+                    short_cut=0.0, thickness=0.0, thin=0.0, centricity=0.0, rand_gamma=None, intercept=0.0)
+        return cls(**{**base, **changes})
 
     def __post_init__(self):
-        for name in ("symmetry", "concavity", "size", "part_size", "convexity", "cut"):
+        for name in ("symmetry", "concavity", "size", "part_size", "size_ratio", "thickness"):
             if not getattr(self, name) >= 0:
                 raise ParameterError(f"merge weight {name} must be >= 0, got {getattr(self, name)!r}")
+        for name in self.SIGNED:
+            if not np.isfinite(getattr(self, name)):
+                raise ParameterError(f"merge weight {name} must be a finite number, got {getattr(self, name)!r}")
+        if self.rand_gamma is not None and not self.rand_gamma >= 0:
+            raise ParameterError(f"rand_gamma must be None or >= 0, got {self.rand_gamma!r}")
         if not self.ratio >= 1:
             raise ParameterError(f"over-segmentation ratio must be >= 1, got {self.ratio!r}")
         if not 0 < self.crease_angle <= math.pi:

@@ -22,8 +22,8 @@ from .field_counts import cluster_count
 from .generators import part_generators
 from .pieces import limit_parts
 from .graphcut import CornerMeans, edge_weights, graphcut_labels
-from .merge import (RegionGraph, boundary_bends, merge_parts, merged_distances, next_merge_cost, partition_cost,
-                    region_graph, unit_rows)
+from .merge import (RegionGraph, boundary_bends, merge_parts, merged_distances, mesh_sums_inputs, needs_part_sums,
+                    next_merge_cost, partition_cost, region_graph, unit_rows)
 from .results import MeshSegmentation
 from .solve import solve_quality
 from .topology import face_adjacency
@@ -72,9 +72,12 @@ class MeshCache:
     dual : its dual edges; bends : {crease angle: :func:`~torchakvf.parts.merge.boundary_bends`}
     cut_costs : {GraphCut: [P] dual-edge costs of the graph cut}
     over : the last :class:`OverSegmentation` (ε = 0), for the next k clustered alike
+    sums_inputs : (centroids, thickness) of the mesh the merge terms read
+        (:func:`~torchakvf.parts.merge.mesh_sums_inputs`), made when first needed
     """
 
     adjacency: np.ndarray | None = None
+    sums_inputs: tuple | None = None
     dual: DualEdges | None = None
     bends: dict[float, tuple] = field(default_factory=dict)
     cut_costs: dict[GraphCut, np.ndarray] = field(default_factory=dict)
@@ -203,9 +206,13 @@ def _segmentation_labels(over: OverSegmentation, cache: MeshCache, opts: Segment
     if crease not in cache.bends:
         cache.bends[crease] = boundary_bends(dual, crease)
     bends = cache.bends[crease]
+    if cache.sums_inputs is None and needs_part_sums(opts.merge):
+        cache.sums_inputs = mesh_sums_inputs(clean.vertices, clean.faces, opts.merge)
+    centroids, thickness = cache.sums_inputs if needs_part_sums(opts.merge) else (None, None)
     if opts.merges_parts:
         if crease not in over.graphs:
-            over.graphs[crease] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends)
+            over.graphs[crease] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
+                                               centroids=centroids, thickness=thickness)
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
                              dual=dual, unit=unit, bends=bends, graph=over.graphs[crease])
         vdist = merged_distances(vdist, labels, merged)   # the refined cut follows the merged parts
@@ -221,7 +228,8 @@ def _segmentation_labels(over: OverSegmentation, cache: MeshCache, opts: Segment
             labels = graphcut_labels(labels, face_dist, dual, area, opts.graphcut,
                                      cut_cost=cache.cut_costs[opts.graphcut], min_fraction=floor)
     # what merging two of these parts would cost (k auto's "merge" rule reads it)
-    merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends)
+    merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends,
+                                 centroids=centroids, thickness=thickness)
     return CutParts(labels=labels, vdist=vdist, cost=cost, merge_next=merge_next)
 
 

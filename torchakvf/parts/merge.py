@@ -13,10 +13,13 @@ module then merges ADJACENT parts, cheapest first, by a cost that combines
 * convex creases (``convexity``): the length-weighted mean convex bending along the boundary
   (a boundary on a sharp ridge is also a cut people make, e.g. on mechanical parts);
 * boundary share (``cut``): 1 - L_ij / min(P_i, P_j), P the parts' boundary lengths: a part
-  mostly enclosed by its neighbour (a stripe, a patch) is cheap to merge into it.
+  mostly enclosed by its neighbour (a stripe, a patch) is cheap to merge into it;
+* the terms that tell a protrusion from half a body (:mod:`torchakvf.parts.merge_terms`): the
+  size ratio, the short-cut rule, thickness (the shape diameter function), centricity.
 
     cost(i, j) = w_sym (1 - cos(m_i, m_j)) + w_cav κ_ij + w_size min(A_i, A_j) / A
                  + w_k min(A_i, A_j) k / A + w_cvx χ_ij + w_cut (1 - L_ij / min(P_i, P_j))
+                 + Σ w_t term_t(i, j)   (t: size_ratio, short_cut, thickness, thin, centricity)
 
 κ and χ saturate at ``crease_angle``: bending θ counts min(θ / crease_angle, 1) (π = linear).
 
@@ -35,6 +38,7 @@ from ..restarts import first_near_min
 from ..options import MergeWeights
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
+from .merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
 
 
 def oversegment_k(k: int, ratio: float, n_faces: int, extra_max: int | None = None, min_k: int = 1) -> int:
@@ -56,6 +60,8 @@ class RegionGraph:
     length : [K, K] symmetric shared-boundary length (0 = not adjacent)
     concave : [K, K] symmetric length-weighted sum of concavity along the shared boundary
     convex : [K, K] the same of convex bending (None: not computed, counted as 0)
+    sums : :func:`~torchakvf.parts.merge_terms.part_sums` (centroids, thickness) where the
+        weights read them (None: those terms count 0)
     """
 
     labels: np.ndarray
@@ -64,10 +70,42 @@ class RegionGraph:
     length: np.ndarray
     concave: np.ndarray
     convex: np.ndarray | None = None
+    sums: dict | None = None
 
     @property
     def n_parts(self) -> int:
         return len(self.area)
+
+    def state(self) -> MergeState:
+        """A :class:`~torchakvf.parts.merge_terms.MergeState` of these parts (copies: merging it
+        leaves the graph as it is)."""
+        sums = self.sums or {}
+        copy = lambda name: None if sums.get(name) is None else np.array(sums[name], dtype=np.float64)
+        convex = np.zeros_like(self.concave) if self.convex is None else self.convex.copy()
+        return MergeState(self.area.copy(), self.mean.copy(), self.length.copy(), self.concave.copy(), convex,
+                          thick=copy("thick"), thick_area=copy("thick_area"), centroid=copy("centroid"),
+                          center=sums.get("center"), radius=float(sums.get("radius", 1.0)),
+                          thick_median=float(sums.get("thick_median", 1.0)))
+
+
+def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
+    """[T] the weights of :data:`~torchakvf.parts.merge_terms.TERM_NAMES` the cost is the dot
+    product with (the size terms folded into the ``small`` column, min(A_i, A_j) k / A)."""
+    small = weights.size / max(int(k), 1) + weights.part_size
+    values = dict(symmetry=weights.symmetry, concavity=weights.concavity, convexity=weights.convexity,
+                  share=weights.cut, small=small, size_ratio=weights.size_ratio, short_cut=weights.short_cut,
+                  thickness=weights.thickness, thin=weights.thin, centricity=weights.centricity)
+    return np.array([values[name] for name in TERM_NAMES], dtype=np.float64)
+
+
+def needs_thickness(weights: MergeWeights) -> bool:
+    """Whether the cost reads the parts' thickness (then each mesh's is computed)."""
+    return weights.thickness != 0 or weights.thin != 0
+
+
+def needs_part_sums(weights: MergeWeights) -> bool:
+    """Whether the cost reads :func:`~torchakvf.parts.merge_terms.part_sums` at all."""
+    return needs_thickness(weights) or weights.centricity != 0
 
 
 def unit_rows(features: np.ndarray) -> np.ndarray:
@@ -88,7 +126,8 @@ def boundary_bends(dual: DualEdges, crease_angle: float = math.pi) -> tuple[np.n
 
 def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
                  face_area: np.ndarray, crease_angle: float = math.pi, *,
-                 unit: np.ndarray | None = None, bends: tuple | None = None) -> RegionGraph:
+                 unit: np.ndarray | None = None, bends: tuple | None = None,
+                 centroids: np.ndarray | None = None, thickness: np.ndarray | None = None) -> RegionGraph:
     """The region adjacency graph of ``labels`` [F] on the mesh whose dual graph is ``dual``.
 
     features : [F, n] per-face untangled feature rows (normalized here, as k-means does);
@@ -96,6 +135,8 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     crease_angle : bending (radians) at which a crease counts fully (:func:`crease_weights`).
     unit, bends : :func:`unit_rows` (features) and :func:`boundary_bends` (dual, crease_angle)
         if at hand (then ``features`` is not read).
+    centroids : [F, 3] face centroids and thickness [F] (:func:`face_thickness`, or None) where
+        the centricity and thickness terms are wanted (:func:`needs_part_sums`); None: not read.
     """
     labels = np.asarray(labels)
     present = labels >= 0
@@ -115,37 +156,35 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     bent_cav, bent_cvx = boundary_bends(dual, crease_angle) if bends is None else bends
     concave = np.bincount(key, weights=bent_cav[cut], minlength=K * K).reshape(K, K)
     convex = np.bincount(key, weights=bent_cvx[cut], minlength=K * K).reshape(K, K)
-    return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T)
+    sums = None if centroids is None else part_sums(lab, K, np.asarray(face_area, dtype=np.float64),
+                                                    np.asarray(centroids, dtype=np.float64), thickness)
+    return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T, sums)
 
 
-def _pair_costs(mean, area, length, concave, convex, rows, weights: MergeWeights,
-                k: int = 1) -> np.ndarray:
-    """[len(rows), K] merge costs of parts ``rows`` with every part (+inf where not adjacent);
-    k : the parts wanted (the ``part_size`` term's A / k)."""
-    mn = np.linalg.norm(mean, axis=1)
-    cos = (mean[rows] @ mean.T) / np.maximum(np.outer(mn[rows], mn), 1e-300)
-    adjacent = length[rows] > 0
-    kappa = np.divide(concave[rows], length[rows], out=np.zeros(adjacent.shape), where=adjacent)
-    small = np.minimum.outer(area[rows], area) / max(area.sum(), 1e-300)
-    cost = (weights.symmetry * (1.0 - np.clip(cos, -1.0, 1.0)) + weights.concavity * kappa
-            + (weights.size + weights.part_size * k) * small)
-    if weights.convexity > 0 and convex is not None:
-        cost += weights.convexity * np.divide(convex[rows], length[rows], out=np.zeros(adjacent.shape),
-                                              where=adjacent)
-    if weights.cut > 0:
-        perim = length.sum(axis=1)
-        share = np.divide(length[rows], np.minimum.outer(perim[rows], perim),
-                          out=np.zeros(adjacent.shape), where=adjacent)
-        cost += weights.cut * (1.0 - np.clip(share, 0.0, 1.0))
-    cost[~adjacent] = np.inf
-    return cost
+def state_costs(state: MergeState, rows: np.ndarray, weights: MergeWeights, k: int = 1,
+                odds: bool = False) -> np.ndarray:
+    """[len(rows), K] merge costs of parts ``rows`` of ``state`` with every part (+inf where not
+    adjacent): s = :func:`~torchakvf.parts.merge_terms.pair_terms` . :func:`term_weights`, or
+    with ``weights.rand_gamma`` = γ the expected change of the Rand disagreement
+    (a_i a_j)^γ (1 - 2 sigmoid(intercept - s)), a the parts' area shares.
+    odds : s - intercept instead (the log-odds against one part; s where rand_gamma is None)."""
+    rows = np.asarray(rows)
+    terms, adjacent = pair_terms(state, rows, k)
+    s = terms @ term_weights(weights, k)
+    if weights.rand_gamma is not None:
+        if odds:
+            s = s - weights.intercept
+        else:
+            share = state.area / state.total
+            s = np.outer(share[rows], share) ** weights.rand_gamma * np.tanh(0.5 * (s - weights.intercept))
+    s[~adjacent] = np.inf
+    return s
 
 
 def merge_costs(graph: RegionGraph, weights: MergeWeights, k: int = 1) -> np.ndarray:
     """[K, K] cost of merging each pair of parts; +inf where not adjacent (and on the diagonal).
-    k : the parts wanted (only the ``part_size`` term reads it)."""
-    cost = _pair_costs(graph.mean, graph.area, graph.length, graph.concave, graph.convex,
-                       np.arange(graph.n_parts), weights, k)
+    k : the parts wanted (the size terms read it)."""
+    cost = state_costs(graph.state(), np.arange(graph.n_parts), weights, k)
     np.fill_diagonal(cost, np.inf)
     return cost
 
@@ -157,14 +196,12 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     cost of each merge done). Ties, round-off ones included (within
     :data:`~torchakvf.restarts.ROUND_OFF_TIE`, relative), go to the first pair in row-major
     order, so the result is the same on any machine. The merged part keeps the smaller id;
-    only its row of costs changes (the size term's total area does not change either).
+    only its row of costs changes.
     """
     if k < 1:
         raise ParameterError(f"k must be >= 1, got {k!r}")
     K = graph.n_parts
-    area, mean = graph.area.copy(), graph.mean.copy()
-    length, concave = graph.length.copy(), graph.concave.copy()
-    convex = np.zeros_like(concave) if graph.convex is None else graph.convex.copy()
+    state = graph.state()
     cost = merge_costs(graph, weights, k)
     owner = np.arange(K)
     history = []
@@ -175,20 +212,13 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
             break
         i, j = min(i, j), max(i, j)
         history.append(float(cost[i, j]))
-        tot = area[i] + area[j]
-        mean[i] = (area[i] * mean[i] + area[j] * mean[j]) / max(tot, 1e-300)
-        area[i], area[j] = tot, 0.0
-        mean[j] = 0.0
-        for mat in (length, concave, convex):
-            mat[i, :] += mat[j, :]
-            mat[:, i] = mat[i, :]
-            mat[i, i] = 0.0
-            mat[j, :] = mat[:, j] = 0.0
+        state.merge(i, j)
         owner[owner == j] = i
         cost[j, :] = cost[:, j] = np.inf
-        # Only the merged part's costs change: a neighbour's perimeter is the same (its
-        # boundary with i and j is now all with i) and so are all other pairs' terms.
-        row = _pair_costs(mean, area, length, concave, convex, np.array([i]), weights, k)[0]
+        # Only the merged part's costs change: every term of a pair is read from the pair's
+        # own sums and the total area, and a neighbour's perimeter is the same (its boundary
+        # with i and j is now all with i).
+        row = state_costs(state, np.array([i]), weights, k)[0]
         row[i] = np.inf
         cost[i, :] = cost[:, i] = row
     roots = np.unique(owner)
@@ -198,7 +228,8 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
 def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, features: np.ndarray,
                 face_area: np.ndarray, k: int, weights: MergeWeights | None = None,
                 dual: DualEdges | None = None, *, unit: np.ndarray | None = None,
-                bends: tuple | None = None, graph: RegionGraph | None = None) -> np.ndarray:
+                bends: tuple | None = None, graph: RegionGraph | None = None,
+                thickness: np.ndarray | None = None) -> np.ndarray:
     """Labels [F] of an over-segmentation merged down to k adjacent-part unions.
 
     labels : [F] int part per face (negative = no part, kept as is); faces [F, 3] and
@@ -208,7 +239,8 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
     unit, bends : :func:`unit_rows` (features), :func:`boundary_bends` (dual, the weights'
     crease angle), if at hand; graph : :func:`region_graph` of these labels (at the weights'
     crease angle), if at hand (it does not depend on k: a caller merging one over-segmentation
-    to several k makes it once).
+    to several k makes it once); thickness : [F] :func:`face_thickness` of the mesh, if at hand
+    (computed here where the weights read it and no graph is given).
     Returns labels in 0..k_out-1 (k_out = k unless fewer parts were given or no adjacent pair
     was left, e.g. more connected components than k).
     """
@@ -216,24 +248,45 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
     if dual is None:
         dual = dual_edges(vertices, faces)
     if graph is None:
-        graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends)
+        centroids, thickness = mesh_sums_inputs(vertices, faces, weights, thickness)
+        graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends,
+                             centroids=centroids, thickness=thickness)
     new_id, _ = greedy_merge(graph, k, weights)
     out = np.where(graph.labels >= 0, new_id[np.maximum(graph.labels, 0)], graph.labels)
     return out.astype(np.asarray(labels).dtype, copy=False)
 
 
+def mesh_sums_inputs(vertices: np.ndarray, faces: np.ndarray, weights: MergeWeights,
+                     thickness: np.ndarray | None = None) -> tuple:
+    """(centroids [F, 3], thickness [F]) :func:`region_graph` needs for ``weights`` (None where
+    not read); thickness: :func:`face_thickness` of the mesh if at hand."""
+    if not needs_part_sums(weights):
+        return None, None
+    centroids = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)].mean(axis=1)
+    if needs_thickness(weights) and thickness is None:
+        thickness = face_thickness(vertices, faces)
+    return centroids, (thickness if needs_thickness(weights) else None)
+
+
 def next_merge_cost(labels: np.ndarray, dual: DualEdges, features: np.ndarray, face_area: np.ndarray,
                     weights: MergeWeights | None = None, *, unit: np.ndarray | None = None,
-                    bends: tuple | None = None) -> float:
+                    bends: tuple | None = None, centroids: np.ndarray | None = None,
+                    thickness: np.ndarray | None = None) -> float:
     """The cost of the cheapest merge left among the parts of ``labels`` [F] (inf when no two
     parts are adjacent): what going from k = (its part count) to k - 1 parts would cost. k auto
-    reads it: a large one means the parts are worth keeping apart. features [F, n], face_area [F];
-    unit, bends : as :func:`merge_parts` takes them."""
+    reads it: a large one means the parts are worth keeping apart. With ``weights.rand_gamma`` it
+    is the least log-odds against one part (s - intercept, :func:`state_costs`), not the Rand
+    cost, whose size factor would make it small wherever a small part is left. features [F, n], face_area [F];
+    unit, bends : as :func:`merge_parts` takes them; centroids, thickness : as :func:`region_graph`
+    takes them (:func:`mesh_sums_inputs`)."""
     weights = MergeWeights() if weights is None else weights
-    graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends)
+    graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends,
+                         centroids=centroids, thickness=thickness)
     if graph.n_parts < 2:
         return float("inf")
-    return float(merge_costs(graph, weights, graph.n_parts).min())
+    cost = state_costs(graph.state(), np.arange(graph.n_parts), weights, graph.n_parts, odds=True)
+    np.fill_diagonal(cost, np.inf)
+    return float(cost.min())
 
 
 def partition_cost(labels: np.ndarray, features: np.ndarray, *, unit: np.ndarray | None = None) -> float:
@@ -275,5 +328,5 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     return out
 
 
-__all__ = ["MergeWeights", "unit_rows", "boundary_bends", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
+__all__ = ["MergeWeights", "term_weights", "needs_thickness", "needs_part_sums", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
            "greedy_merge", "merge_parts"]
