@@ -86,35 +86,41 @@ def test_a_batch_that_fails_is_bisected(shapes_psb, tmp_path, monkeypatch):
     assert json.loads((out / "settings.json").read_text())["run"]["timings"]["bisections"] >= 1
 
 
-#: 1-RI tolerance between the batched and the per-mesh path. The two solvers (batched LOBPCG
-#: against CHOLMOD Krylov / Lanczos) agree on the eigenpairs to the solve's tolerance, but a
-#: degenerate eigenspace (the symmetric shapes of the PSB: humans, airplanes, chairs) has no
-#: preferred basis: its fields come out rotated, k-means lands on another of its near-equal
-#: optima and a mesh's labels move by a few boundary faces or one swapped part. Per mesh that
-#: was up to 0.014 1-RI at 800 faces (mesh 61), the mean over meshes 0.002; 0.03 per mesh and
-#: 0.015 on the mean leave room for other BLAS and thread counts.
-PER_MESH_RI_TOL, MEAN_RI_TOL = 0.03, 0.015
+#: 1-RI tolerance per mesh between the batched path and the per-mesh path with the same
+#: eigensolver (LOBPCG): the two differ only by the factor (one block-diagonal factor of the
+#: batch against one per mesh), i.e. by round-off, which can still move a near-tied boundary face
+#: or merge; measured 0 on these meshes.
+SAME_SOLVER_RI_TOL = 0.03
+#: 1-RI tolerance on the mean over the meshes against the default per-mesh path (CHOLMOD Krylov /
+#: Lanczos). Both agree on the eigenpairs to the solve's tolerance, but a degenerate eigenspace
+#: (the PSB's symmetric humans, airplanes, chairs) has no preferred basis: its fields come out
+#: rotated, k-means and the merge land on another of near-equal optima, and a mesh's labels can
+#: swap one part (mesh 4 at 600 faces: 0.098 against 0.199). One such swap among three meshes
+#: moves the mean by about 0.035.
+MEAN_RI_TOL = 0.05
 
 
 def test_batched_eval_on_psb_with_mesh_114(psb, tmp_path):
     """Every stage through the accelerator's path on real meshes, 114 included (no shift
-    factors it decimated: it is solved at full resolution in the batch); every (mesh, k)
-    predicted; 1-RI as the per-mesh path's within :data:`PER_MESH_RI_TOL`."""
+    factors it decimated: it is solved at full resolution, alone); every (mesh, k) predicted;
+    1-RI as the per-mesh path's with the same eigensolver within :data:`SAME_SOLVER_RI_TOL`, and
+    as the default per-mesh path's on the mean within :data:`MEAN_RI_TOL`."""
     ids = [61, 114, 4]
     common = dict(ids=ids, protocol="by-model", coarse_faces=600, **FAST)
     scores = {}
-    for batched in (True, False):
-        out = tmp_path / f"b{batched}"
-        summary = evaluate_psb(psb, out, progress=False, batched=batched, workers=2, **common)
+    for name, kw in (("batched", dict(batched=True)), ("alone", dict(batched=False)),
+                     ("alone_lobpcg", dict(batched=False, solver="lobpcg"))):
+        out = tmp_path / name
+        summary = evaluate_psb(psb, out, progress=False, workers=2, **common, **kw)
         assert not summary.failed and all(r.status == "ok" for r in summary.rows)
         for r in summary.rows:
             assert all((out / "pred" / str(r.mesh_id) / f"{r.mesh_id}_k{k}.seg").is_file() for k in r.ks)
-        scores[batched] = np.array([float(_scores(out)[i]["rand_index_error"]) for i in ids])
-    meta = json.loads((tmp_path / "bTrue" / "pred" / "114" / "114_meta.json").read_text())
+        scores[name] = np.array([float(_scores(out)[i]["rand_index_error"]) for i in ids])
+    meta = json.loads((tmp_path / "batched" / "pred" / "114" / "114_meta.json").read_text())
     assert meta["converged"] and "full_resolution_because" in meta
-    diff = np.abs(scores[True] - scores[False])
-    assert diff.max() <= PER_MESH_RI_TOL, diff
-    assert abs(scores[True].mean() - scores[False].mean()) <= MEAN_RI_TOL
+    same_solver = np.abs(scores["batched"] - scores["alone_lobpcg"])
+    assert same_solver.max() <= SAME_SOLVER_RI_TOL, same_solver
+    assert abs(scores["batched"].mean() - scores["alone"].mean()) <= MEAN_RI_TOL, scores
 
 
 def test_eval_command_batched(shapes_psb, tmp_path, capsys):

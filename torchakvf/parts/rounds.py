@@ -303,12 +303,14 @@ class MeshSystem:
 @dataclass
 class MeshFields:
     """One mesh's AKVF solve as :func:`~torchakvf.parts.cut.cut_parts` reads it (index 0):
-    eigenvalues [1, n], residuals [1, n], converged [1], system.geometry.face_area [F_b]."""
+    eigenvalues [1, n], residuals [1, n], converged [1], system.geometry.face_area [F_b],
+    remedies [1] (the remedy its operator was built with)."""
 
     eigenvalues: torch.Tensor
     residuals: torch.Tensor
     converged: torch.Tensor
     system: MeshSystem
+    remedies: list
 
 
 @dataclass
@@ -351,7 +353,8 @@ def mesh_cut_job(fields: AKVFResult, rounds: list, b: int) -> MeshCutJob:
                      fields=MeshFields(eigenvalues=cpu(fields.eigenvalues[b:b + 1]),
                                        residuals=cpu(fields.residuals[b:b + 1]),
                                        converged=cpu(fields.converged[b:b + 1]),
-                                       system=MeshSystem(MeshGeometry(area))))
+                                       system=MeshSystem(MeshGeometry(area)),
+                                       remedies=[fields.remedies[b]]))
     for rnd in rounds:
         if b not in rnd.active:
             continue
