@@ -139,7 +139,7 @@ def test_host_synchronizations_per_iteration_have_a_ceiling():
     per_iteration = (long.counts - short.counts)
     assert per_iteration["linalg.eigh"] == 2 * 6
     others = sum(per_iteration.values()) - per_iteration["linalg.eigh"]
-    assert others <= 6 / lobpcg.CHECK_EVERY, per_iteration      # was 8 per iteration
+    assert others <= 6 / lobpcg.CHECK_EVERY, per_iteration
 
 
 def test_working_bytes_bound_the_arrays_allocated():

@@ -187,4 +187,4 @@ def test_host_synchronizations_per_untangling_step_have_a_ceiling():
     steps = 2 * 9                                     # both phases
     assert per["linalg.svd"] == steps + steps // 3    # one per step, two per extrapolated step
     others = sum(per.values()) - per["linalg.svd"]
-    assert others <= steps / horst_mod.SLOTS_EVERY, per     # was 7.3 per step
+    assert others <= steps / horst_mod.SLOTS_EVERY, per

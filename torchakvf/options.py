@@ -90,7 +90,7 @@ class MergeWeights:
     of "the two adjacent parts lie in one part people cut" on the 15 labelled PSB categories
     (experiments/train_merge.py), and the cost is the expected change of the Rand disagreement
     with the size exponent ``rand_gamma`` chosen by leave-one-category-out (see
-    docs/design.md). ``MergeWeights.hand_set()`` gives the former hand-set cost (symmetry 1,
+    docs/design.md). ``MergeWeights.hand_set()`` gives the hand-set cost (symmetry 1,
     concavity 16, convexity 4, boundary share 0.25, no size terms, the weighted sum as cost)."""
 
     #: weight of 1 - cos between the parts' mean unit feature rows (two parts moved by the same
