@@ -25,9 +25,11 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", default="0", help="random seed of solver starts, untangling and k-means (default 0)")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default cpu)")
     p.add_argument("--batch-faces", default=None, metavar="N",
-                   help="face budget per batch, meshes sorted by size (default 20000 on cpu, 1000000 on cuda)")
+                   help="face budget per batch, meshes sorted by size (default 20000 on cpu; a batch solved "
+                        "as one, on cuda or with --batched, is sized by its memory, capped at 1000000)")
     p.add_argument("--remedy", default=None, help="mesh-quality remedy of the Killing operator "
-                                                    "(default: the segmenter's, 'smooth')")
+                                                    "(default: the segmenter's, 'auto': the paper's operator on each mesh that "
+                                                    "has no spurious mode, 'smooth' on the others)")
     p.add_argument("--force", action="store_true",
                    help="recompute every mesh, even those the manifest records as done")
     p.add_argument("--ray-workers", default="0", metavar="N",
