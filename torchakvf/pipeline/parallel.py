@@ -142,43 +142,53 @@ def map_batches(batches: list, fn: Callable, args: tuple = (), *, workers: int =
             yield from _outcome(queue, batch, result, error, time.perf_counter() - t0)
         return
 
+    with one_thread_environment():
+        ctx = multiprocessing.get_context("spawn")          # no fork of a process holding threads
+        pool_args = dict(max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(1,))
+        if sys.version_info >= (3, 11):
+            pool_args["max_tasks_per_child"] = RECYCLE_AFTER
+        pool = ProcessPoolExecutor(**pool_args)
+        running: dict = {}
+        try:
+            while queue or running:
+                while queue and len(running) < workers:
+                    batch = queue.popleft()
+                    running[pool.submit(_timed, fn, batch, args)] = (batch, time.perf_counter())
+                done, _ = wait(list(running), return_when=FIRST_COMPLETED)
+                broken = False
+                for fut in done:
+                    batch, t0 = running.pop(fut)
+                    try:
+                        result, seconds = fut.result()
+                        error = None
+                    except BrokenProcessPool as exc:
+                        result, seconds, broken = None, time.perf_counter() - t0, True
+                        error = f"worker process died ({exc})"
+                    except Exception as exc:  # noqa: BLE001
+                        if is_programming_error(exc) or isinstance(exc, fatal):
+                            raise
+                        result, seconds, error = None, time.perf_counter() - t0, error_text(exc)
+                    yield from _outcome(queue, batch, result, error, seconds)
+                if broken:
+                    # Every batch still on the dead pool is lost with it: run them again.
+                    for fut, (batch, _) in running.items():
+                        queue.appendleft(batch)
+                    running.clear()
+                    pool.shutdown(wait=False, cancel_futures=True)
+                    pool = ProcessPoolExecutor(**pool_args)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+@contextmanager
+def one_thread_environment():
+    """The BLAS/OpenMP thread variables (:data:`_THREAD_VARS`) set to 1 for the block, so that
+    processes spawned in it start single-threaded; each restored (or removed) afterwards."""
     saved = {v: os.environ.get(v) for v in _THREAD_VARS}
-    os.environ.update({v: "1" for v in _THREAD_VARS})   # inherited by the spawned workers
-    ctx = multiprocessing.get_context("spawn")          # no fork of a process holding threads
-    pool_args = dict(max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(1,))
-    if sys.version_info >= (3, 11):
-        pool_args["max_tasks_per_child"] = RECYCLE_AFTER
-    pool = ProcessPoolExecutor(**pool_args)
-    running: dict = {}
+    os.environ.update({v: "1" for v in _THREAD_VARS})
     try:
-        while queue or running:
-            while queue and len(running) < workers:
-                batch = queue.popleft()
-                running[pool.submit(_timed, fn, batch, args)] = (batch, time.perf_counter())
-            done, _ = wait(list(running), return_when=FIRST_COMPLETED)
-            broken = False
-            for fut in done:
-                batch, t0 = running.pop(fut)
-                try:
-                    result, seconds = fut.result()
-                    error = None
-                except BrokenProcessPool as exc:
-                    result, seconds, broken = None, time.perf_counter() - t0, True
-                    error = f"worker process died ({exc})"
-                except Exception as exc:  # noqa: BLE001
-                    if is_programming_error(exc) or isinstance(exc, fatal):
-                        raise
-                    result, seconds, error = None, time.perf_counter() - t0, error_text(exc)
-                yield from _outcome(queue, batch, result, error, seconds)
-            if broken:
-                # Every batch still on the dead pool is lost with it: run them again.
-                for fut, (batch, _) in running.items():
-                    queue.appendleft(batch)
-                running.clear()
-                pool.shutdown(wait=False, cancel_futures=True)
-                pool = ProcessPoolExecutor(**pool_args)
+        yield
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
         for v, old in saved.items():
             if old is None:
                 os.environ.pop(v, None)
@@ -217,19 +227,13 @@ def host_pool(workers: int):
     if workers <= 0:
         yield InlineExecutor()
         return
-    saved = {v: os.environ.get(v) for v in _THREAD_VARS}
-    os.environ.update({v: "1" for v in _THREAD_VARS})   # inherited by the spawned workers
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_init_worker, initargs=(1,))
-    try:
-        yield pool
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-        for v, old in saved.items():
-            if old is None:
-                os.environ.pop(v, None)
-            else:
-                os.environ[v] = old
+    with one_thread_environment():
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_init_worker, initargs=(1,))
+        try:
+            yield pool
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _outcome(queue, batch, result, error, seconds):
