@@ -5,14 +5,18 @@ Per mesh, on the mesh decimated as the eval does (``MeshBatch.from_meshes(coarse
 a mesh whose decimated solve fails is solved at full resolution, as segmentation does):
 
 * ``akvf`` [F, 33]: :func:`torchakvf.fields.descriptors.face_descriptors` at 8, 16 and 32
-  fields (``akvf_names``); ``phi32`` [F, 32] the raw untangled norms at 32 (for the older
+  fields (``akvf_names``); ``akvf_parts`` [F, 8]:
+  :func:`torchakvf.parts.part_descriptors.part_descriptors` (``akvf_parts_names``), cut on the
+  full-resolution mesh, each decimated face given the value of the fine face under its
+  barycenter; ``phi32`` [F, 32] the raw untangled norms at 32 (for the older
   histogram descriptor), ``eigenvalues`` [32], ``energies32`` [32];
 * the classical groups of ``classical_descriptors.py`` and ``shapedna`` [32];
 * ``target`` [F]: for meshes with human segmentations, the fraction of the people whose cut
   passes within :data:`BOUNDARY_RADIUS` (geodesic, on the dual graph, unit-area lengths) of the
   face; the human labels are carried to the decimated faces through the fine face closest to
   each decimated face's barycenter;
-* ``area`` [F] (unit total), ``trivial`` [5], ``seconds_akvf`` / ``seconds_classical``.
+* ``area`` [F] (unit total), ``trivial`` [5], ``seconds_akvf`` (with the part descriptors'
+  ``seconds_parts``) / ``seconds_classical``.
 
 Meshes with human segmentations are visited first, category-interleaved (1st mesh of every
 category, then the 2nd, ...), so a pass stopped early covers every category about equally. Run::
@@ -41,7 +45,7 @@ SEED = 0
 #: Geodesic radius (lengths at unit area) within which a face counts as on a person's cut:
 #: about one and a half face rings of a mesh decimated to 4000 faces.
 BOUNDARY_RADIUS = 0.02
-CACHE_VERSION = "2"
+CACHE_VERSION = "3"
 
 log = logging.getLogger("descriptor_pass")
 
@@ -77,19 +81,25 @@ def boundary_target(graph: sp.csr_matrix, labelings: list[np.ndarray]) -> np.nda
     return near / max(len(labelings), 1)
 
 
-def labels_on_packed(batch, entry) -> list[np.ndarray]:
-    """Every human segmentation of ``entry`` carried to the packed (decimated) faces."""
-    from torchakvf.evaluate.psb import read_seg
+def packed_input_faces(batch) -> np.ndarray:
+    """[F_packed] the input (file) face under each packed face of mesh 0: itself at full
+    resolution, else the fine face closest to the decimated face's barycenter."""
     from torchakvf.mesh.coarse import locate_on_surface
 
     packed = batch.meshes[0]
     coarse = batch.coarse_of(0)
     if coarse is None:
-        input_face = packed.face_index
-    else:
-        fine = coarse.fine
-        at = locate_on_surface(fine.vertices, fine.faces, packed.vertices[packed.faces].mean(axis=1))
-        input_face = fine.face_index[at.face]
+        return np.asarray(packed.face_index)
+    fine = coarse.fine
+    at = locate_on_surface(fine.vertices, fine.faces, packed.vertices[packed.faces].mean(axis=1))
+    return np.asarray(fine.face_index[at.face])
+
+
+def labels_on_packed(batch, entry) -> list[np.ndarray]:
+    """Every human segmentation of ``entry`` carried to the packed (decimated) faces."""
+    from torchakvf.evaluate.psb import read_seg
+
+    input_face = packed_input_faces(batch)
     return [read_seg(p)[input_face] for p in entry.seg_paths]
 
 
@@ -112,6 +122,7 @@ def one_mesh(entry) -> dict:
     from torchakvf.fields.akvf import akvf_falling_back
     from torchakvf.fields.descriptors import DEFAULT_COUNTS, descriptor_names, face_descriptors
     from torchakvf.operators.killing import DEFAULT_REMEDY
+    from torchakvf.parts.part_descriptors import part_descriptor_names, part_descriptors
 
     mesh = load_mesh(entry.mesh_path)
     t0 = time.perf_counter()
@@ -119,6 +130,10 @@ def one_mesh(entry) -> dict:
     fields, fell_back = akvf_falling_back(batch, n=N_FIELDS, seed=SEED, remedy=DEFAULT_REMEDY)
     unt = {n: untangle(fields, n, seed=SEED) for n in DEFAULT_COUNTS}
     desc = face_descriptors(fields, DEFAULT_COUNTS, untangled=unt)[0].numpy()
+    t_parts = time.perf_counter()
+    # cut on the full-resolution mesh; each decimated face takes the value of the fine face under it
+    parts = fields.batch.input_mesh(0).to_input_faces(part_descriptors(fields)[0])
+    parts = parts[packed_input_faces(fields.batch)]
     t1 = time.perf_counter()
     packed = fields.batch.meshes[0]
     v, f = np.asarray(packed.vertices, dtype=np.float64), np.asarray(packed.faces, dtype=np.int64)
@@ -126,6 +141,8 @@ def one_mesh(entry) -> dict:
     t2 = time.perf_counter()
     vu, area = classical.unit_area(v, f)
     out.update(akvf=desc.astype(np.float32), akvf_names=np.array(descriptor_names()),
+               akvf_parts=parts.astype(np.float32), akvf_parts_names=np.array(part_descriptor_names()),
+               seconds_parts=np.float64(t1 - t_parts),
                phi32=unt[N_FIELDS].mesh_features(0).numpy().astype(np.float32),
                eigenvalues=fields.eigenvalues[0].numpy(), energies32=unt[N_FIELDS].energies[0].numpy(),
                area=area, trivial=trivial(mesh), fell_back=np.bool_(bool(fell_back)),

@@ -45,26 +45,35 @@ TARGETS = ("majority", "any")
 
 log = logging.getLogger("learn_boundaries")
 
+def _columns(*keys):
+    """The per-face columns [F, k] of one cached mesh: the named groups side by side."""
+    return lambda d: np.concatenate([d[k] for k in keys], axis=1)
+
+
+CLASSICAL = ("curvature", "hks", "wks", "sdf")
+AKVF = ("akvf", "akvf_parts")
 #: Rows: name -> the per-face columns [F, k] of one cached mesh.
 ROWS = {
-    "curvature (k1, k2 at 3 radii)": lambda d: d["curvature"],
-    "HKS (8 times)": lambda d: d["hks"],
-    "WKS (8 energies)": lambda d: d["wks"],
-    "SDF (2)": lambda d: d["sdf"],
-    "classical (curvature + HKS + WKS + SDF)": lambda d: np.concatenate(
-        [d["curvature"], d["hks"], d["wks"], d["sdf"]], axis=1),
-    "AKVF descriptors (33)": lambda d: d["akvf"],
-    "classical + AKVF descriptors": lambda d: np.concatenate(
-        [d["curvature"], d["hks"], d["wks"], d["sdf"], d["akvf"]], axis=1),
-    "curvature + AKVF descriptors": lambda d: np.concatenate([d["curvature"], d["akvf"]], axis=1),
-    "raw untangled norms φ at 32 fields (column order as solved)": lambda d: d["phi32"],
+    "curvature (k1, k2 at 3 radii)": _columns("curvature"),
+    "HKS (8 times)": _columns("hks"),
+    "WKS (8 energies)": _columns("wks"),
+    "SDF (2)": _columns("sdf"),
+    "classical (curvature + HKS + WKS + SDF)": _columns(*CLASSICAL),
+    "AKVF descriptors (fields 33 + parts 8)": _columns(*AKVF),
+    "AKVF field descriptors (33)": _columns("akvf"),
+    "AKVF part descriptors (8)": _columns("akvf_parts"),
+    "classical + AKVF descriptors": _columns(*CLASSICAL, *AKVF),
+    "classical + AKVF field descriptors": _columns(*CLASSICAL, "akvf"),
+    "curvature + AKVF descriptors": _columns("curvature", *AKVF),
+    "raw untangled norms φ at 32 fields (column order as solved)": _columns("phi32"),
 }
 SINGLE_CLASSICAL = ("curvature (k1, k2 at 3 radii)", "HKS (8 times)", "WKS (8 energies)", "SDF (2)")
-AKVF_ROW = "AKVF descriptors (33)"
+AKVF_ROW = "AKVF descriptors (fields 33 + parts 8)"
 CLASSICAL_ROW = "classical (curvature + HKS + WKS + SDF)"
 BOTH_ROW = "classical + AKVF descriptors"
 #: (with AKVF, without): the gains reported per held-out category
-PAIRS = ((BOTH_ROW, CLASSICAL_ROW), ("curvature + AKVF descriptors", SINGLE_CLASSICAL[0]))
+PAIRS = ((BOTH_ROW, CLASSICAL_ROW), ("classical + AKVF field descriptors", CLASSICAL_ROW),
+         ("curvature + AKVF descriptors", SINGLE_CLASSICAL[0]))
 
 
 def average_precision(score: np.ndarray, positive: np.ndarray) -> float:

@@ -47,7 +47,7 @@ def test_feature_dataset_round_trip(reference):
     assert batch["face_ptr"].tolist() == np.concatenate([[0], np.cumsum(nf)]).tolist()
     assert batch["vertices"].shape == (sum(nv), 3) and batch["features"].shape == (sum(nf), N)
     assert batch["eigenvalues"].shape == (3, N) and batch["names"] == ["dumb", "ell", "ico"]
-    assert batch["descriptors"].shape == (sum(nf), 11) and items[0]["descriptor_names"][0] == "share1@8"
+    assert batch["descriptors"].shape == (sum(nf), 19) and items[0]["descriptor_names"][0] == "share1@8"
     for b, it in enumerate(items):
         f0, f1 = batch["face_ptr"][b], batch["face_ptr"][b + 1]
         v0 = batch["vert_ptr"][b]

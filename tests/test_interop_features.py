@@ -21,10 +21,16 @@ def test_face_features_on_input_faces_of_a_decimated_mesh():
     # every input face carries the values of the coarse face under it: at most n_coarse rows
     assert len(np.unique(coarse.features, axis=0)) <= n_coarse
     assert np.all(coarse.features.sum(axis=1) > 0)
-    # the order-free descriptors, on the same input faces (N = 8 fields: one count, 11 columns)
-    assert coarse.descriptors.shape == (len(s.faces), len(coarse.descriptor_names)) == (len(s.faces), 11)
-    assert coarse.descriptor_names[0] == "share1@8" and np.isfinite(coarse.descriptors).all()
-    assert len(np.unique(coarse.descriptors, axis=0)) <= n_coarse
+    # the order-free descriptors, on the same input faces (N = 8 fields: one count, 11 field
+    # columns, then the 8 part columns)
+    assert coarse.descriptors.shape == (len(s.faces), len(coarse.descriptor_names)) == (len(s.faces), 19)
+    assert coarse.descriptor_names[0] == "share1@8" and coarse.descriptor_names[11] == "cut_distance@2"
+    assert np.isfinite(coarse.descriptors).all()
+    # field columns are the coarse face's; part columns come from cuts on the input mesh
+    assert len(np.unique(coarse.descriptors[:, :11], axis=0)) <= n_coarse
+    fields_only = face_features(batch, N, part_descriptors=False)[0]
+    assert fields_only.descriptor_names == coarse.descriptor_names[:11]
+    np.testing.assert_array_equal(fields_only.descriptors, coarse.descriptors[:, :11])
     bare = face_features(batch, N, descriptors=False)[0]
     assert bare.descriptors is None and bare.descriptor_names == []
     np.testing.assert_array_equal(bare.features, coarse.features)

@@ -41,7 +41,7 @@ def test_features_coarse_to_fine(tmp_path):
     assert summary.ok == 1, summary.failures                     # 300 solved faces: admitted
     z = ta.data.load_feature_file(out / "e.npz")
     assert z["features"].shape == (len(s.faces), 4) and np.all(z["features"].sum(1) > 0)
-    assert z["descriptors"].shape == (len(s.faces), 11) and z["descriptor_names"][0] == "share1@4"
+    assert z["descriptors"].shape == (len(s.faces), 19) and z["descriptor_names"][0] == "share1@4"
     rec = by_stem(out)["e"]
     assert rec["params"]["coarse_faces"] == 300 and isinstance(rec["converged"], bool)
     assert rec["converged"] == bool(np.all(z["residuals"] <= 1e-6)) == bool(z["converged"])

@@ -37,7 +37,8 @@ def test_pyg_transform_round_trip():
     assert out.akvf_face_features.shape == (len(s.faces), N)
     assert out.akvf_face_features.dtype == torch.float32
     assert out.akvf_eigenvalues.shape == (1, N) and out.akvf_norms.shape == (len(s.faces), N)
-    assert out.akvf_descriptors.shape == (len(s.faces), 11) and out.akvf_descriptors.dtype == torch.float32
+    # 11 field columns (one count), then the 8 part columns
+    assert out.akvf_descriptors.shape == (len(s.faces), 19) and out.akvf_descriptors.dtype == torch.float32
     # a sphere: three rotations (λ·area ~ 0; 0.12 at this resolution), then a gap
     lam = out.akvf_eigenvalues[0].double()
     assert torch.all(lam[:3].abs() < 0.3) and lam[3] > 10.0
@@ -45,6 +46,8 @@ def test_pyg_transform_round_trip():
     ref = face_features(MeshBatch.from_meshes([Mesh(s.vertices.astype(np.float32).astype(np.float64), s.faces)]), N,
                         remedy="smooth")[0]
     np.testing.assert_allclose(out.akvf_face_features.numpy(), ref.features, rtol=1e-5, atol=1e-6)
+    fields_only = AKVFFeatures(n=N, remedy="smooth", part_descriptors=False)(data)
+    assert fields_only.akvf_descriptors.shape == (len(s.faces), 11)
     # the face order of the Data is the order of the features
     perm = np.random.default_rng(0).permutation(len(s.faces))
     shuffled = AKVFFeatures(n=N, raw_norms=True, remedy="smooth")(Data(pos=pos.clone(), face=face[:, perm].clone(), y=torch.tensor([1])))

@@ -20,9 +20,11 @@ class FaceFeatures:
     eigenvalues : [n] Killing eigenvalues λ·area of the raw AKVFs, ascending
     energies : [n] Killing energy λ·area of each untangled field
     descriptors : [F, d] per-face descriptors that mean the same on every mesh (invariant to
-        the fields' order and sign; :mod:`torchakvf.fields.descriptors`, docs/descriptors.md);
+        the fields' order and sign): the field descriptors (:mod:`torchakvf.fields.descriptors`)
+        then the part descriptors (:mod:`torchakvf.parts.part_descriptors`), docs/descriptors.md;
         None when asked for without them
-    descriptor_names : the d column names, e.g. ``"share1@8"`` (empty without descriptors)
+    descriptor_names : the d column names, e.g. ``"share1@8"``, ``"cut_distance@2"`` (empty
+        without descriptors)
     """
 
     features: np.ndarray
@@ -42,25 +44,29 @@ def _on_input_faces(batch, b: int, values: np.ndarray) -> np.ndarray:
 
 def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = None,
                   restarts: int = DEFAULT_RESTARTS, tol: float = 1e-6,
-                  descriptors: bool = True) -> list[FaceFeatures]:
+                  descriptors: bool = True, part_descriptors: bool = True) -> list[FaceFeatures]:
     """:class:`FaceFeatures` of every mesh of ``batch`` (a :class:`~torchakvf.MeshBatch`,
     optionally built with ``coarse_faces``: the fields are computed on the decimated mesh and
     reported on the input's faces). ``remedy`` defaults to the segmentation's
     (:data:`torchakvf.operators.killing.DEFAULT_REMEDY`); the other arguments are
     :func:`~torchakvf.akvf`'s and :func:`~torchakvf.untangle`'s. ``descriptors=False`` skips
-    the per-face descriptors (they untangle again at 8 and 16 fields, about 0.5 s of one core
-    on a mesh of 4000 faces)."""
+    the per-face descriptors (the field descriptors untangle again at 8 and 16 fields, about
+    0.5 s of one core on a mesh of 4000 faces); ``part_descriptors=False`` keeps the field
+    descriptors without the part ones (those segment the mesh 18 times, about 1 s of one core
+    on a mesh decimated to 4000 faces)."""
     from ..fields import untangle
     from ..fields.akvf import akvf_falling_back
-    from ..fields.descriptors import counts_for, descriptor_names, face_descriptors
+    from ..fields.descriptors import counts_for
     from ..operators.killing import DEFAULT_REMEDY
+    from ..parts.input_descriptors import input_face_descriptors
 
     fields, _ = akvf_falling_back(batch, n=n, seed=seed, tol=tol,
                                   remedy=DEFAULT_REMEDY if remedy is None else remedy)
     unt = untangle(fields, seed=seed, restarts=restarts)
     counts = counts_for(n) if descriptors else ()
-    desc = face_descriptors(fields, counts, untangled={n: unt}, seed=seed, restarts=restarts) \
-        if descriptors else None
+    # one field has no membership to describe and too few fields to cut parts from
+    desc = input_face_descriptors(fields, counts, untangled={n: unt}, seed=seed, restarts=restarts,
+                                  parts=part_descriptors and bool(counts)) if descriptors else None
     batch = fields.batch              # the fallback may have re-packed meshes at full resolution
     raw = fields.face_vectors.norm(dim=-1)
     out = []
@@ -71,8 +77,8 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
             akvf_norms=_on_input_faces(batch, b, raw[f0:f1].detach().cpu().numpy()),
             eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
             energies=unt.energies[b].detach().cpu().numpy(),
-            descriptors=None if desc is None else _on_input_faces(batch, b, desc[b].detach().cpu().numpy()),
-            descriptor_names=descriptor_names(counts)))
+            descriptors=None if desc is None else desc.values[b],
+            descriptor_names=[] if desc is None else desc.names))
     return out
 
 

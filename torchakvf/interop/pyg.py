@@ -3,7 +3,7 @@
     from torch_geometric.datasets import FAUST            # any dataset with pos and face
     from torchakvf.interop.pyg import AKVFFeatures
     ds = FAUST(root, pre_transform=AKVFFeatures(n=32, coarse_faces=4000))
-    data = ds[0]; data.akvf_descriptors                   # [F, 33], the same columns on every mesh
+    data = ds[0]; data.akvf_descriptors                   # [F, 41], the same columns on every mesh
 
 Needs ``torch_geometric`` (``pip install torchakvf[pyg]``). Used as a ``pre_transform``, the
 features are computed once and stored with the processed dataset.
@@ -28,22 +28,25 @@ class AKVFFeatures(BaseTransform):
     * ``akvf_face_features`` [F, n]: |X_i(f)| of the untangled fields, in ``face``'s order
       (0 on faces dropped as degenerate);
     * ``akvf_descriptors`` [F, d]: per-face descriptors invariant to the fields' order and
-      sign, comparable across meshes (the columns a per-face model should take; names in
-      :func:`torchakvf.fields.descriptors.descriptor_names`, docs/descriptors.md);
+      sign, comparable across meshes (the columns a per-face model should take): the field
+      descriptors (:func:`torchakvf.fields.descriptors.descriptor_names`) then the part
+      descriptors (:func:`torchakvf.parts.part_descriptors.part_descriptor_names`; not with
+      ``part_descriptors=False``), docs/descriptors.md;
     * ``akvf_eigenvalues`` [1, n]: Killing eigenvalues λ·area, ascending (graph-level, so a
       ``Batch`` of B meshes holds [B, n]);
     * with ``raw_norms=True`` also ``akvf_norms`` [F, n], the raw AKVFs' norms.
 
     Parameters: ``n`` fields; ``coarse_faces`` decimates larger meshes to about that many
     faces before the solve (results still on every input face); ``seed``, ``remedy``,
-    ``restarts``, ``tol`` as in :func:`torchakvf.interop.face_features`.
+    ``restarts``, ``tol``, ``part_descriptors`` as in :func:`torchakvf.interop.face_features`.
     ``pos``, ``face`` and every other attribute are left as they are.
     """
 
     def __init__(self, n: int = 32, *, coarse_faces: int | None = None, seed: int = 0,
                  remedy: str | None = None, restarts: int = 8, tol: float = 1e-6,
-                 raw_norms: bool = False):
+                 raw_norms: bool = False, part_descriptors: bool = True):
         self.n, self.coarse_faces, self.seed = int(n), coarse_faces, int(seed)
+        self.part_descriptors = bool(part_descriptors)
         self.remedy, self.restarts, self.tol, self.raw_norms = remedy, int(restarts), float(tol), bool(raw_norms)
 
     def forward(self, data: Data) -> Data:
@@ -59,7 +62,7 @@ class AKVFFeatures(BaseTransform):
                     name="<torch_geometric Data>")
         batch = MeshBatch.from_meshes([mesh], coarse_faces=self.coarse_faces)
         ff = face_features(batch, self.n, seed=self.seed, remedy=self.remedy,
-                           restarts=self.restarts, tol=self.tol)[0]
+                           restarts=self.restarts, tol=self.tol, part_descriptors=self.part_descriptors)[0]
         data.akvf_face_features = as_tensor_like(ff.features, pos)
         data.akvf_descriptors = as_tensor_like(ff.descriptors, pos)
         data.akvf_eigenvalues = as_tensor_like(ff.eigenvalues, pos)[None, :]

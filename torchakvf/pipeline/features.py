@@ -14,8 +14,10 @@ array is in the input file's face order, zeros on faces dropped as degenerate):
 ``converged``          bool ()         every residual at most the solver tolerance (also in the
                                        manifest record, with ``max_residual``)
 ``descriptors``        float32 [F, d]  per-face descriptors invariant to the fields' order and sign,
-                                       the same columns on every mesh (docs/descriptors.md)
-``descriptor_names``   str [d]         their column names, e.g. ``share1@8``
+                                       the same columns on every mesh: the field descriptors,
+                                       then (unless ``--no-part-descriptors``) the part
+                                       descriptors (docs/descriptors.md)
+``descriptor_names``   str [d]         their column names, e.g. ``share1@8``, ``cut_distance@2``
 ``face_vectors``       float32 [F,n,3] untangled Whitney vectors (only with ``--face-vectors``)
 ``params_json``        str ()          the parameters and torchakvf version, as JSON
 =====================  ==============  ==========================================================
@@ -86,7 +88,8 @@ def _physical_memory() -> int | None:
 
 
 class FeaturesTask:
-    """AKVFs (``akvf``) and their untangling (``untangle``) per batch; writes one .npz a mesh."""
+    """AKVFs (``akvf``), their untangling and the per-face descriptors (``untangle``) per batch;
+    writes one .npz a mesh."""
 
     name = "features"
     stages = ("akvf", "untangle")
@@ -94,14 +97,16 @@ class FeaturesTask:
     def __init__(self, n: int = 32, *, seed: int = 0, remedy: str = DEFAULT_REMEDY,
                  untangle_restarts: int = DEFAULT_RESTARTS, tol: float = 1e-6, face_vectors: bool = False,
                  cache_dir=None, coarse_faces: int | None = None, max_faces: int | None = None,
-                 memory_bytes: int | None = None, batched: bool | None = None, device="cpu"):
+                 memory_bytes: int | None = None, batched: bool | None = None, device="cpu",
+                 part_descriptors: bool = True):
         """coarse_faces : solve meshes above 1.25x this many faces decimated to about this many
         (None: full resolution). max_faces : refuse a mesh whose solve has more faces (None:
         no limit but memory). memory_bytes : the memory a solve may use (default
         :func:`device_memory`: on a GPU its free memory, checked against
         :func:`estimate_device_bytes`; else the machine's, against :func:`estimate_bytes`).
         batched : solve each batch as one (the accelerator's path; None: the device's way).
-        device : where the solve runs (sets the memory checked)."""
+        device : where the solve runs (sets the memory checked). part_descriptors : add the part
+        descriptors (:mod:`torchakvf.parts.part_descriptors`) to the field descriptors."""
         self.n, self.seed, self.remedy = int(n), int(seed), remedy
         self.untangle_restarts, self.tol, self.face_vectors = int(untangle_restarts), float(tol), bool(face_vectors)
         self.coarse_faces = int(coarse_faces) if coarse_faces else None
@@ -109,6 +114,7 @@ class FeaturesTask:
         self.on_device = str(device).startswith("cuda")
         self.memory_bytes = int(memory_bytes) if memory_bytes is not None else device_memory(device)
         self.batched = None if batched is None else bool(batched)
+        self.part_descriptors = bool(part_descriptors)
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         if self.cache_dir is not None:
             from .outdir import check_output_dir
@@ -121,7 +127,7 @@ class FeaturesTask:
         params = {"n": self.n, "seed": self.seed, "remedy": self.remedy,
                   "untangle_restarts": self.untangle_restarts, "tol": self.tol,
                   "face_vectors": self.face_vectors, "coarse_faces": self.coarse_faces,
-                  "descriptor_counts": list(counts_for(self.n))}
+                  "descriptor_counts": list(counts_for(self.n)), "part_descriptors": self.part_descriptors}
         if self.batched is not None:    # the default leaves earlier manifests resumable
             params["batched"] = self.batched
         return params
@@ -166,8 +172,8 @@ class FeaturesTask:
 
     def process(self, items, device):
         from ..fields import akvf, untangle
-        from ..fields.descriptors import descriptor_names, face_descriptors
         from ..mesh import MeshBatch
+        from ..parts.input_descriptors import input_face_descriptors
 
         t0 = time.perf_counter()
         batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
@@ -176,9 +182,9 @@ class FeaturesTask:
         t1 = time.perf_counter()
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
         counts = counts_for(self.n)
-        desc = face_descriptors(fields, counts, untangled={self.n: unt}, seed=self.seed,
-                                restarts=self.untangle_restarts)
-        names = np.array(descriptor_names(counts))
+        desc = input_face_descriptors(fields, counts, untangled={self.n: unt}, seed=self.seed,
+                                      restarts=self.untangle_restarts, parts=self.part_descriptors and bool(counts))
+        names = np.array(desc.names)
         raw_norms = fields.face_vectors.norm(dim=-1)
         outs = []
         for b, it in enumerate(items):
@@ -194,7 +200,7 @@ class FeaturesTask:
             out = {
                 "akvf_norms": on_input(raw_norms[f0:f1]),
                 "features": on_input(unt.mesh_features(b)),
-                "descriptors": on_input(desc[b]),
+                "descriptors": desc.values[b].astype(np.float32),
                 "descriptor_names": names,
                 "eigenvalues": fields.eigenvalues[b].cpu().numpy().astype(np.float64),
                 "residuals": residuals,

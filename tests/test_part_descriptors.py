@@ -1,0 +1,117 @@
+"""Part descriptors: cut distances on hand-computed graphs, agreement with the segmentation they
+are read from, and invariance to rigid motions, renumbering and batching."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from torchakvf import Mesh, MeshBatch, SegmentOptions, akvf, segment
+from torchakvf.errors import ParameterError
+from torchakvf.parts.part_descriptors import (DISTANCE_CAP, DISTANCE_FLOOR, NEAR_RADII, PART_KS, cut_distance,
+                                              describe_labelings, dual_graph, part_descriptor_names,
+                                              part_descriptors)
+from torchakvf.parts.topology import face_adjacency
+from torchakvf.shapes import dumbbell, three_blobs
+
+KS = (2, 3)
+
+
+def _path_graph(weights) -> sp.csr_matrix:
+    n = len(weights) + 1
+    i = np.arange(n - 1)
+    w = np.asarray(weights, dtype=np.float64)
+    return sp.coo_matrix((np.r_[w, w], (np.r_[i, i + 1], np.r_[i + 1, i])), shape=(n, n)).tocsr()
+
+
+def test_cut_distance_on_a_path_by_hand():
+    g = _path_graph([1.0, 2.0, 3.0, 4.0])
+    # the cut lies between nodes 2 and 3: both are on it; node 0 is 1 + 2 away, node 4 is 4
+    np.testing.assert_allclose(cut_distance(g, np.array([0, 0, 0, 1, 1]), cap=10.0), [3.0, 2.0, 0.0, 0.0, 4.0])
+    np.testing.assert_allclose(cut_distance(g, np.array([0, 0, 0, 1, 1]), cap=2.5), [2.5, 2.0, 0.0, 0.0, 2.5])
+    # one part: no cut anywhere
+    np.testing.assert_allclose(cut_distance(g, np.zeros(5, dtype=int), cap=0.7), np.full(5, 0.7))
+    # labels are names, not numbers: any renaming gives the same distances
+    np.testing.assert_allclose(cut_distance(g, np.array([7, 7, 7, -1, -1])), cut_distance(g, np.array([0, 0, 0, 1, 1])))
+
+
+def test_dual_graph_is_in_the_unit_area_frame():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    # area 1: centroids (2/3, 1/3) and (1/3, 2/3) are sqrt(2)/3 apart; scaled by 3, the same
+    for scale in (1.0, 3.0):
+        g = dual_graph(scale * v, f).toarray()
+        np.testing.assert_allclose(g, [[0, math.sqrt(2) / 3], [math.sqrt(2) / 3, 0]], rtol=1e-12)
+
+
+def test_describe_labelings_by_hand():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]])
+    f = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]])
+    # faces 0-1 and 0-3 and 2-3 share edges; seed 0 cuts {0, 1} from {2, 3} (between 0 and 3),
+    # seed 1 puts all in one part
+    cut = np.array([0, 0, 1, 1])
+    one = np.zeros(4, dtype=int)
+    d = describe_labelings(v, f, [[cut], [one]], radii=(0.01,))
+    dist = cut_distance(dual_graph(v, f), cut)
+    assert dist[0] == dist[3] == 0.0 and dist[1] > 0.01 and dist[2] > 0.01
+    expect = 0.5 * (np.log(dist + DISTANCE_FLOOR) + np.log(DISTANCE_CAP + DISTANCE_FLOOR))
+    np.testing.assert_allclose(d[:, 0], expect, rtol=1e-12)
+    # the share of segmentations cutting within 0.01: one of two on the cut's faces
+    np.testing.assert_allclose(d[:, 1], [0.5, 0.0, 0.0, 0.5])
+
+
+def test_names_follow_the_columns():
+    assert part_descriptor_names() == [f"cut_distance@{k}" for k in PART_KS] + [f"cut_share_{r:g}" for r in NEAR_RADII]
+    assert part_descriptor_names(KS, ()) == ["cut_distance@2", "cut_distance@3"]
+
+
+@pytest.fixture(scope="module")
+def blobs():
+    s = three_blobs(n_around=24)
+    mesh = Mesh(s.vertices, s.faces)
+    fields = akvf(MeshBatch.from_meshes([mesh]), n=24, seed=0)
+    return mesh, fields, part_descriptors(fields, ks=KS, seeds=(0,))[0]
+
+
+def test_cut_distance_is_zero_exactly_where_the_segmentation_cuts(blobs):
+    mesh, fields, d = blobs
+    assert d.shape == (len(mesh.faces), len(KS) + len(NEAR_RADII))
+    pairs = face_adjacency(np.asarray(mesh.faces))
+    for j, k in enumerate(KS):
+        labels = segment(fields, k, seed=0).meshes[0].labels
+        differ = labels[pairs[:, 0]] != labels[pairs[:, 1]]
+        on_cut = np.zeros(len(labels), dtype=bool)
+        on_cut[pairs[differ].ravel()] = True
+        assert on_cut.any()
+        np.testing.assert_allclose(d[on_cut, j], math.log(DISTANCE_FLOOR))
+        assert np.all(d[~on_cut, j] > math.log(DISTANCE_FLOOR))
+        assert np.all(d[:, j] <= math.log(DISTANCE_CAP + DISTANCE_FLOOR) + 1e-12)
+    # three blobs on a line: two parts cut one neck, three parts both necks
+    assert (d[:, 1] == d[:, 1].min()).sum() > (d[:, 0] == d[:, 0].min()).sum()
+
+
+def test_rigid_motion_renumbering_and_batching_leave_the_descriptors(blobs):
+    mesh, _, d0 = blobs
+    rng = np.random.default_rng(5)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    pv, pf = rng.permutation(len(mesh.vertices)), rng.permutation(len(mesh.faces))
+    moved = Mesh((2.0 * np.asarray(mesh.vertices) @ q.T + 0.5)[pv], np.argsort(pv)[np.asarray(mesh.faces)][pf])
+    other = dumbbell(n_around=24)
+    batch = MeshBatch.from_meshes([moved, Mesh(other.vertices, other.faces)])
+    both = part_descriptors(akvf(batch, n=24, seed=0), ks=KS, seeds=(0,))
+    # the same parts, found on the moved, renumbered mesh beside another one; cut distances
+    # agree to the solver's tolerance (rows follow the new face order)
+    np.testing.assert_allclose(both[0], d0[pf], atol=1e-6)
+    alone = part_descriptors(akvf(MeshBatch.from_meshes([Mesh(other.vertices, other.faces)]), n=24, seed=0),
+                             ks=KS, seeds=(0,))[0]
+    np.testing.assert_allclose(both[1], alone, atol=1e-6)
+
+
+def test_bad_arguments(blobs):
+    _, fields, _ = blobs
+    with pytest.raises(ParameterError, match="part counts >= 2"):
+        part_descriptors(fields, ks=(1, 2))
+    with pytest.raises(ParameterError, match="eps must be 0"):
+        part_descriptors(fields, ks=KS, options=SegmentOptions(eps=0.1))

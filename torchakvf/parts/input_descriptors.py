@@ -1,0 +1,55 @@
+"""Every per-face descriptor of a batch on the input files' faces: the field descriptors
+(:mod:`torchakvf.fields.descriptors`) beside the part descriptors
+(:mod:`torchakvf.parts.part_descriptors`), as the ``features`` command, ``interop.face_features``
+and the PyG transform hand them out (docs/descriptors.md)."""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..fields.akvf_result import AKVFResult
+from ..fields.descriptors import descriptor_names, face_descriptors
+from ..fields.untangle import DEFAULT_RESTARTS, UntangledFields
+from .part_descriptors import part_descriptor_names, part_descriptors
+
+
+@dataclass
+class InputDescriptors:
+    """values : [B] float64 [F_input_b, d] arrays, on each input file's faces (0 on faces
+    dropped as degenerate); names : the d column names (field columns first, then part
+    columns)."""
+
+    values: list
+    names: list
+
+
+def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
+                           untangled: Mapping[int, UntangledFields] | None = None, seed: int = 0,
+                           restarts: int = DEFAULT_RESTARTS, parts: bool = True) -> InputDescriptors:
+    """The field descriptors at field counts ``counts`` and (``parts``) the part descriptors of
+    every mesh of ``fields.batch``, on the input's faces.
+
+    A decimated mesh's field columns are those of the coarse face under each input face; its
+    part columns are computed where its parts are cut, on the full-resolution mesh.
+    untangled, seed, restarts : :func:`~torchakvf.fields.descriptors.face_descriptors`'; the
+    part descriptors use their own seeds (:data:`~torchakvf.parts.part_descriptors.PART_SEEDS`).
+    """
+    batch = fields.batch
+    field_values = face_descriptors(fields, counts, untangled=untangled, seed=seed, restarts=restarts)
+    part_values = part_descriptors(fields) if parts else None
+    values = []
+    for b in range(len(batch)):
+        v = field_values[b].detach().cpu().numpy().astype(np.float64)
+        coarse = batch.coarse_of(b)
+        if coarse is not None:         # the coarse face under each fine barycenter
+            v = coarse.face_values(v)
+        if part_values is not None:
+            v = np.concatenate([v, part_values[b]], axis=1)
+        values.append(batch.input_mesh(b).to_input_faces(v))
+    names = descriptor_names(counts) + (part_descriptor_names() if parts else [])
+    return InputDescriptors(values=values, names=names)
+
+
+__all__ = ["InputDescriptors", "input_face_descriptors"]
