@@ -8,7 +8,8 @@ a mesh whose decimated solve fails is solved at full resolution, as segmentation
   fields (``akvf_names``); ``akvf_parts`` [F, 8]:
   :func:`torchakvf.parts.part_descriptors.part_descriptors` (``akvf_parts_names``), cut on the
   full-resolution mesh, each decimated face given the value of the fine face under its
-  barycenter; ``phi32`` [F, 32] the raw untangled norms at 32 (for the older
+  barycenter; a labelled mesh is segmented with the merge weights fitted without its category
+  (:data:`FOLD_WEIGHTS`); ``phi32`` [F, 32] the raw untangled norms at 32 (for the older
   histogram descriptor), ``eigenvalues`` [32], ``energies32`` [32];
 * the classical groups of ``classical_descriptors.py`` and ``shapedna`` [32];
 * ``target`` [F]: for meshes with human segmentations, the fraction of the people whose cut
@@ -45,7 +46,11 @@ SEED = 0
 #: Geodesic radius (lengths at unit area) within which a face counts as on a person's cut:
 #: about one and a half face rings of a mesh decimated to 4000 faces.
 BOUNDARY_RADIUS = 0.02
-CACHE_VERSION = "3"
+CACHE_VERSION = "4"
+
+#: Per labelled category, the learned merge weights fitted without it: the part descriptors of
+#: a labelled mesh are cut with them, so no held-out category's labels shape its own columns.
+FOLD_WEIGHTS = Path(__file__).resolve().parents[1] / "experiments" / "results" / "merge_weights_folds.json"
 
 log = logging.getLogger("descriptor_pass")
 
@@ -115,6 +120,19 @@ def trivial(mesh) -> np.ndarray:
                      connected_components(adj, directed=False)[0]], dtype=np.float64)
 
 
+def segment_options_for(entry):
+    """The default segmentation, with the merge weights of ``entry``'s held-out fold
+    (:data:`FOLD_WEIGHTS`) when its category is labelled (categories never trained on: the
+    shipped weights)."""
+    from torchakvf import SegmentOptions
+    from torchakvf.options import MergeWeights
+
+    folds = json.loads(FOLD_WEIGHTS.read_text())["folds"]
+    if entry.category in folds:
+        return SegmentOptions(merge=MergeWeights(**folds[entry.category]))
+    return SegmentOptions()
+
+
 def one_mesh(entry) -> dict:
     """Everything of the module docstring for one PSB entry."""
     from torchakvf import MeshBatch, load_mesh
@@ -132,7 +150,7 @@ def one_mesh(entry) -> dict:
     desc = face_descriptors(fields, DEFAULT_COUNTS, untangled=unt)[0].numpy()
     t_parts = time.perf_counter()
     # cut on the full-resolution mesh; each decimated face takes the value of the fine face under it
-    parts = fields.batch.input_mesh(0).to_input_faces(part_descriptors(fields)[0])
+    parts = fields.batch.input_mesh(0).to_input_faces(part_descriptors(fields, options=segment_options_for(entry))[0])
     parts = parts[packed_input_faces(fields.batch)]
     t1 = time.perf_counter()
     packed = fields.batch.meshes[0]

@@ -58,8 +58,8 @@ NEAR_RADII = (0.02, 0.06)
 
 def part_descriptor_names(ks: Sequence[int] = PART_KS, radii: Sequence[float] = NEAR_RADII) -> list[str]:
     """Column names of :func:`part_descriptors`' output, in order: ``cut_distance@k`` for each
-    k, then ``cut_share_r`` for each radius."""
-    return [f"cut_distance@{k}" for k in ks] + [f"cut_share_{r:g}" for r in radii]
+    k (ascending), then ``cut_share_r`` for each radius."""
+    return [f"cut_distance@{k}" for k in sorted({int(k) for k in ks})] + [f"cut_share_{r:g}" for r in radii]
 
 
 def dual_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
@@ -115,7 +115,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     fields : the batch's AKVFs (from :func:`~torchakvf.akvf`): the segmentations untangle as
         many as :func:`~torchakvf.segment` does when ``fields.n`` covers
         :func:`~torchakvf.parts.field_counts.akvf_count` of ``ks``, else all ``fields.n``
-    ks : part counts; seeds : seeds averaged over; options : the segmentation's settings (default
+    ks : part counts (columns in ascending k); seeds : seeds averaged over; options : the segmentation's settings (default
         ``SegmentOptions()``; its seed is replaced by each of ``seeds``; ε must be 0)
     Returns one float64 [F_b, len(ks) + len(radii)] array per mesh, on the faces the parts
     are cut on: those of ``fields.batch.input_mesh(b)`` (the full-resolution cleaned mesh of a
