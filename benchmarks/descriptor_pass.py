@@ -17,7 +17,8 @@ a mesh whose decimated solve fails is solved at full resolution, as segmentation
   face; the human labels are carried to the decimated faces through the fine face closest to
   each decimated face's barycenter;
 * ``area`` [F] (unit total), ``trivial`` [5], ``seconds_akvf`` (with the part descriptors'
-  ``seconds_parts``) / ``seconds_classical``.
+  ``seconds_parts``) / ``seconds_classical`` (wall), ``cpu_seconds`` [3] (this process's CPU
+  time: field descriptors with the solve, part descriptors, classical).
 
 Meshes with human segmentations are visited first, category-interleaved (1st mesh of every
 category, then the 2nd, ...), so a pass stopped early covers every category about equally. Run::
@@ -143,20 +144,20 @@ def one_mesh(entry) -> dict:
     from torchakvf.parts.part_descriptors import part_descriptor_names, part_descriptors
 
     mesh = load_mesh(entry.mesh_path)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     batch = MeshBatch.from_meshes([mesh], coarse_faces=COARSE_FACES)
     fields, fell_back = akvf_falling_back(batch, n=N_FIELDS, seed=SEED, remedy=DEFAULT_REMEDY)
     unt = {n: untangle(fields, n, seed=SEED) for n in DEFAULT_COUNTS}
     desc = face_descriptors(fields, DEFAULT_COUNTS, untangled=unt)[0].numpy()
-    t_parts = time.perf_counter()
+    t_parts, c_parts = time.perf_counter(), time.process_time()
     # cut on the full-resolution mesh; each decimated face takes the value of the fine face under it
     parts = fields.batch.input_mesh(0).to_input_faces(part_descriptors(fields, options=segment_options_for(entry))[0])
     parts = parts[packed_input_faces(fields.batch)]
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     packed = fields.batch.meshes[0]
     v, f = np.asarray(packed.vertices, dtype=np.float64), np.asarray(packed.faces, dtype=np.int64)
     out = classical.classical_descriptors(v, f)
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), time.process_time()
     vu, area = classical.unit_area(v, f)
     out.update(akvf=desc.astype(np.float32), akvf_names=np.array(descriptor_names()),
                akvf_parts=parts.astype(np.float32), akvf_parts_names=np.array(part_descriptor_names()),
@@ -164,7 +165,8 @@ def one_mesh(entry) -> dict:
                phi32=unt[N_FIELDS].mesh_features(0).numpy().astype(np.float32),
                eigenvalues=fields.eigenvalues[0].numpy(), energies32=unt[N_FIELDS].energies[0].numpy(),
                area=area, trivial=trivial(mesh), fell_back=np.bool_(bool(fell_back)),
-               seconds_akvf=np.float64(t1 - t0), seconds_classical=np.float64(t2 - t1))
+               seconds_akvf=np.float64(t1 - t0), seconds_classical=np.float64(t2 - t1),
+               cpu_seconds=np.array([c_parts - c0, c1 - c_parts, c2 - c1]))
     if entry.seg_paths:
         out["target"] = boundary_target(dual_graph(vu, f), labels_on_packed(fields.batch, entry))
     return out
@@ -232,15 +234,35 @@ def cache_parser(description: str) -> argparse.ArgumentParser:
     return ap
 
 
+def cpu_sample(psb: str) -> None:
+    """Print the CPU seconds (this process, one thread) of each stage of :func:`one_mesh` on
+    the first mesh of every category, uncached: the per-mesh cost without other jobs' wall
+    time in it."""
+    from torchakvf.evaluate.psb import find_psb_meshes
+
+    firsts = [e for e in find_psb_meshes(psb) if (e.mesh_id - 1) % 20 == 0]
+    cpu = np.array([one_mesh(e)["cpu_seconds"] for e in firsts])
+    for e, c in zip(firsts, cpu):
+        print(f"mesh {e.mesh_id} ({e.category}): fields {c[0]:.2f} s, parts {c[1]:.2f} s, classical {c[2]:.2f} s")
+    print(f"{len(firsts)} meshes, CPU seconds per mesh (mean): fields {cpu[:, 0].mean():.2f}, "
+          f"parts {cpu[:, 1].mean():.2f}, classical {cpu[:, 2].mean():.2f}; median "
+          f"{np.median(cpu[:, 0]):.2f}, {np.median(cpu[:, 1]):.2f}, {np.median(cpu[:, 2]):.2f}")
+
+
 def main(argv=None) -> int:
     ap = cache_parser(__doc__.split("\n")[0])
     ap.add_argument("--reverse", action="store_true",
                     help="visit the meshes in the opposite order (a second worker on the same cache)")
+    ap.add_argument("--cpu-sample", action="store_true",
+                    help="only time the first mesh of each category in CPU seconds (nothing cached)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     import torch
 
     torch.set_num_threads(args.threads)
+    if args.cpu_sample:
+        cpu_sample(args.psb)
+        return 0
     t = time.perf_counter()
     data, missing = load_all(args.psb, Path(args.cache), reverse=args.reverse)
     log.info("%d meshes in %.0f s; left out: %s", len(data), time.perf_counter() - t, missing)
