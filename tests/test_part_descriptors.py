@@ -136,6 +136,19 @@ def test_psb_mesh_moved_renumbered_and_resolved(psb):
         assert same.mean(axis=0).min() > 0.9, same.mean(axis=0)
 
 
+def test_a_mesh_of_fewer_faces_than_parts():
+    # a tetrahedron: k = 5..8 are cut at its 4 faces, so every k >= 4 has the columns of k = 4
+    v = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    f = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    fields = akvf(MeshBatch.from_meshes([Mesh(v, f)]), n=2, seed=0)
+    d = part_descriptors(fields, seeds=(0,))[0]
+    assert d.shape == (4, len(PART_KS) + len(NEAR_RADII)) and np.isfinite(d).all()
+    at4 = part_descriptors(fields, ks=(4,), seeds=(0,), radii=())[0][:, 0]
+    for j, k in enumerate(PART_KS):
+        if k >= 4:
+            np.testing.assert_array_equal(d[:, j], at4)
+
+
 def test_bad_arguments(blobs):
     _, fields, _ = blobs
     with pytest.raises(ParameterError, match="part counts >= 2"):

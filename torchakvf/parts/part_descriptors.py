@@ -115,7 +115,8 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     fields : the batch's AKVFs (from :func:`~torchakvf.akvf`): the segmentations untangle as
         many as :func:`~torchakvf.segment` does when ``fields.n`` covers
         :func:`~torchakvf.parts.field_counts.akvf_count` of ``ks``, else all ``fields.n``
-    ks : part counts (columns in ascending k); seeds : seeds averaged over; options : the segmentation's settings (default
+    ks : part counts (columns in ascending k; a mesh with fewer faces is cut at its face count
+        there); seeds : seeds averaged over; options : the segmentation's settings (default
         ``SegmentOptions()``; its seed is replaced by each of ``seeds``; ε must be 0)
     Returns one float64 [F_b, len(ks) + len(radii)] array per mesh, on the faces the parts
     are cut on: those of ``fields.batch.input_mesh(b)`` (the full-resolution cleaned mesh of a
@@ -133,12 +134,14 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     enough = fields.n >= akvf_count([ks], None, opts.method, opts.merge.min_k)
     n_fields = None if enough else fields.n
     batch = fields.batch
+    # a mesh of fewer faces than k parts is cut into one part per face (its limit) at that k
+    ks_of = [[min(k, len(batch.meshes[b].faces)) for k in ks] for b in range(len(batch))]
     labels = [[[] for _ in seeds] for _ in range(len(batch))]
     for s, seed in enumerate(seeds):
-        each = segment_each_k(fields, [ks] * len(batch), opts, n_fields=n_fields, seed=int(seed))
+        each = segment_each_k(fields, [sorted(set(kb)) for kb in ks_of], opts, n_fields=n_fields, seed=int(seed))
         for b in range(len(batch)):
             index = batch.input_mesh(b).face_index       # the input face of each cleaned face
-            labels[b][s] = [np.asarray(each.meshes[b][k].labels)[index] for k in ks]
+            labels[b][s] = [np.asarray(each.meshes[b][k].labels)[index] for k in ks_of[b]]
     out = []
     for b in range(len(batch)):
         mesh = batch.input_mesh(b)
