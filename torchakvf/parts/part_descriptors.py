@@ -134,7 +134,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     enough = fields.n >= akvf_count([ks], None, opts.method, opts.merge.min_k)
     n_fields = None if enough else fields.n
     batch = fields.batch
-    # a mesh of fewer faces than k parts is cut into one part per face (its limit) at that k
+    # a segmentation asks for at most one part per face: a smaller mesh is segmented at its face count
     ks_of = [[min(k, len(batch.meshes[b].faces)) for k in ks] for b in range(len(batch))]
     labels = [[[] for _ in seeds] for _ in range(len(batch))]
     for s, seed in enumerate(seeds):
