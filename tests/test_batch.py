@@ -38,3 +38,21 @@ def test_mesh_of_a_batch_is_the_batch_of_that_mesh():
         for name in ("verts", "faces", "edges", "face_edges", "face_edge_sign", "vert_ptr", "face_ptr", "edge_ptr"):
             assert torch.equal(getattr(one, name), getattr(ref, name)), name
         assert one.meshes[0] is batch.meshes[b]
+
+
+def test_to_input_faces_puts_packed_values_on_the_file_faces():
+    import numpy as np
+
+    s = shapes.icosphere(level=3)                                      # 1280 faces
+    mesh = ta.Mesh(s.vertices, s.faces)
+    batch = ta.MeshBatch.from_meshes([mesh, mesh], coarse_faces=300)
+    full = ta.MeshBatch.from_meshes([mesh])
+    # full resolution: the packed faces are the file's, in its order
+    np.testing.assert_array_equal(full.to_input_faces(0, np.arange(1280)), np.arange(1280))
+    # decimated: each file face takes the value of the coarse face under its barycenter
+    coarse = batch.coarse_of(1)
+    n_coarse = len(batch.meshes[1].faces)
+    assert n_coarse < 400
+    out = batch.to_input_faces(1, np.arange(n_coarse))
+    assert out.shape == (1280,)
+    np.testing.assert_array_equal(out, coarse.faces_on_coarse.face)

@@ -35,13 +35,6 @@ class FaceFeatures:
     descriptor_names: list = field(default_factory=list)
 
 
-def _on_input_faces(batch, b: int, values: np.ndarray) -> np.ndarray:
-    coarse = batch.coarse_of(b)
-    if coarse is not None:           # the coarse face under each fine barycenter
-        values = coarse.face_values(values)
-    return batch.input_mesh(b).to_input_faces(values)
-
-
 def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = None,
                   restarts: int = DEFAULT_RESTARTS, tol: float = 1e-6,
                   descriptors: bool = True, part_descriptors: bool = True) -> list[FaceFeatures]:
@@ -64,17 +57,16 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
                                   remedy=DEFAULT_REMEDY if remedy is None else remedy)
     unt = untangle(fields, seed=seed, restarts=restarts)
     counts = counts_for(n) if descriptors else ()
-    # one field has no membership to describe and too few fields to cut parts from
     desc = input_face_descriptors(fields, counts, untangled={n: unt}, seed=seed, restarts=restarts,
-                                  parts=part_descriptors and bool(counts)) if descriptors else None
+                                  parts=part_descriptors) if descriptors else None
     batch = fields.batch              # the fallback may have re-packed meshes at full resolution
     raw = fields.face_vectors.norm(dim=-1)
     out = []
     for b in range(len(batch)):
         f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
         out.append(FaceFeatures(
-            features=_on_input_faces(batch, b, unt.mesh_features(b).detach().cpu().numpy()),
-            akvf_norms=_on_input_faces(batch, b, raw[f0:f1].detach().cpu().numpy()),
+            features=batch.to_input_faces(b, unt.mesh_features(b).detach().cpu().numpy()),
+            akvf_norms=batch.to_input_faces(b, raw[f0:f1].detach().cpu().numpy()),
             eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
             energies=unt.energies[b].detach().cpu().numpy(),
             descriptors=None if desc is None else desc.values[b],

@@ -183,6 +183,15 @@ class MeshBatch:
         c = self.coarse_of(b)
         return self.meshes[b] if c is None else c.fine
 
+    def to_input_faces(self, b: int, values: np.ndarray) -> np.ndarray:
+        """[F_input, ...] per-face ``values`` [F_b, ...] of packed mesh b on its input file's
+        faces: on a decimated mesh, those of the coarse face under each input face's
+        barycenter; 0 on faces dropped as degenerate."""
+        coarse = self.coarse_of(b)
+        if coarse is not None:
+            values = coarse.face_values(values)
+        return self.input_mesh(b).to_input_faces(values)
+
     def mesh(self, b: int) -> "MeshBatch":
         """Mesh b as a batch of its own (slices of this batch's tensors, local indices): the
         batch :meth:`from_meshes` makes of that mesh alone."""

@@ -28,8 +28,8 @@ class InputDescriptors:
 def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
                            untangled: Mapping[int, UntangledFields] | None = None, seed: int = 0,
                            restarts: int = DEFAULT_RESTARTS, parts: bool = True) -> InputDescriptors:
-    """The field descriptors at field counts ``counts`` and (``parts``) the part descriptors of
-    every mesh of ``fields.batch``, on the input's faces.
+    """The field descriptors at field counts ``counts`` and (``parts``, when there is a count)
+    the part descriptors of every mesh of ``fields.batch``, on the input's faces.
 
     A decimated mesh's field columns are those of the coarse face under each input face; its
     part columns are computed where its parts are cut, on the full-resolution mesh.
@@ -37,17 +37,16 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     part descriptors use their own seeds (:data:`~torchakvf.parts.part_descriptors.PART_SEEDS`).
     """
     batch = fields.batch
+    # one field has no membership to describe and too few fields to cut parts from
+    parts = parts and len(counts) > 0
     field_values = face_descriptors(fields, counts, untangled=untangled, seed=seed, restarts=restarts)
     part_values = part_descriptors(fields) if parts else None
     values = []
     for b in range(len(batch)):
-        v = field_values[b].detach().cpu().numpy().astype(np.float64)
-        coarse = batch.coarse_of(b)
-        if coarse is not None:         # the coarse face under each fine barycenter
-            v = coarse.face_values(v)
+        v = batch.to_input_faces(b, field_values[b].detach().cpu().numpy().astype(np.float64))
         if part_values is not None:
-            v = np.concatenate([v, part_values[b]], axis=1)
-        values.append(batch.input_mesh(b).to_input_faces(v))
+            v = np.concatenate([v, batch.input_mesh(b).to_input_faces(part_values[b])], axis=1)
+        values.append(v)
     names = descriptor_names(counts) + (part_descriptor_names() if parts else [])
     return InputDescriptors(values=values, names=names)
 

@@ -56,11 +56,7 @@ class Segmentation:
         dropped faces; on a decimated mesh, those of the coarse face under each input face);
         ``generators[p][i].field`` indexes the second axis."""
         unt = self.untangled
-        fv = unt.mesh_face_vectors(b).detach().cpu().numpy()
-        coarse = unt.batch.coarse_of(b)
-        if coarse is not None:  # the coarse face under each fine barycenter
-            fv = coarse.face_values(fv)
-        return unt.batch.input_mesh(b).to_input_faces(fv)
+        return unt.batch.to_input_faces(b, unt.mesh_face_vectors(b).detach().cpu().numpy())
 
     def __len__(self) -> int:
         return len(self.meshes)

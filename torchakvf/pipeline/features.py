@@ -183,18 +183,16 @@ class FeaturesTask:
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
         counts = counts_for(self.n)
         desc = input_face_descriptors(fields, counts, untangled={self.n: unt}, seed=self.seed,
-                                      restarts=self.untangle_restarts, parts=self.part_descriptors and bool(counts))
+                                      restarts=self.untangle_restarts, parts=self.part_descriptors)
         names = np.array(desc.names)
         raw_norms = fields.face_vectors.norm(dim=-1)
         outs = []
-        for b, it in enumerate(items):
+        for b in range(len(items)):
             f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
-            coarse = batch.coarse_of(b)
 
-            def on_input(values, clean=it.clean, coarse=coarse):
+            def on_input(values, b=b):
                 """[the mesh's solved faces, ...] -> [input faces, ...] (zeros on dropped faces)."""
-                values = values.cpu().numpy().astype(np.float32)
-                return clean.to_input_faces(values if coarse is None else coarse.face_values(values))
+                return batch.to_input_faces(b, values.cpu().numpy().astype(np.float32))
 
             residuals = fields.residuals[b].cpu().numpy().astype(np.float64)
             out = {
