@@ -37,7 +37,6 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import dijkstra
 
 import classical_descriptors as classical
 
@@ -56,34 +55,14 @@ FOLD_WEIGHTS = Path(__file__).resolve().parents[1] / "experiments" / "results" /
 log = logging.getLogger("descriptor_pass")
 
 
-def dual_graph(v: np.ndarray, f: np.ndarray) -> sp.csr_matrix:
-    """[F, F] faces joined across interior edges, weighted by centroid distance."""
-    from torchakvf.mesh.batch import mesh_edges
-
-    _, face_edges, _ = mesh_edges(f)
-    nf = len(f)
-    order = np.argsort(face_edges.ravel(), kind="stable")
-    e_sorted = face_edges.ravel()[order]
-    face_of = np.repeat(np.arange(nf), 3)[order]
-    same = np.flatnonzero(e_sorted[1:] == e_sorted[:-1])
-    a, b = face_of[same], face_of[same + 1]
-    c = v[f].mean(axis=1)
-    w = np.maximum(np.linalg.norm(c[a] - c[b], axis=1), 1e-12)
-    return sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([a, b]), np.concatenate([b, a]))),
-                         shape=(nf, nf)).tocsr()
-
-
 def boundary_target(graph: sp.csr_matrix, labelings: list[np.ndarray]) -> np.ndarray:
-    """[F] fraction of the labelings with a cut within BOUNDARY_RADIUS of each face."""
-    coo = graph.tocoo()
+    """[F] fraction of the labelings with a cut within BOUNDARY_RADIUS of each face (``graph``:
+    :func:`torchakvf.parts.part_descriptors.dual_graph`)."""
+    from torchakvf.parts.part_descriptors import cut_distance
+
     near = np.zeros(graph.shape[0])
     for lab in labelings:
-        cut = np.unique(np.concatenate([coo.row[lab[coo.row] != lab[coo.col]],
-                                        coo.col[lab[coo.row] != lab[coo.col]]]))
-        if len(cut) == 0:
-            continue
-        d = dijkstra(graph, directed=False, indices=cut, min_only=True, limit=BOUNDARY_RADIUS)
-        near += d <= BOUNDARY_RADIUS
+        near += cut_distance(graph, lab, cap=2 * BOUNDARY_RADIUS) <= BOUNDARY_RADIUS
     return near / max(len(labelings), 1)
 
 
@@ -141,7 +120,7 @@ def one_mesh(entry) -> dict:
     from torchakvf.fields.akvf import akvf_falling_back
     from torchakvf.fields.descriptors import DEFAULT_COUNTS, descriptor_names, face_descriptors
     from torchakvf.operators.killing import DEFAULT_REMEDY
-    from torchakvf.parts.part_descriptors import part_descriptor_names, part_descriptors
+    from torchakvf.parts.part_descriptors import dual_graph, part_descriptor_names, part_descriptors
 
     mesh = load_mesh(entry.mesh_path)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -158,7 +137,7 @@ def one_mesh(entry) -> dict:
     v, f = np.asarray(packed.vertices, dtype=np.float64), np.asarray(packed.faces, dtype=np.int64)
     out = classical.classical_descriptors(v, f)
     t2, c2 = time.perf_counter(), time.process_time()
-    vu, area = classical.unit_area(v, f)
+    _, area = classical.unit_area(v, f)
     out.update(akvf=desc.astype(np.float32), akvf_names=np.array(descriptor_names()),
                akvf_parts=parts.astype(np.float32), akvf_parts_names=np.array(part_descriptor_names()),
                seconds_parts=np.float64(t1 - t_parts),
@@ -168,7 +147,7 @@ def one_mesh(entry) -> dict:
                seconds_akvf=np.float64(t1 - t0), seconds_classical=np.float64(t2 - t1),
                cpu_seconds=np.array([c_parts - c0, c1 - c_parts, c2 - c1]))
     if entry.seg_paths:
-        out["target"] = boundary_target(dual_graph(vu, f), labels_on_packed(fields.batch, entry))
+        out["target"] = boundary_target(dual_graph(v, f), labels_on_packed(fields.batch, entry))
     return out
 
 
