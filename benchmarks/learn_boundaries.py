@@ -45,6 +45,7 @@ TARGETS = ("majority", "any")
 
 log = logging.getLogger("learn_boundaries")
 
+
 def _columns(*keys):
     """The per-face columns [F, k] of one cached mesh: the named groups side by side."""
     return lambda d: np.concatenate([d[k] for k in keys], axis=1)
