@@ -1,6 +1,6 @@
 """Horst's iteration (:mod:`torchakvf.fields.horst`): SQUAREM against a plain Horst iteration
 written out here (the same optimum or a better one, in fewer steps), its extrapolation by hand,
-the one-mesh CPU path against the batched one bitwise, and the gradient's choice."""
+the one-mesh CPU path against the batched one to round-off, and the gradient's choice."""
 from __future__ import annotations
 
 import importlib
@@ -10,6 +10,7 @@ import torch
 
 import torchakvf as ta
 from helpers.forms import random_forms
+from helpers.roundoff import horst_roundoff
 
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
@@ -112,21 +113,24 @@ def test_horst_one_mesh_equals_the_batched_path(n, e, r, dtype, tol):
     fast_a, fast_iters = horst_mod.horst_one_mesh(y, a, tol, 500, dtype)
     ref_a, ref_iters = horst_mod.horst_batched(y, a, tol, 500, dtype)
     # The batched path keeps a stopped restart's slot until its cycle ends (one host read per
-    # cycle), so its products can be wider than the one-mesh path's: float64 GEMMs gave the
-    # same bits here, float32 ones differ in round-off (1.3e-7 seen on rotation entries <= 1).
-    if dtype == torch.float64:
-        assert torch.equal(fast_a, ref_a)
-    else:
-        assert float((fast_a - ref_a).abs().max()) <= 1e-6
+    # cycle), so its products can be wider than the one-mesh path's: other GEMM kernels, other
+    # round-off (AVX2 MKL: 4e-14 in float64, 6e-7 in float32), bounded by horst_roundoff.
+    assert ((fast_a - ref_a).abs().amax(dim=(-2, -1)) <= horst_roundoff(y, ref_a, ref_iters, dtype)).all()
+    # Step counts are discrete: equal where no stopping test lies within round-off of tol, as
+    # the same counts at tol x (1 ± margin) show (round-off moves the relative change of trace(D)
+    # by ~1e-7 with float32 products, 1% of tol; by < 1e-12 in float64, 1e-6 of tol).
     assert torch.equal(fast_iters, ref_iters)
+    margin = 0.05 if dtype == torch.float32 else 1e-3
+    for near in ((1 - margin) * tol, (1 + margin) * tol):
+        assert torch.equal(horst_mod.horst_batched(y, a, near, 500, dtype)[1], ref_iters)
     assert fast_iters.dtype == ref_iters.dtype and fast_a.shape == ref_a.shape
     if r > 1:
         assert len(set(ref_iters[0].tolist())) > 1    # restarts stopped at different steps
     # the iteration cap, and the dispatch of horst for one CPU mesh
-    capped = horst_mod.horst(y, a, tol, 3, dtype)
-    for got, ref in zip(capped, horst_mod.horst_batched(y, a, tol, 3, dtype)):
-        assert torch.equal(got, ref)
-    assert (capped[1] == 3).all()
+    capped, capped_iters = horst_mod.horst(y, a, tol, 3, dtype)
+    ref_a, ref_iters = horst_mod.horst_batched(y, a, tol, 3, dtype)
+    assert torch.equal(capped_iters, ref_iters) and (capped_iters == 3).all()
+    assert ((capped - ref_a).abs().amax(dim=(-2, -1)) <= horst_roundoff(y, ref_a, ref_iters, dtype)).all()
 
 
 fourth_moments_mod = importlib.import_module("torchakvf.fields.fourth_moments")
