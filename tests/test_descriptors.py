@@ -13,6 +13,7 @@ from torchakvf.fields.descriptors import (BASE_COLUMNS, CONTRAST_RADII, DEFAULT_
                                           counts_for, descriptor_block, descriptor_names, face_descriptors,
                                           span_coherence)
 from torchakvf.fields.untangle import untangle
+from torchakvf import shapes
 from torchakvf.shapes import dumbbell, three_blobs
 
 #: Columns that depend on the raw fields' span only (never on the untangling).
@@ -61,8 +62,8 @@ def _span_columns(counts) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def blobs() -> Mesh:
-    # stretched across the axis: no continuous symmetry, so the untangling optimum at 8 fields
-    # is well separated
+    # stretched across the axis: no continuous symmetry (its untangling still has competing
+    # optima, objectives within 1e-5 of each other, so the invariances are tested on a table)
     return _mesh(three_blobs(n_around=30), (1.0, 0.8, 1.0))
 
 
@@ -116,15 +117,22 @@ def test_order_and_sign_of_fields_do_not_matter(blobs):
                                span_coherence(np.einsum("fnc,nm->fmc", vectors, q), diffusion), atol=1e-10)
 
 
-def test_rigid_motion_renumbering_and_seed(blobs):
-    counts = (8,)
-    d0 = _descriptors(blobs, counts=counts)
-    _assert_same(_descriptors(_moved(blobs), counts=counts), d0, counts, atol=2e-3)
-    shuffled, order = _renumbered(blobs)
+def test_rigid_motion_renumbering_and_seed():
+    """On a shape whose untangling optimum is well separated: the built-in table at 6 fields
+    (every restart ends on one objective to 1e-14 but one far below; λ·area 39 -> 65 after the
+    6th field). On the stretched blobs the restarts end on competing optima within 1e-5 of each
+    other, which round-off on another CPU picks among: columns 0.3 apart (seen with SSE MKL)."""
+    table = _mesh(shapes.table())
+    counts = (6,)
+    d0 = _descriptors(table, counts=counts)
+    # the fields to the eigensolve's residual (1e-6) over the gap after them (~1e-6 x λ / gap),
+    # the rotation to its stopping test: 1e-8 seen, 1e-5 asked for
+    _assert_same(_descriptors(_moved(table), counts=counts), d0, counts, atol=1e-5)
+    shuffled, order = _renumbered(table)
     d_shuffled = np.empty_like(d0)
     d_shuffled[order] = _descriptors(shuffled, counts=counts)
-    _assert_same(d_shuffled, d0, counts, atol=2e-3)
-    _assert_same(_descriptors(blobs, seed=1, counts=counts), d0, counts, atol=2e-3)
+    _assert_same(d_shuffled, d0, counts, atol=1e-5)
+    _assert_same(_descriptors(table, seed=1, counts=counts), d0, counts, atol=1e-5)
 
 
 def test_span_columns_repeat_where_the_optimum_is_not_unique():
