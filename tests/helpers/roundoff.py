@@ -60,16 +60,25 @@ def residual_roundoff(system, vectors: torch.Tensor, values: torch.Tensor) -> to
     return 4 * EPS64 * size / values.abs().clamp(min=1.0)
 
 
-def assert_same_clustering(got, want, x: torch.Tensor, w: torch.Tensor | None = None) -> None:
-    """Two Lloyd runs (labels [B, N, R], cost [B, R], iterations [B, R], centers [B, R, k, d]) of
-    unit rows x [B, N, d] through different kernels: the same labels and iteration counts (a
-    label can only flip at a row tied between two centers to round-off, which these seeded
-    problems do not have: every row's best similarity beats its second by far more), costs
-    to N·eps64 relative (a weighted sum of N terms) and centers (normalized means of at most
-    N rows) to N·eps64."""
+def assert_same_clustering(got, want, x: torch.Tensor, mask: torch.Tensor | None = None) -> None:
+    """Two Lloyd runs (labels [B, N, R], cost [B, R], iterations [B, R], centers [B, R, k, d])
+    of unit rows x [B, N, d] through different kernels: the same labels and iteration counts,
+    costs to N·eps64 relative (a weighted sum of N terms) and centers (normalized means of at
+    most N rows) to N·eps64. Labels are discrete: they are compared exactly because no row is
+    within round-off of a tie, checked here on the final assignment (every row's best
+    similarity beats its second by over 100 d·eps32, float32 similarities' round-off; rows
+    outside ``mask`` [B, N], padding, left out)."""
     labels_g, cost_g, iters_g, centers_g = got
     labels_w, cost_w, iters_w, centers_w = want
-    n_rows = x.shape[1]
+    n_rows, d = x.shape[1], x.shape[2]
+    if centers_w.shape[-2] > 1:
+        sim = torch.einsum("bnd,brkd->bnrk", x.to(centers_w.dtype), centers_w)
+        sim = sim.masked_fill((centers_w == 0).all(-1)[:, None], -torch.inf)     # padding centers
+        top = sim.topk(2, dim=-1).values
+        gap = top[..., 0] - top[..., 1]                                              # [B, N, R]
+        if mask is not None:
+            gap = gap[mask]
+        assert float(gap.min()) > 100 * d * EPS32, float(gap.min())
     assert torch.equal(labels_g, labels_w)
     assert torch.equal(iters_g, iters_w)
     assert cost_g.dtype == cost_w.dtype and centers_g.dtype == centers_w.dtype
