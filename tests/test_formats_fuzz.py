@@ -2,7 +2,10 @@
 
 Seeded mutations of valid files in every format read: each file is either read with exactly
 the faces it declares (counted here, independently of the readers) or refused with a one-line
-MeshError naming it; the clean-up of what is read raises nothing else either."""
+MeshError naming it; the clean-up and the pictures' framing of what is read raise nothing else
+either. Two seeds per format; folder runs of `segment` with every output; the two files a fuzz
+run with another seed found failing without their names (a face repeating a vertex index, a
+coordinate whose square overflows)."""
 from __future__ import annotations
 
 import json
@@ -127,10 +130,12 @@ def _text_part(fmt: str, data: bytes) -> bool:
 
 # ---- the test -------------------------------------------------------------------------------
 
+@pytest.mark.parametrize("seed", [0, 142])
 @pytest.mark.parametrize("fmt", ["off", "obj", "ply", "bin.ply", "stl", "bin.stl", "glb"])
-def test_mutated_files_are_read_whole_or_refused_in_one_line(tmp_path, fmt):
+def test_mutated_files_are_read_whole_or_refused_in_one_line(tmp_path, fmt, seed):
+    from torchakvf.io.render import principal_axes
     source = _sources()[fmt]
-    rng = np.random.default_rng(["off", "obj", "ply", "bin.ply", "stl", "bin.stl", "glb"].index(fmt))
+    rng = np.random.default_rng(seed + ["off", "obj", "ply", "bin.ply", "stl", "bin.stl", "glb"].index(fmt))
     ext = fmt.split(".")[-1]
     read = refused = 0
     for n in range(PER_FORMAT):
@@ -155,6 +160,8 @@ def test_mutated_files_are_read_whole_or_refused_in_one_line(tmp_path, fmt):
             ta.clean_mesh(mesh)
         except ta.MeshError as err:
             assert "\n" not in str(err) and str(err).startswith(f"{path}: ")
+        # the outputs' pictures frame the file's own vertices and faces: finite axes
+        assert np.isfinite(principal_axes(mesh.vertices, mesh.faces)[1]).all(), n
     assert read > 10 and refused > 10, (read, refused)
 
 
@@ -188,3 +195,38 @@ def test_a_folder_run_writes_one_label_per_declared_face(tmp_path):
             assert len(lines) == declared[path], path
         else:
             assert "\n" not in rec["error"] and Path(path).name in rec["error"], rec["error"]
+
+
+def test_the_files_a_fuzz_run_found_failing_without_their_names(tmp_path):
+    """A fuzz run with another seed than these tests' recorded two `segment` failures as a bare
+    numpy LinAlgError: mutated OBJ files with a coordinate replaced by 1e308 (finite, so read;
+    its faces dropped for the solve, but the pictures' framing of the file's own faces squared
+    it to infinity). Such a coordinate is now refused on reading, naming the file and the
+    vertex; a face repeating a vertex index (``f 3 3 7``) and stray statements in the header
+    segment or are refused in the user's terms, with every output written."""
+    from torchakvf.io.manifest import read_manifest_records
+    from torchakvf.pipeline.inputs import discover_inputs
+    from torchakvf.pipeline.runner import run_corpus
+    from torchakvf.pipeline.segment_task import SegmentTask
+
+    s = shapes.capped_cylinder(n_around=12)
+    v = [f"v {a!r} {b!r} {c!r}" for a, b, c in s.vertices.tolist()]
+    f = [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in s.faces.tolist()]
+    folder = tmp_path / "in"
+    folder.mkdir()
+    files = {"repeated": v + ["f 3 3 7"] + f[1:], "huge": ["v 0.0 0.0 1e308"] + v[1:] + f,
+             "word": ["x"] + v + f, "number": ["3"] + v + f}
+    for stem, lines in files.items():
+        (folder / f"{stem}.obj").write_text("\n".join(lines) + "\n")
+    summary = run_corpus(discover_inputs([str(folder)]), tmp_path / "out", SegmentTask(3), progress=False)
+    records = {Path(r["path"]).stem: r for r in read_manifest_records(tmp_path / "out")}
+    assert (summary.ok, summary.failed) == (2, 2)
+    for stem in ("repeated", "word"):              # the face dropped for the solve, labelled
+        assert records[stem]["status"] == "ok"
+        labels = np.loadtxt(tmp_path / "out" / f"{stem}.seg", dtype=int)
+        assert len(labels) == len(s.faces) and (labels >= 0).all()
+        assert all((tmp_path / "out" / f"{stem}.{ext}").stat().st_size > 0 for ext in ("png", "ply", "glb", "npz"))
+    huge, number = records["huge"]["error"], records["number"]["error"]
+    assert "huge.obj" in huge and "vertex 0" in huge and "1e+308" in huge and "rescale" in huge
+    assert "number.obj" in number and "line 1" in number and "is not an OBJ statement" in number
+    assert "\n" not in huge + number and "Error" not in huge + number

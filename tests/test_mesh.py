@@ -26,13 +26,14 @@ def test_mesh_from_numpy_and_torch(ico2_shuffled):
 
 
 
-@pytest.mark.parametrize("case", ["empty", "nan", "inf", "out_of_range", "negative", "quad",
+@pytest.mark.parametrize("case", ["empty", "nan", "inf", "huge", "out_of_range", "negative", "quad",
                                   "bad_shape", "non_numeric", "non_integer"])
 def test_bad_arrays_raise_mesh_error(case):
     V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
     F = np.array([[0, 1, 2]])
     problem = {
         "empty": r"empty mesh", "nan": r"NaN", "inf": r"NaN or infinite",
+        "huge": r"1 vertices have coordinates beyond ±3.4e\+38 \(first: vertex 1, 1e\+300\).*rescale",
         "out_of_range": r"index 3 outside", "negative": r"index -2 outside",
         "quad": r"triangles", "bad_shape": r"\[V, 3\]", "non_numeric": r"not a numeric",
         "non_integer": r"integers"}[case]
@@ -42,6 +43,8 @@ def test_bad_arrays_raise_mesh_error(case):
         V[1, 2] = np.nan
     elif case == "inf":
         V[2, 0] = -np.inf
+    elif case == "huge":
+        V[1, 1] = -1e300          # finite, but beyond float32's range (the outputs') and areas overflow
     elif case == "out_of_range":
         F = np.array([[0, 1, 3]])
     elif case == "negative":

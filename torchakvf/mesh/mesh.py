@@ -8,6 +8,13 @@ import numpy as np
 from ..errors import MeshError
 
 
+#: Largest vertex coordinate magnitude accepted: float32's range. The per-face outputs (.ply,
+#: .glb) hold the input's vertices in float32, where a larger coordinate becomes infinite, and
+#: the renderer's face areas (products of four coordinates) stay finite in float64 below it. A
+#: stray coordinate below this is handled by the clean-up (its faces are dropped for the solve).
+MAX_COORDINATE = float(np.finfo(np.float32).max)
+
+
 @dataclass(frozen=True)
 class Mesh:
     """A triangle mesh exactly as read or given: the face order is the file's.
@@ -18,7 +25,8 @@ class Mesh:
     faces : array [F, 3], int, 0-based vertex indices
     name : str, what error messages and outputs call this mesh (a file path, or "<array>")
 
-    Construction only checks shapes, finiteness and index range (cheap and always fatal);
+    Construction only checks shapes, finiteness (coordinates within :data:`MAX_COORDINATE`)
+    and index range (cheap and always fatal);
     the geometric clean-up (duplicates, degenerate faces, orientation) happens in
     :func:`torchakvf.mesh.clean_mesh`, which keeps a map back to these faces.
     """
@@ -47,6 +55,13 @@ class Mesh:
             first = int(np.flatnonzero(bad)[0])
             raise MeshError(self.name, f"{int(bad.sum())} vertices have NaN or infinite "
                                        f"coordinates (first: vertex {first})")
+        huge = (np.abs(v) > MAX_COORDINATE).any(axis=1)
+        if huge.any():
+            first = int(np.flatnonzero(huge)[0])
+            raise MeshError(self.name, f"{int(huge.sum())} vertices have coordinates beyond "
+                                       f"±{MAX_COORDINATE:.1e} (first: vertex {first}, "
+                                       f"{float(np.abs(v[first]).max()):.3g}), too large for the "
+                                       "float32 outputs; fix or delete them, or rescale the mesh")
         out = (f < 0) | (f >= len(v))
         if out.any():
             face = int(np.flatnonzero(out.any(axis=1))[0])
