@@ -117,6 +117,7 @@ def test_a_failed_check_solves_again_at_the_definite_shift(monkeypatch, caplog, 
         got = ta.akvf(mesh, n=n)
     assert "solving again at a definite shift" in caplog.text
     assert float(got.shifts[0]) == -1.0
+    # the solve again is the definite-only solve's calls on the same factor and start: its bits
     np.testing.assert_array_equal(got.eigenvalues.numpy(), want.eigenvalues.numpy())
     assert bool(got.converged.all())
 

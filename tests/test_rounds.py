@@ -260,7 +260,9 @@ def solved():
 def test_batched_rounds_equal_each_mesh_alone(solved):
     """A mesh segmented in a batch gets the bits it gets alone (batching must not change
     answers): meshes of one round at different field counts and cluster counts, so the round's
-    arrays are padded past each mesh's own."""
+    arrays are padded past each mesh's own. Bitwise by construction: on the CPU every stage
+    solves, untangles, clusters and cuts each mesh alone, on its own rows (the same calls on the
+    same shapes)."""
     ms, batch, alone = solved
     for b, f in enumerate(alone):   # the batched eigensolve's fields are each mesh's own
         e0, e1 = int(batch.batch.edge_ptr[b]), int(batch.batch.edge_ptr[b + 1])
