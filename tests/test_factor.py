@@ -67,7 +67,7 @@ def table_mesh() -> ta.Mesh:
 
 
 def definite_only(monkeypatch):
-    monkeypatch.setattr(akvf_solver, "interior_factor", lambda system, b, need, definite: definite())
+    monkeypatch.setattr(akvf_solver, "interior_factor", lambda system, b, need, definite, **kw: definite())
 
 
 @needs_cholmod
@@ -103,8 +103,8 @@ def test_a_failed_check_solves_again_at_the_definite_shift(monkeypatch, caplog, 
     monkeypatch.undo()
     real = akvf_solver.interior_factor
 
-    def spoiled(system, b, need, definite):
-        f = real(system, b, need, definite)
+    def spoiled(system, b, need, definite, **kw):
+        f = real(system, b, need, definite, **kw)
         assert isinstance(f, InteriorFactor)
         if spoil == "count":
             f.below += 1
@@ -128,10 +128,10 @@ def test_no_definite_shift_still_raises(monkeypatch):
     mesh = table_mesh()
     real = akvf_solver.interior_factor
 
-    def no_definite(system, b, need, definite):
+    def no_definite(system, b, need, definite, **kw):
         def raising():
             raise ta.SolverError("mesh: no shift made R - σS1 positive definite")
-        f = real(system, b, need, raising)
+        f = real(system, b, need, raising, **kw)
         f.floor = 1e9                     # every eigenvalue counts as below the last shift
         return f
 

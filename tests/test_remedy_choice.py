@@ -1,4 +1,4 @@
-"""The per-mesh remedy decision (torchakvf.operators.remedy_choice, ``remedy="auto"``, the
+"""The per-mesh remedy decision (torchakvf.solvers.remedy, ``remedy="auto"``, the
 default): well-shaped meshes get the paper's operator exactly (the same system as remedy="none",
 eigenvalues equal to it and to the independent scipy solve), a mesh whose paper operator has a
 spurious mode gets "smooth", a batch mixing both gives each mesh its own decision (batch equal
@@ -17,8 +17,7 @@ from torchakvf.fields.akvf import akvf_falling_back
 from torchakvf.evaluate.psb import find_psb_meshes
 from torchakvf.operators import killing_operator
 from torchakvf.operators.killing import DEFAULT_REMEDY
-from torchakvf.operators.remedy_choice import AUTO_REMEDY, choose_remedies, has_spurious_modes
-from torchakvf.solvers.akvf_solver import SPURIOUS_BELOW
+from torchakvf.solvers.remedy import AUTO_REMEDY, SPURIOUS_BELOW, choose_remedies, has_spurious_modes, killing_system
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
@@ -50,7 +49,7 @@ def test_auto_is_the_default():
 @pytest.mark.parametrize("name", sorted(CLEAN))
 def test_clean_shapes_get_the_papers_operator_exactly(name):
     batch = ta.MeshBatch.from_meshes([mesh_of(CLEAN[name](), name)])
-    auto, paper = killing_operator(batch), killing_operator(batch, remedy="none")
+    auto, paper = killing_system(batch), killing_operator(batch, remedy="none")
     assert auto.remedies == ["none"] and paper.remedies == ["none"]
     assert torch.equal(auto.stiffness.indices(), paper.stiffness.indices())
     assert torch.equal(auto.stiffness.values(), paper.stiffness.values())
