@@ -195,3 +195,54 @@ def test_indefinite_factor_with_a_zero_pivot_is_refused():
     assert not f.factorize(np.array([0.0, 1.0, 0.0]), indefinite=True)
     with pytest.raises(ta.SolverError):
         f.solve_rows(torch.ones(1, 2, dtype=torch.float64))
+
+
+@needs_cholmod
+@pytest.mark.parametrize("m", [12, 40])            # 144 rows: one step; 1600: seven steps of 256
+def test_stopped_definiteness_test_is_the_whole_factors_answer(m):
+    """positive_definite_at says what factorize says, across the bottom of the spectrum (one
+    eigenvalue below the shift: the first negative pivot comes late; many: early), stops early
+    where many eigenvalues lie below, and where the matrix is definite leaves a factor that
+    solves bit for bit as factorize's."""
+    a, lam = grid_laplacian_spectrum(m)
+    n = a.shape[0]
+    indptr, indices, values = lower_csc(a)
+    whole = cholmod.CholmodFactor(n, indptr, indices, values)
+    fast = cholmod.CholmodFactor(n, indptr, indices, values, symbolic=whole.symbolic)
+    rhs = torch.from_numpy(np.random.default_rng(3).standard_normal((2, n)))
+    low = np.sort(lam)
+    for shift in (-1.0, low[0] - 1e-3, 0.5 * (low[0] + low[1]), 3.0, low[0] - 1e-6):
+        v = values.copy()
+        v[indptr[:-1]] -= shift
+        expect = whole.factorize(v)
+        assert expect is bool(shift < low[0])
+        assert fast.positive_definite_at(v) is expect, shift
+        if expect:
+            assert fast.rows_factored == n and fast.positive_definite
+            assert torch.equal(fast.solve_rows(rhs), whole.solve_rows(rhs))
+        else:
+            with pytest.raises(ta.SolverError, match="not positive definite"):
+                fast.solve_rows(rhs)
+            if shift == 3.0 and m == 40:       # a third of the spectrum below: stops in the first steps
+                assert fast.rows_factored < n // 2
+
+
+@needs_cholmod
+def test_a_shared_analysis_factors_bit_for_bit_as_its_own():
+    """A factor of another matrix with the same pattern, started from a copy of the first one's
+    analysis (no new one), solves bit for bit as one with its own analysis; another pattern is
+    refused."""
+    a = grid_laplacian(20, 0.5)
+    b = (a + sp.diags(np.linspace(0.1, 2.0, a.shape[0]))).tocsc()
+    b.data *= 1.7
+    first = cholmod.CholmodFactor(a.shape[0], *lower_csc(a))
+    shared = cholmod.CholmodFactor(b.shape[0], *lower_csc(b), symbolic=first.symbolic)
+    own = cholmod.CholmodFactor(b.shape[0], *lower_csc(b))
+    assert shared.symbolic is first.symbolic and own.symbolic is not first.symbolic
+    assert shared.factorize(lower_csc(b)[2]) and own.factorize(lower_csc(b)[2])
+    rhs = torch.from_numpy(np.random.default_rng(4).standard_normal((3, a.shape[0])))
+    assert torch.equal(shared.solve_rows(rhs), own.solve_rows(rhs))
+    np.testing.assert_allclose(b @ shared.solve_rows(rhs).numpy().T, rhs.numpy().T, atol=1e-10)
+    other = grid_laplacian(21, 0.5)
+    with pytest.raises(ta.SolverError, match="another pattern"):
+        cholmod.CholmodFactor(other.shape[0], *lower_csc(other), symbolic=first.symbolic)
