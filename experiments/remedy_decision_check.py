@@ -5,7 +5,7 @@ resolution. Run it once per version (each writes a CSV with the code it imported
     PYTHONPATH=/path/to/old/checkout nice python3 experiments/remedy_decision_check.py --out /tmp/before.csv
     PYTHONPATH=$PWD nice python3 experiments/remedy_decision_check.py --out /tmp/after.csv
     python3 experiments/remedy_decision_check.py --compare /tmp/before.csv /tmp/after.csv \\
-        --report experiments/results/remedy_decision_check.md
+        --report experiments/results/remedy_decision_check.md    # and .csv: every mesh
 
 Each row: the mesh, its resolution, its edges, the remedy "auto" gave it and the process CPU
 seconds of building its operator under "auto" (one thread; the machine's load moves them, the
@@ -107,6 +107,8 @@ def compare(before: Path, after: Path, report: Path) -> None:
     lines = ["# The remedy decision per mesh: before and after", "",
              f"- before: the code at `{a[keys[0]]['code']}`; after: the code at `{b[keys[0]]['code']}` "
              "(one process each, one thread, on a shared 2-core machine)",
+             f"- every mesh's decision, before, after and by the rule: [{report.with_suffix('.csv').name}]"
+             f"({report.with_suffix('.csv').name})",
              "- rule: the decision recomputed in the after run by a whole cholespy factorization of the paper's "
              "R + S1 (σ = -1), no shortcut of either version",
              f"- meshes: {len(keys)}; missing after: {len(missing)}; **different decisions: {len(differ)}**; "
@@ -129,6 +131,12 @@ def compare(before: Path, after: Path, report: Path) -> None:
                   f"{b[k]['rule'] if k in b else '-'} |" for k in keys if k in differ or k in missing or k in off_rule]
     report.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+    # every mesh's decision, before and after, beside the report
+    with open(report.with_suffix(".csv"), "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["mesh", "category", "resolution", "edges", "before", "after", "rule"])
+        w.writerows([k[0], a[k]["category"], k[1], a[k]["edges"], a[k]["remedy"],
+                     b[k]["remedy"] if k in b else "", b[k]["rule"] if k in b else ""] for k in keys)
 
 
 def main() -> None:
