@@ -31,6 +31,7 @@ def run_eval(code: Path, out: Path, args) -> tuple[float, float]:
     """(wall s, CPU s of the process and its workers) of one ``eval`` with ``code``'s package."""
     if out.exists():
         shutil.rmtree(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-c", "from torchakvf.cli import main; main()", "eval", "--psb", str(args.psb),
            "--out", str(out), "--coarse-faces", str(args.coarse_faces), "--workers", str(args.workers), "--quiet"]
     if args.ids:
