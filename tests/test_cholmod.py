@@ -12,7 +12,7 @@ import torch
 
 import torchakvf as ta
 from torchakvf import shapes
-from torchakvf.solvers import cholmod
+from torchakvf.solvers import cholmod, cholmod_abi
 from torchakvf.solvers.factor import ShiftedFactor
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
@@ -82,16 +82,16 @@ def test_solve_rows_checks_its_shape():
 
 def test_layout_check_rejects_what_is_not_cholmod_defaults():
     # A zeroed struct is what a shifted layout would read back: it must be refused.
-    assert not cholmod._defaults_ok(cholmod._Common())
+    assert not cholmod_abi._defaults_ok(cholmod_abi._Common())
 
 
 @needs_cholmod
 def test_layout_check_accepts_cholmod_start():
     lib = cholmod.library()
-    common = cholmod._Common()
+    common = cholmod_abi._Common()
     lib.cholmod_start(ctypes.byref(common))
     try:
-        assert cholmod._defaults_ok(common)
+        assert cholmod_abi._defaults_ok(common)
     finally:
         lib.cholmod_finish(ctypes.byref(common))
 
@@ -195,3 +195,131 @@ def test_indefinite_factor_with_a_zero_pivot_is_refused():
     assert not f.factorize(np.array([0.0, 1.0, 0.0]), indefinite=True)
     with pytest.raises(ta.SolverError):
         f.solve_rows(torch.ones(1, 2, dtype=torch.float64))
+
+
+@needs_cholmod
+@pytest.mark.parametrize("m", [12, 40])            # 144 rows: one step; 1600: seven steps of 256
+def test_stopped_definiteness_test_is_the_whole_factors_answer(m):
+    """positive_definite_at says what factorize says, across the bottom of the spectrum (one
+    eigenvalue below the shift: the first negative pivot comes late; many: early), stops early
+    where many eigenvalues lie below, and where the matrix is definite leaves a factor that
+    solves bit for bit as factorize's."""
+    a, lam = grid_laplacian_spectrum(m)
+    n = a.shape[0]
+    indptr, indices, values = lower_csc(a)
+    whole = cholmod.CholmodFactor(n, indptr, indices, values)
+    fast = cholmod.CholmodFactor(n, indptr, indices, values, symbolic=whole.symbolic)
+    rhs = torch.from_numpy(np.random.default_rng(3).standard_normal((2, n)))
+    low = np.sort(lam)
+    for shift in (-1.0, low[0] - 1e-3, 0.5 * (low[0] + low[1]), 3.0, low[0] - 1e-6):
+        v = values.copy()
+        v[indptr[:-1]] -= shift
+        expect = whole.factorize(v)
+        assert expect is bool(shift < low[0])
+        assert fast.positive_definite_at(v) is expect, shift
+        if expect:
+            assert fast.rows_factored == n and fast.positive_definite
+            assert torch.equal(fast.solve_rows(rhs), whole.solve_rows(rhs))
+        else:
+            with pytest.raises(ta.SolverError, match="not positive definite"):
+                fast.solve_rows(rhs)
+            if shift == 3.0 and m == 40:       # a third of the spectrum below: stops in the first steps
+                assert fast.rows_factored < n // 2
+
+
+@needs_cholmod
+def test_a_shared_analysis_factors_bit_for_bit_as_its_own():
+    """A factor of another matrix with the same pattern, started from a copy of the first one's
+    analysis (no new one), solves bit for bit as one with its own analysis; another pattern is
+    refused."""
+    a = grid_laplacian(20, 0.5)
+    b = (a + sp.diags(np.linspace(0.1, 2.0, a.shape[0]))).tocsc()
+    b.data *= 1.7
+    first = cholmod.CholmodFactor(a.shape[0], *lower_csc(a))
+    shared = cholmod.CholmodFactor(b.shape[0], *lower_csc(b), symbolic=first.symbolic)
+    own = cholmod.CholmodFactor(b.shape[0], *lower_csc(b))
+    assert shared.symbolic is first.symbolic and own.symbolic is not first.symbolic
+    assert shared.factorize(lower_csc(b)[2]) and own.factorize(lower_csc(b)[2])
+    rhs = torch.from_numpy(np.random.default_rng(4).standard_normal((3, a.shape[0])))
+    assert torch.equal(shared.solve_rows(rhs), own.solve_rows(rhs))
+    np.testing.assert_allclose(b @ shared.solve_rows(rhs).numpy().T, rhs.numpy().T, atol=1e-10)
+    other = grid_laplacian(21, 0.5)
+    with pytest.raises(ta.SolverError, match="another pattern"):
+        cholmod.CholmodFactor(other.shape[0], *lower_csc(other), symbolic=first.symbolic)
+
+
+@needs_cholmod
+@pytest.mark.parametrize("shift", [0.5, -3.1])               # definite; 3.1 below: indefinite
+def test_two_thread_factor_is_the_one_thread_factor(monkeypatch, shift):
+    """With more than one torch thread the numeric factor is computed over two threads (the
+    elimination tree's independent subtrees side by side, :mod:`cholmod_subtrees`): the same
+    pivots, the same inertia and the same solves, bit for bit, as on one thread."""
+    from torchakvf.solvers import cholmod_subtrees
+    monkeypatch.setattr(cholmod_subtrees, "MIN_FLOPS", 0.0)
+    monkeypatch.setattr(cholmod_subtrees, "MIN_SPEEDUP", 1.0)
+    a, lam = grid_laplacian_spectrum(60)
+    indptr, indices, values = lower_csc(a)
+    values = values.copy()
+    values[indptr[:-1]] += shift
+    rhs = torch.from_numpy(np.random.default_rng(5).standard_normal((3, a.shape[0])))
+    got = {}
+    saved = torch.get_num_threads()
+    try:
+        for threads in (1, 2, 2):
+            torch.set_num_threads(threads)
+            f = cholmod.CholmodFactor(a.shape[0], indptr, indices, values)
+            assert f.factorize(values, indefinite=True)
+            assert f.negative_pivots == int((lam + shift < 0).sum())
+            got.setdefault(threads, []).append(f.solve_rows(rhs))
+            if threads == 2:
+                assert f.symbolic.two_thread_plan() is not None     # the two-thread path ran
+                assert f.factorize(values, indefinite=True)           # and again on the numeric factor
+                got[threads].append(f.solve_rows(rhs))
+    finally:
+        torch.set_num_threads(saved)
+    for x in got[2]:
+        assert torch.equal(x, got[1][0])
+
+
+def test_the_subtree_plan_covers_every_row_once_in_an_order_that_works():
+    """The plan's rows: every row once; each thread's ranges are whole subtrees (a row's parent
+    is in its range or above it), and the rows above come after their descendants."""
+    from torchakvf.solvers import cholmod_subtrees
+    rng = np.random.default_rng(6)
+    n = 3000
+    # a random postordered tree: built by depth-first numbering of a random recursive tree
+    kids = {0: []}
+    for v in range(1, n):
+        kids.setdefault(int(rng.integers(0, v)), []).append(v)
+        kids.setdefault(v, [])
+    order, parent_of = [], {}
+    stack = [(0, False)]
+    while stack:
+        v, done = stack.pop()
+        if done:
+            order.append(v)
+            continue
+        stack.append((v, True))
+        for c in kids[v]:
+            parent_of[c] = v
+            stack.append((c, False))
+    post = {v: i for i, v in enumerate(order)}
+    parent = np.full(n, -1, dtype=np.int64)
+    for c, v in parent_of.items():
+        parent[post[c]] = post[v]
+    plan = cholmod_subtrees.two_thread_plan(parent, rng.integers(1, 50, n))
+    rows = np.concatenate([np.arange(a, b) for ranges in plan.threads + [plan.top] for a, b in ranges])
+    assert np.array_equal(np.sort(rows), np.arange(n))
+    top = np.zeros(n, dtype=bool)
+    for a, b in plan.top:
+        top[a:b] = True
+    for ranges in plan.threads:
+        for a, b in ranges:
+            inside = np.arange(a, b)
+            p = parent[inside]
+            assert np.all((p < 0) | ((p >= a) & (p < b)) | top[np.maximum(p, 0)])
+    assert plan.speedup >= 1.0
+    # node 2's subtree {0, 2} is not a range of rows; node 2's parent before it
+    for bad in ([2, 3, 3, -1], [2, -1, 1]):
+        with pytest.raises(ta.SolverError, match="postordered"):
+            cholmod_subtrees.subtree_first(np.array(bad))

@@ -43,7 +43,7 @@ from torchakvf.cluster import spherical_kmeans
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.fields.akvf import solver_for
 from torchakvf.mesh.batch import pad_packed
-from torchakvf.operators.killing import killing_operator
+from torchakvf.solvers.remedy import killing_system
 from helpers.meshfiles import write_off, write_seg
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
@@ -87,8 +87,8 @@ def cpu_fields():
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_killing_operator_entries(device, dtype):
-    ref = killing_operator(ta.MeshBatch.from_meshes(_meshes(), dtype=dtype))
-    got = killing_operator(ta.MeshBatch.from_meshes(_meshes(), device=device, dtype=dtype))
+    ref = killing_system(ta.MeshBatch.from_meshes(_meshes(), dtype=dtype))
+    got = killing_system(ta.MeshBatch.from_meshes(_meshes(), device=device, dtype=dtype))
     _on(got.stiffness, device), _on(got.mass, device)
     rs, gs = ref.stiffness.coalesce(), got.stiffness.coalesce().cpu()
     assert rs.dtype == gs.dtype == torch.float64        # assembled in float64 from any coordinates
@@ -161,11 +161,10 @@ def test_lobpcg_block_factor_against_per_mesh_factors(device):
     """The batched LOBPCG's preconditioner on the device: one block-diagonal factor of the
     batch (the CUDA default: one solve call per iteration) against one factor per mesh on the
     CPU. Both are exact shift-inverts, so the eigenpairs agree within the residual bounds above."""
-    from torchakvf.operators import killing_operator
     from torchakvf.solvers.lobpcg import segmented_lobpcg
     batch = ta.MeshBatch.from_meshes(_meshes())
-    ref = segmented_lobpcg(killing_operator(batch), 12, block_factor=False)
-    got = segmented_lobpcg(killing_operator(batch.to(device)), 12, block_factor=True)
+    ref = segmented_lobpcg(killing_system(batch), 12, block_factor=False)
+    got = segmented_lobpcg(killing_system(batch.to(device)), 12, block_factor=True)
     assert bool(ref.converged.all()) and bool(got.converged.all())
     _on(got.vectors, device)
     assert got.shifts.tolist() == ref.shifts.tolist()
@@ -194,7 +193,7 @@ def on_mesh(fields, b: int):
                                      dtype=fields.batch.dtype)
     e0, e1 = int(fields.batch.edge_ptr[b]), int(fields.batch.edge_ptr[b + 1])
     f0, f1 = int(fields.batch.face_ptr[b]), int(fields.batch.face_ptr[b + 1])
-    system = killing_operator(batch)
+    system = killing_system(batch)
     return dataclasses.replace(
         fields, eigenvalues=fields.eigenvalues[b:b + 1], forms=fields.forms[e0:e1],
         face_vectors=fields.face_vectors[f0:f1], residuals=fields.residuals[b:b + 1],

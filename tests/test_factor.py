@@ -67,7 +67,7 @@ def table_mesh() -> ta.Mesh:
 
 
 def definite_only(monkeypatch):
-    monkeypatch.setattr(akvf_solver, "interior_factor", lambda system, b, need, definite: definite())
+    monkeypatch.setattr(akvf_solver, "interior_factor", lambda system, b, need, definite, **kw: definite())
 
 
 @needs_cholmod
@@ -103,8 +103,8 @@ def test_a_failed_check_solves_again_at_the_definite_shift(monkeypatch, caplog, 
     monkeypatch.undo()
     real = akvf_solver.interior_factor
 
-    def spoiled(system, b, need, definite):
-        f = real(system, b, need, definite)
+    def spoiled(system, b, need, definite, **kw):
+        f = real(system, b, need, definite, **kw)
         assert isinstance(f, InteriorFactor)
         if spoil == "count":
             f.below += 1
@@ -129,10 +129,10 @@ def test_no_definite_shift_still_raises(monkeypatch):
     mesh = table_mesh()
     real = akvf_solver.interior_factor
 
-    def no_definite(system, b, need, definite):
+    def no_definite(system, b, need, definite, **kw):
         def raising():
             raise ta.SolverError("mesh: no shift made R - σS1 positive definite")
-        f = real(system, b, need, raising)
+        f = real(system, b, need, raising, **kw)
         f.floor = 1e9                     # every eigenvalue counts as below the last shift
         return f
 
@@ -224,3 +224,32 @@ def test_a_working_cholespy_factor_passes_its_check():
     solver, err = factor._cholesky(pattern, diagonal, engine=None)
     assert isinstance(solver, cholespy.CholeskySolverD)
     factor.check_first_solve(solver, torch.device("cpu"), pattern, diagonal, "batch")
+
+
+@needs_cholmod
+def test_a_factor_shares_an_analysis_only_of_its_own_pattern():
+    """_CpuFactor(like=) copies another factor's analysis where the lower pattern is the same
+    (the same factor bit for bit as with its own analysis), and analyses its own otherwise."""
+    from torchakvf.operators import killing_operator
+    from torchakvf.solvers.factor import _CpuFactor, _lower_pattern
+
+    def pattern(mesh, remedy):
+        system = killing_operator(ta.MeshBatch.from_meshes([mesh]), remedy=remedy)
+        r, c, v, size = system.block(0)
+        return _lower_pattern(r, c, v, size), system.mass.double()
+
+    ellipsoid = shapes.ellipsoid((1.0, 1.3, 1.7), level=3)
+    ellipsoid = ta.Mesh(ellipsoid.vertices, ellipsoid.faces, "ellipsoid")
+    (paper, _), (smooth, mass) = pattern(ellipsoid, "none"), pattern(ellipsoid, "smooth")
+    first = _CpuFactor(paper)
+    shared, own = _CpuFactor(smooth, like=first.symbolic), _CpuFactor(smooth)
+    assert shared.symbolic is first.symbolic and own.symbolic is not first.symbolic
+    assert shared.factorize(mass) and own.factorize(mass)
+    rhs = torch.from_numpy(np.random.default_rng(0).standard_normal((2, len(mass))))
+    assert torch.equal(shared.factor.solve_rows(rhs), own.factor.solve_rows(rhs))
+    # The table's right angles give its paper operator exact zeros that the product DᵀS0⁻¹D
+    # drops, where the remedy's floored weights do not: another pattern, its own analysis.
+    (paper, _), (smooth, _) = pattern(table_mesh(), "none"), pattern(table_mesh(), "smooth")
+    assert paper[1].shape != smooth[1].shape
+    table = _CpuFactor(paper)
+    assert _CpuFactor(smooth, like=table.symbolic).symbolic is not table.symbolic

@@ -93,3 +93,40 @@ class SolveLog:
 
         monkeypatch.setattr(factor, "_cholesky", cholesky)
         monkeypatch.setattr(akvf_solver, "segmented_lobpcg", lobpcg)
+
+
+class FactorLog:
+    """Counts, through monkeypatching, what CHOLMOD called directly does: symbolic analyses
+    (``analyses``; a factor that copies another's analysis counts in ``shared``), whole numeric
+    factorizations (``numeric``, every trial shift) and definiteness tests stopped at the first
+    non-positive pivot (``stopped``: those that stopped early; ``complete``: those that did not)."""
+
+    def __init__(self, monkeypatch):
+        from torchakvf.solvers import cholmod
+        self.analyses = self.shared = self.numeric = self.stopped = self.complete = 0
+        cls = cholmod.CholmodFactor
+        init, factorize, definite = cls.__init__, cls.factorize, cls.positive_definite_at
+        log = self
+
+        def counted_init(self, *args, symbolic=None, **kw):
+            init(self, *args, symbolic=symbolic, **kw)
+            if symbolic is None:
+                log.analyses += 1
+            else:
+                log.shared += 1
+
+        def counted_factorize(self, *args, **kw):
+            log.numeric += 1
+            return factorize(self, *args, **kw)
+
+        def counted_definite(self, *args, **kw):
+            out = definite(self, *args, **kw)
+            if out:
+                log.complete += 1
+            else:
+                log.stopped += 1
+            return out
+
+        monkeypatch.setattr(cls, "__init__", counted_init)
+        monkeypatch.setattr(cls, "factorize", counted_factorize)
+        monkeypatch.setattr(cls, "positive_definite_at", counted_definite)

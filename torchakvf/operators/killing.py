@@ -25,7 +25,7 @@ from .geometry import BatchGeometry, batch_geometry
 #: The remedies a mesh's operator can be built with (see :func:`killing_operator`).
 MESH_REMEDIES = ("none", "clamp", "smooth")
 #: Mesh-quality remedies a caller may ask for: one for every mesh, or "auto", decided per mesh
-#: (:func:`~torchakvf.operators.remedy_choice.choose_remedies`).
+#: by a factorization (:func:`torchakvf.solvers.remedy.choose_remedies`).
 REMEDIES = MESH_REMEDIES + ("auto",)
 #: The remedy every entry point uses by default (akvf, segment, features, the CLI): "auto", the
 #: paper's operator ("none") on well-shaped meshes and "smooth" on the badly shaped ones, which
@@ -198,90 +198,104 @@ def killing_operator(batch: MeshBatch, boundary_correction: bool = True, remedy:
     ----------
     boundary_correction : add the boundary-flux and boundary terms on open meshes (without
         them the operator's kernel is the Neumann-harmonic fields, not the Killing fields).
-    remedy : mesh-quality remedy, one of :data:`REMEDIES` (default :data:`DEFAULT_REMEDY`;
-        "none" is the paper's operator, see :func:`mass_star1`; "auto" decides per mesh), or a
-        list of one of :data:`MESH_REMEDIES` per mesh; ``KillingSystem.remedies`` says which
-        each mesh got.
+    remedy : mesh-quality remedy, one of :data:`MESH_REMEDIES` ("none" is the paper's operator,
+        see :func:`mass_star1`), or a list of one per mesh; ``KillingSystem.remedies`` says which
+        each mesh got. "auto" (the default of the solvers) is decided per mesh by a
+        factorization, in the solvers: :func:`torchakvf.solvers.remedy.killing_system`.
     curvature_rings : rings of curvature averaging on every mesh (default: the remedy's,
         :data:`CURVATURE_RINGS`).
     dtype : float type of the assembly; float64 unless a float32 check says otherwise.
     """
     _check_remedy(remedy, len(batch))
-    if remedy != "auto":
-        remedies = [remedy] * len(batch) if isinstance(remedy, str) else list(remedy)
-        return _assemble(batch, boundary_correction, remedies, dtype, curvature_rings)
-    from .remedy_choice import choose_remedies
-    paper = _assemble(batch, boundary_correction, ["none"] * len(batch), dtype, curvature_rings)
-    remedies = choose_remedies(paper)
-    if all(r == "none" for r in remedies):
-        return paper
-    return _assemble(batch, boundary_correction, remedies, dtype, curvature_rings)
+    if remedy == "auto":
+        raise ParameterError("killing_operator: remedy='auto' is decided per mesh by a factorization: use "
+                             "torchakvf.solvers.killing_system(batch), or pass remedy='none', 'clamp' or 'smooth'")
+    remedies = [remedy] * len(batch) if isinstance(remedy, str) else list(remedy)
+    return KillingAssembly(batch, boundary_correction, dtype).system(remedies, curvature_rings)
 
 
-def _assemble(batch: MeshBatch, boundary_correction: bool, remedies: list[str], dtype: torch.dtype,
-              curvature_rings: int | None) -> KillingSystem:
-    """R and S1 of the batch with ``remedies[b]`` on mesh b."""
-    geo = batch_geometry(batch, dtype)
-    n_e, n_v = len(batch.edges), len(batch.verts)
-    dev = batch.verts.device
-    fe = batch.face_edges
-    sign = batch.face_edge_sign.to(dtype)
-    s1_raw = dec.star1(batch, geo)
-    s1 = mass_star1(s1_raw, batch.edge_ptr, remedies)
-    # The paper's operator keeps the raw cotan weights inside R and floors only the mass
-    # matrix; the remedies use their floored weights throughout (that is what they change).
-    paper = torch.tensor([r == "none" for r in remedies], device=dev)
-    s1_op = torch.where(paper[owner_index(batch.edge_ptr)], s1_raw, s1)
-    a_v = dec.star0(batch, geo)
-    theta = dec.angle_defect(batch, geo)
-    rings = [CURVATURE_RINGS[r] if curvature_rings is None else curvature_rings for r in remedies]
-    k_v = _mesh_curvature(batch, theta, a_v, rings)
-    k_e = 0.5 * (k_v[batch.edges[:, 0]] + k_v[batch.edges[:, 1]])
+class KillingAssembly:
+    """What the Killing operator of a batch has in common under every remedy, computed once:
+    the unit-area geometry, the raw cotan weights, vertex areas and angle defects, the
+    d1ᵀ S2 d1 blocks and the boundary terms. :meth:`system` adds the terms a remedy changes (S1,
+    the curvature, DᵀS0⁻¹D) and sums them, so that a second remedy of the same batch (the "auto"
+    decision's) does not assemble it all again. The result is the same, bit for bit, as one
+    assembly under those remedies.
+    """
 
-    parts = []
-    # d1^T S2 d1: a 3x3 block per face.
-    vals = (sign[:, :, None] * sign[:, None, :]) / geo.face_area[:, None, None]
-    parts.append((fe[:, :, None].expand(-1, 3, 3), fe[:, None, :].expand(-1, 3, 3), vals))
-    # -2 S1 diag(K_e).
-    ar = torch.arange(n_e, device=dev)
-    parts.append((ar, ar, -2.0 * s1_op * k_e))
+    def __init__(self, batch: MeshBatch, boundary_correction: bool = True, dtype: torch.dtype = torch.float64):
+        self.batch = batch
+        geo = self.geometry = batch_geometry(batch, dtype)
+        fe = batch.face_edges
+        sign = batch.face_edge_sign.to(dtype)
+        self.star1_raw = dec.star1(batch, geo)
+        self.vertex_area = dec.star0(batch, geo)
+        self.angle_defect = dec.angle_defect(batch, geo)
+        # d1^T S2 d1: a 3x3 block per face.
+        vals = (sign[:, :, None] * sign[:, None, :]) / geo.face_area[:, None, None]
+        self._faces = (fe[:, :, None].expand(-1, 3, 3), fe[:, None, :].expand(-1, 3, 3), vals)
+        self._bnd = _boundary_functionals(batch, geo, sign) if boundary_correction else None
+        self._rb = None if self._bnd is None else _boundary_term(self._bnd)
 
-    # D = -d0^T S1 (+ boundary flux); D[i, e] = +S1_e, D[j, e] = -S1_e for e = (i -> j).
-    d_rows = [batch.edges[:, 0], batch.edges[:, 1]]
-    d_cols = [ar, ar]
-    d_vals = [s1_op, -s1_op]
-    bnd = _boundary_functionals(batch, geo, sign) if boundary_correction else None
-    if bnd is not None:
-        flux = -(bnd.length / 2)[:, None] * bnd.nu_coef                   # [Q, 3]
-        for end in (bnd.tail, bnd.head):
-            d_rows.append(end[:, None].expand(-1, 3))
-            d_cols.append(bnd.edges)
-            d_vals.append(flux)
-    dmat = dec.sparse_coo(torch.cat([r.reshape(-1) for r in d_rows]),
-                          torch.cat([c.reshape(-1) for c in d_cols]),
-                          torch.cat([v.reshape(-1) for v in d_vals]), (n_v, n_e))
-    ddd = dec.weighted_gram(dmat, 1.0 / a_v)
-    parts.append((ddd.indices()[0], ddd.indices()[1], 2.0 * ddd.values()))
+    def system(self, remedies: list[str], curvature_rings: int | None = None) -> KillingSystem:
+        """R and S1 of the batch with ``remedies[b]`` on mesh b."""
+        batch, geo, bnd = self.batch, self.geometry, self._bnd
+        n_e, n_v = len(batch.edges), len(batch.verts)
+        dev = batch.verts.device
+        s1_raw = self.star1_raw
+        s1 = mass_star1(s1_raw, batch.edge_ptr, remedies)
+        # The paper's operator keeps the raw cotan weights inside R and floors only the mass
+        # matrix; the remedies use their floored weights throughout (that is what they change).
+        paper = torch.tensor([r == "none" for r in remedies], device=dev)
+        s1_op = torch.where(paper[owner_index(batch.edge_ptr)], s1_raw, s1)
+        a_v = self.vertex_area
+        rings = [CURVATURE_RINGS[r] if curvature_rings is None else curvature_rings for r in remedies]
+        k_v = _mesh_curvature(batch, self.angle_defect, a_v, rings)
+        k_e = 0.5 * (k_v[batch.edges[:, 0]] + k_v[batch.edges[:, 1]])
 
-    if bnd is not None:
-        # -2 sym(R_b): w^T R_b w = sum_q Im(conj(z_q) z_{q+1} e^{i phi_q}), z = u + i v.
-        nxt = bnd.successor
-        c, s = torch.cos(bnd.phi)[:, None, None], torch.sin(bnd.phi)[:, None, None]
-        u, v = bnd.tau_coef, bnd.nu_coef
-        un, vn = u[nxt], v[nxt]
-        block = (u[:, :, None] * (s * un[:, None, :] + c * vn[:, None, :])
-                 - v[:, :, None] * (c * un[:, None, :] - s * vn[:, None, :]))      # [Q, 3, 3]
-        rows = bnd.edges[:, :, None].expand(-1, 3, 3)
-        cols = bnd.edges[nxt][:, None, :].expand(-1, 3, 3)
-        parts.append((rows, cols, -block))          # -2 * (B + B^T) / 2
-        parts.append((cols, rows, -block))
+        parts = [self._faces]
+        # -2 S1 diag(K_e).
+        ar = torch.arange(n_e, device=dev)
+        parts.append((ar, ar, -2.0 * s1_op * k_e))
 
-    rows = torch.cat([p[0].reshape(-1) for p in parts])
-    cols = torch.cat([p[1].reshape(-1) for p in parts])
-    vals = torch.cat([p[2].reshape(-1) for p in parts])
-    r = dec.sparse_coo(rows, cols, vals, (n_e, n_e))
-    return KillingSystem(stiffness=r, mass=s1, edge_ptr=batch.edge_ptr, star1_raw=s1_raw, geometry=geo,
-                         remedies=remedies)
+        # D = -d0^T S1 (+ boundary flux); D[i, e] = +S1_e, D[j, e] = -S1_e for e = (i -> j).
+        d_rows = [batch.edges[:, 0], batch.edges[:, 1]]
+        d_cols = [ar, ar]
+        d_vals = [s1_op, -s1_op]
+        if bnd is not None:
+            flux = -(bnd.length / 2)[:, None] * bnd.nu_coef                   # [Q, 3]
+            for end in (bnd.tail, bnd.head):
+                d_rows.append(end[:, None].expand(-1, 3))
+                d_cols.append(bnd.edges)
+                d_vals.append(flux)
+        dmat = dec.sparse_coo(torch.cat([r.reshape(-1) for r in d_rows]),
+                              torch.cat([c.reshape(-1) for c in d_cols]),
+                              torch.cat([v.reshape(-1) for v in d_vals]), (n_v, n_e))
+        ddd = dec.weighted_gram(dmat, 1.0 / a_v)
+        parts.append((ddd.indices()[0], ddd.indices()[1], 2.0 * ddd.values()))
+        if self._rb is not None:
+            parts += self._rb
+
+        rows = torch.cat([p[0].reshape(-1) for p in parts])
+        cols = torch.cat([p[1].reshape(-1) for p in parts])
+        vals = torch.cat([p[2].reshape(-1) for p in parts])
+        r = dec.sparse_coo(rows, cols, vals, (n_e, n_e))
+        return KillingSystem(stiffness=r, mass=s1, edge_ptr=batch.edge_ptr, star1_raw=s1_raw, geometry=geo,
+                             remedies=list(remedies))
+
+
+def _boundary_term(bnd: "_BoundaryFunctionals") -> list[tuple]:
+    """The COO parts (rows, cols, values) of -2 sym(R_b): w^T R_b w = sum_q Im(conj(z_q) z_{q+1}
+    e^{i phi_q}), z = u + i v."""
+    nxt = bnd.successor
+    c, s = torch.cos(bnd.phi)[:, None, None], torch.sin(bnd.phi)[:, None, None]
+    u, v = bnd.tau_coef, bnd.nu_coef
+    un, vn = u[nxt], v[nxt]
+    block = (u[:, :, None] * (s * un[:, None, :] + c * vn[:, None, :])
+             - v[:, :, None] * (c * un[:, None, :] - s * vn[:, None, :]))      # [Q, 3, 3]
+    rows = bnd.edges[:, :, None].expand(-1, 3, 3)
+    cols = bnd.edges[nxt][:, None, :].expand(-1, 3, 3)
+    return [(rows, cols, -block), (cols, rows, -block)]          # -2 * (B + B^T) / 2
 
 
 @dataclass

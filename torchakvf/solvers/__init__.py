@@ -7,6 +7,7 @@ from .krylov import block_krylov
 from .lobpcg import EigenResult, relative_residuals, segmented_lobpcg
 from .lanczos import shift_invert_lanczos
 from .akvf_solver import AKVFResult, AKVFSolver
+from .remedy import killing_system
 
 __all__ = ["AKVFResult", "AKVFSolver", "BlockDiagonalFactor", "ShiftedFactor", "EigenResult", "block_krylov",
-           "relative_residuals", "segmented_lobpcg", "shift_invert_lanczos"]
+           "killing_system", "relative_residuals", "segmented_lobpcg", "shift_invert_lanczos"]

@@ -45,6 +45,7 @@ from . import lobpcg
 from .krylov import block_krylov
 from .lanczos import shift_invert_lanczos
 from .lobpcg import EigenResult, segmented_lobpcg
+from .remedy import SPURIOUS_BELOW, PaperCheck, auto_operator
 
 #: The eigensolvers a caller may ask for ("auto": :func:`solver_for` decides per mesh).
 SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
@@ -56,10 +57,6 @@ SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
 #: batched paths are the GPU's, whose caching allocator reuses memory.
 ONE_MESH_AT_A_TIME_ON = ("cpu",)
 
-#: Under a mesh-quality remedy, eigenpairs below this (λ·area) are spurious: a Killing energy is
-#: >= 0, and good meshes give at worst small negatives (-0.06 on a hemisphere); badly shaped
-#: vertices give modes localized on a few edges far below zero.
-SPURIOUS_BELOW = -1.0
 #: Extra eigenpairs computed to make room for spurious ones.
 SPURIOUS_MARGIN = 8
 #: Solves of a mesh at most under a remedy: the first, then again with more room while it has
@@ -212,12 +209,16 @@ class AKVFSolver:
         self._blocks: dict[tuple[int, ...], BlockDiagonalFactor] = {}
         self._shifts: dict[int, float] = kept
         self._system: KillingSystem | None = None
+        #: what remedy "auto" learned of each mesh's paper operator (its analysis, its factor)
+        self._checks: list[PaperCheck] | None = None
         self._alone: list[AKVFSolver] | None = None
         if len(batch) > 1 and not self.batched:
             self._alone = [kept_alone[b] if kept_alone is not None and b not in changed else
                            AKVFSolver(batch.mesh(b), remedy=self.remedy, solver=self.solver,
                                       boundary_correction=self.boundary_correction, batched=False,
                                       full_resolution_fallback=False) for b in range(len(batch))]
+        elif self.remedy == "auto":
+            self._system, self._checks = auto_operator(batch, boundary_correction=self.boundary_correction)
         else:
             self._system = killing_operator(batch, boundary_correction=self.boundary_correction,
                                             remedy=self.remedy)
@@ -454,16 +455,32 @@ class AKVFSolver:
         return eig
 
     def factor(self, b: int) -> ShiftedFactor:
-        """Mesh b's positive definite shift-invert factor (made on first use, then kept)."""
+        """Mesh b's positive definite shift-invert factor (made on first use, then kept): where
+        remedy "auto" kept the paper's operator, the factor its decision made."""
         if b not in self._factors:
-            self._factors[b] = mesh_factor(self.system, b, self.batch.names[b])
+            check = self._check(b)
+            kept = check.factor if check is not None and self.system.remedies[b] == "none" else None
+            self._factors[b] = kept or mesh_factor(self.system, b, self.batch.names[b], like=self._symbolic(b))
         return self._factors[b]
 
     def _interior_factor(self, b: int, need: int):
         """Mesh b's factor for the Krylov solver at ``need`` wanted pairs (kept per need)."""
         if (b, need) not in self._interior:
-            self._interior[b, need] = interior_factor(self.system, b, need, lambda: self.factor(b))
+            self._interior[b, need] = interior_factor(self.system, b, need, lambda: self.factor(b),
+                                                      like=self._symbolic(b))
         return self._interior[b, need]
+
+    def _check(self, b: int) -> PaperCheck | None:
+        """What remedy "auto" learned of mesh b, where its factors can use it (on the CPU)."""
+        if self._checks is None or self.system.mass.device.type != "cpu":
+            return None
+        return self._checks[b]
+
+    def _symbolic(self, b: int):
+        """The analysis of mesh b's paper operator, which its factors share where the pattern is
+        the same (None: each factor analyses its own)."""
+        check = self._check(b)
+        return None if check is None else check.symbolic
 
     def _subsystem(self, group: list[int]) -> KillingSystem:
         return self.system if len(group) == len(self.batch) else self.system.select(group)

@@ -9,41 +9,39 @@ constructor although its factor has more nonzeros. This module also:
 
 * computes the symbolic analysis once per mesh: a failed shift (R - σS1 not definite) costs a
   numeric refactorization only;
+* keeps that analysis apart (:class:`Symbolic`), so that a factor of another matrix with the
+  same pattern (the paper's operator and the remedied one) starts from a copy of it;
+* can stop a factorization at the first non-positive pivot (:meth:`CholmodFactor.positive_definite_at`),
+  which is what a definiteness test needs;
 * releases the GIL while CHOLMOD works (ctypes does, cholespy does not), so two factors can
-  run on two threads;
+  run on two threads, and one factor's independent subtrees too (:mod:`.cholmod_subtrees`,
+  where torch has more than one thread);
 * solves on row-stacked right-hand sides ``[k, E]`` without transposing: that is the
   column-major layout CHOLMOD reads.
 
 Only CHOLMOD's LGPL modules (Core, Cholesky, Partition) are used: the supernodal module
 (GPL) is never asked for (``supernodal = CHOLMOD_SIMPLICIAL``).
 
-Safety: the structs below are CHOLMOD 3.0's (SuiteSparse 5.x, cholespy 2.x). :func:`library`
-accepts the library only if SuiteSparse's version is 5.x *and* every default that
-``cholmod_start`` writes reads back at the offset this layout gives it; after each analysis the
-factor's own header is checked too. Anything else (another cholespy build, no cholespy) makes
+Safety: the structs (:mod:`.cholmod_abi`) are CHOLMOD 3.0's (SuiteSparse 5.x, cholespy 2.x).
+:func:`library` accepts the library only if SuiteSparse's version is 5.x *and* every default
+that ``cholmod_start`` writes reads back at the offset this layout gives it; after each analysis
+the factor's own header is checked too. Anything else (another cholespy build, no cholespy) makes
 :func:`library` return None, and the callers use cholespy's constructor instead.
 """
 from __future__ import annotations
 
 import contextlib
 import ctypes as C
-import glob
-import os
-import threading
 import weakref
 
 import numpy as np
 import torch
 
 from ..errors import SolverError
+from . import cholmod_subtrees as subtrees
+from .cholmod_abi import (_AMD, _DOUBLE, _INT, _METIS, _NATURAL, _NESDIS, _PATTERN, _REAL, _SYS_A, _Dense,
+                          _Sparse, _free, _start, disabled, library)
 
-#: CHOLMOD constants (cholmod_core.h / cholmod_cholesky.h, CHOLMOD 3.0).
-_SIMPLICIAL = 0
-_AUTO = 1
-_GIVEN, _AMD, _METIS, _NESDIS = 1, 2, 3, 4
-_INT, _REAL, _DOUBLE, _PATTERN = 0, 1, 0, 0
-_SYS_A = 0
-_MAXMETHODS = 9
 #: Smallest pivot of an indefinite LDLᵀ factor, relative to the largest, that it is solved with
 #: (:meth:`CholmodFactor.factorize`). The interior shifts of the Krylov solver gave 2e-7 to 3e-3
 #: on PSB meshes, with eigenvalues equal to those of the definite shift to 1e-14; a breakdown is
@@ -51,134 +49,60 @@ _MAXMETHODS = 9
 PIVOT_FLOOR = 1e-12
 #: Fill-reducing orderings a :class:`CholmodFactor` can be asked for by name.
 ORDERINGS = {"amd": _AMD, "metis": _METIS, "nesdis": _NESDIS}
+#: Rows of L computed per call while :meth:`CholmodFactor.positive_definite_at` looks for a
+#: non-positive pivot: at least this many, and at least 1/64 of the matrix (the factor's work
+#: lies mostly in its last rows, so one step past the first negative pivot costs little).
+_ROWS_PER_STEP = 256
 
 
-class _Method(C.Structure):
-    _fields_ = [("lnz", C.c_double), ("fl", C.c_double), ("prune_dense", C.c_double),
-                ("prune_dense2", C.c_double), ("nd_oksep", C.c_double), ("other_1", C.c_double * 4),
-                ("nd_small", C.c_size_t), ("other_2", C.c_size_t * 4), ("aggressive", C.c_int),
-                ("order_for_lu", C.c_int), ("nd_compress", C.c_int), ("nd_camd", C.c_int),
-                ("nd_components", C.c_int), ("ordering", C.c_int), ("other_3", C.c_size_t * 4)]
+class Symbolic:
+    """CHOLMOD's symbolic analysis of one lower CSC pattern (fill-reducing ordering, column
+    counts of L), kept unfactored: a factor of any matrix with this pattern can start from a copy
+    of it (:class:`CholmodFactor` ``symbolic=``) instead of a new analysis. Same pattern, same
+    ordering: the numeric factor is the one a fresh analysis would give, bit for bit."""
 
+    def __init__(self, lib, factor, indptr: np.ndarray, indices: np.ndarray, ordering: str,
+                 factor_nonzeros: float, factor_flops: float):
+        self._lib = lib
+        self._common = _start(lib)
+        self.factor = lib.cholmod_copy_factor(factor, C.byref(self._common))
+        self._finalizer = weakref.finalize(self, _free, lib, self._common, self.factor)
+        if not self.factor:
+            raise SolverError(f"CHOLMOD could not copy a symbolic factor of order {len(indptr) - 1}")
+        self.indptr, self.indices = indptr, indices
+        self.ordering, self.factor_nonzeros, self.factor_flops = ordering, factor_nonzeros, factor_flops
 
-class _Common(C.Structure):
-    # The leading fields of cholmod_common; the rest (workspace pointers, statistics) is
-    # CHOLMOD's own and only needs room: the tail is far larger than the real struct's.
-    _fields_ = [("dbound", C.c_double), ("grow0", C.c_double), ("grow1", C.c_double),
-                ("grow2", C.c_size_t), ("maxrank", C.c_size_t), ("supernodal_switch", C.c_double),
-                ("supernodal", C.c_int), ("final_asis", C.c_int), ("final_super", C.c_int),
-                ("final_ll", C.c_int), ("final_pack", C.c_int), ("final_monotonic", C.c_int),
-                ("final_resymbol", C.c_int), ("zrelax", C.c_double * 3), ("nrelax", C.c_size_t * 3),
-                ("prefer_zomplex", C.c_int), ("prefer_upper", C.c_int),
-                ("quick_return_if_not_posdef", C.c_int), ("prefer_binary", C.c_int),
-                ("print", C.c_int), ("precise", C.c_int), ("try_catch", C.c_int),
-                ("error_handler", C.c_void_p), ("nmethods", C.c_int), ("current", C.c_int),
-                ("selected", C.c_int), ("method", _Method * (_MAXMETHODS + 1)),
-                ("postorder", C.c_int), ("default_nesdis", C.c_int), ("_rest", C.c_char * 32768)]
+    def matches(self, indptr: np.ndarray, indices: np.ndarray) -> bool:
+        """Whether a lower CSC pattern is the one analysed."""
+        return np.array_equal(self.indptr, indptr) and np.array_equal(self.indices, indices)
 
+    def two_thread_plan(self):
+        """The rows two threads factor side by side (:func:`.cholmod_subtrees.two_thread_plan`),
+        made once per pattern; None where it would not pay (small, or unbalanced)."""
+        if not hasattr(self, "_plan"):
+            self._plan = None
+            n = len(self.indptr) - 1
+            if self.factor_flops >= subtrees.MIN_FLOPS:
+                plan = subtrees.two_thread_plan(self._parent(n), np.ctypeslib.as_array(
+                    C.cast(self.factor.contents.ColCount, C.POINTER(C.c_int)), shape=(n,)))
+                self._plan = plan if plan.speedup >= subtrees.MIN_SPEEDUP else None
+        return self._plan
 
-class _Sparse(C.Structure):
-    _fields_ = [("nrow", C.c_size_t), ("ncol", C.c_size_t), ("nzmax", C.c_size_t), ("p", C.c_void_p),
-                ("i", C.c_void_p), ("nz", C.c_void_p), ("x", C.c_void_p), ("z", C.c_void_p),
-                ("stype", C.c_int), ("itype", C.c_int), ("xtype", C.c_int), ("dtype", C.c_int),
-                ("sorted", C.c_int), ("packed", C.c_int)]
-
-
-class _Dense(C.Structure):
-    _fields_ = [("nrow", C.c_size_t), ("ncol", C.c_size_t), ("nzmax", C.c_size_t), ("d", C.c_size_t),
-                ("x", C.c_void_p), ("z", C.c_void_p), ("xtype", C.c_int), ("dtype", C.c_int)]
-
-
-class _Factor(C.Structure):
-    _fields_ = [("n", C.c_size_t), ("minor", C.c_size_t), ("Perm", C.c_void_p), ("ColCount", C.c_void_p),
-                ("IPerm", C.c_void_p), ("nzmax", C.c_size_t), ("p", C.c_void_p), ("i", C.c_void_p),
-                ("x", C.c_void_p), ("z", C.c_void_p), ("nz", C.c_void_p), ("next", C.c_void_p),
-                ("prev", C.c_void_p), ("nsuper", C.c_size_t), ("ssize", C.c_size_t),
-                ("xsize", C.c_size_t), ("maxcsize", C.c_size_t), ("maxesize", C.c_size_t),
-                ("super", C.c_void_p), ("pi", C.c_void_p), ("px", C.c_void_p), ("s", C.c_void_p),
-                ("ordering", C.c_int), ("is_ll", C.c_int), ("is_super", C.c_int),
-                ("is_monotonic", C.c_int), ("itype", C.c_int), ("xtype", C.c_int), ("dtype", C.c_int)]
-
-
-_P = C.c_void_p
-_SIGNATURES = {
-    "SuiteSparse_version": (C.c_int, [_P]),
-    "cholmod_start": (C.c_int, [_P]),
-    "cholmod_finish": (C.c_int, [_P]),
-    "cholmod_analyze": (C.POINTER(_Factor), [_P, _P]),
-    "cholmod_factorize": (C.c_int, [_P, _P, _P]),
-    "cholmod_solve2": (C.c_int, [C.c_int, _P, _P, _P, _P, _P, _P, _P, _P]),
-    "cholmod_free_factor": (C.c_int, [_P, _P]),
-    "cholmod_free_dense": (C.c_int, [_P, _P]),
-}
-
-_lock = threading.Lock()
-_library: list = []          # [] before the first look, then [CDLL or None]
-_off = threading.local()     # .depth > 0 inside disabled()
-
-
-def library():
-    """The CHOLMOD library inside cholespy's extension module, if its layout is the one this
-    module was written for (checked once per process); otherwise None, and None inside
-    :func:`disabled`."""
-    if getattr(_off, "depth", 0):
-        return None
-    with _lock:
-        if not _library:
-            _library.append(_load())
-        return _library[0]
-
-
-@contextlib.contextmanager
-def disabled():
-    """Within this block (on this thread) CPU factors are made by cholespy's constructor, as
-    where the library is not usable: for benchmarks and tests that compare the two paths."""
-    _off.depth = getattr(_off, "depth", 0) + 1
-    try:
-        yield
-    finally:
-        _off.depth -= 1
-
-
-def _load():
-    try:
-        import cholespy
-        paths = glob.glob(os.path.join(os.path.dirname(cholespy.__file__), "_cholespy_core*"))
-        lib = C.CDLL(paths[0])
-        for name, (res, args) in _SIGNATURES.items():
-            fn = getattr(lib, name)
-            fn.restype, fn.argtypes = res, args
-    except (ImportError, OSError, IndexError, AttributeError):
-        return None
-    version = (C.c_int * 3)()
-    lib.SuiteSparse_version(version)
-    if version[0] != 5:
-        return None
-    common = _Common()
-    if not lib.cholmod_start(C.byref(common)):
-        return None
-    try:
-        ok = _defaults_ok(common)
-    finally:
-        lib.cholmod_finish(C.byref(common))
-    return lib if ok else None
-
-
-def _defaults_ok(c: _Common) -> bool:
-    """Whether every default cholmod_start wrote (CHOLMOD 3.0's cholmod_defaults) reads back at
-    this module's offsets: a shifted or resized field would show up in one of them."""
-    m = c.method
-    return (c.dbound == 0.0 and c.grow0 == 1.2 and c.grow1 == 1.2 and c.grow2 == 5
-            and c.maxrank == 8 and c.supernodal_switch == 40.0 and c.supernodal == _AUTO
-            and c.final_asis == 1 and c.final_super == 1 and c.final_ll == 0
-            and c.final_pack == 1 and c.final_monotonic == 1 and c.final_resymbol == 0
-            and list(c.zrelax) == [0.8, 0.1, 0.05] and list(c.nrelax) == [4, 16, 48]
-            and c.prefer_upper == 1 and c.quick_return_if_not_posdef == 0
-            and c.nmethods == 0 and c.postorder == 1 and c.default_nesdis == 0
-            and m[0].ordering == _GIVEN and m[1].ordering == _AMD and m[2].ordering == _METIS
-            and m[3].ordering == _NESDIS and m[0].nd_small == 200 and m[0].prune_dense == 10.0
-            and m[0].prune_dense2 == -1.0 and m[0].nd_oksep == 1.0 and m[0].aggressive == 1
-            and m[0].nd_compress == 1 and m[0].nd_camd == 1)
+    def _parent(self, n: int) -> np.ndarray:
+        """[n] the elimination tree of the permuted pattern (-1 at roots)."""
+        lib, c, f = self._lib, C.byref(self._common), self.factor.contents
+        matrix = _Sparse(n, n, len(self.indices), self.indptr.ctypes.data, self.indices.ctypes.data, None,
+                         None, None, -1, _INT, _PATTERN, _DOUBLE, 1, 1)
+        upper = lib.cholmod_ptranspose(C.byref(matrix), 0, None if f.ordering == _NATURAL else f.Perm, None, 0, c)
+        if not upper:
+            raise SolverError(f"CHOLMOD could not permute a pattern of order {n} (out of memory?)")
+        parent = np.empty(n, dtype=np.int32)
+        try:
+            if not lib.cholmod_etree(upper, parent.ctypes.data, c):
+                raise SolverError(f"CHOLMOD could not find the elimination tree of a pattern of order {n}")
+        finally:
+            lib.cholmod_free_sparse(C.byref(upper), c)
+        return parent.astype(np.int64)
 
 
 class CholmodFactor:
@@ -190,10 +114,12 @@ class CholmodFactor:
     numeric factor for new values and says whether the matrix is positive definite.
     ordering : None (CHOLMOD's default choice: AMD, with METIS also tried where AMD fills
     badly) or one of :data:`ORDERINGS` ("nesdis" is what cholespy's constructor uses).
+    symbolic : the :attr:`symbolic` analysis of another factor of the same pattern, used instead
+    of a new analysis (a :class:`SolverError` if the pattern differs; ``ordering`` is ignored).
     """
 
     def __init__(self, n: int, indptr: np.ndarray, indices: np.ndarray, values: np.ndarray,
-                 lib=None, ordering: str | None = None):
+                 lib=None, ordering: str | None = None, symbolic: Symbolic | None = None):
         self._lib = lib if lib is not None else library()
         if self._lib is None:
             raise SolverError("CHOLMOD (through cholespy's library) is not usable here")
@@ -206,23 +132,20 @@ class CholmodFactor:
         self._matrix = _Sparse(self.n, self.n, len(self._values), self._indptr.ctypes.data,
                                self._indices.ctypes.data, None, self._values.ctypes.data, None,
                                -1, _INT, _REAL, _DOUBLE, 1, 1)
-        self._common = _Common()
         lib = self._lib
-        lib.cholmod_start(C.byref(self._common))
-        c = self._common
-        c.print = 0                        # a failed trial shift is handled, not printed
-        c.supernodal = _SIMPLICIAL
-        # LDLᵀ (final_ll stays 0): 6-10% faster than LLᵀ on PSB meshes; definiteness is then
-        # checked on D in factorize().
+        self._common = c = _start(lib)
         # By default nmethods stays 0: CHOLMOD's own choice, AMD (and METIS as well where
         # AMD's fill is poor, keeping the better). A named ordering is for comparisons.
-        if ordering is not None:
+        if ordering is not None and symbolic is None:
             c.nmethods = 1
             c.method[0].ordering = ORDERINGS[ordering]
         self._x = C.POINTER(_Dense)()      # solve2's workspaces, reused across solves
         self._y = C.POINTER(_Dense)()
         self._e = C.POINTER(_Dense)()
-        self._factor = lib.cholmod_analyze(C.byref(self._matrix), C.byref(c))
+        if symbolic is not None and not symbolic.matches(self._indptr, self._indices):
+            raise SolverError("internal: a symbolic analysis shared by a factor of another pattern")
+        self._factor = (lib.cholmod_copy_factor(symbolic.factor, C.byref(c)) if symbolic is not None
+                        else lib.cholmod_analyze(C.byref(self._matrix), C.byref(c)))
         self._finalizer = weakref.finalize(self, _free, lib, c, self._factor, self._x, self._y,
                                            self._e)
         if not self._factor:
@@ -230,12 +153,18 @@ class CholmodFactor:
         f = self._factor.contents
         if not (f.n == self.n and f.is_super == 0 and f.itype == _INT and f.xtype == _PATTERN):
             raise SolverError("CHOLMOD's factor header does not read as expected")
-        self.ordering = {v: k for k, v in ORDERINGS.items()}.get(f.ordering, str(f.ordering))
-        chosen = c.method[c.selected]
+        if symbolic is None:
+            chosen = c.method[c.selected]
+            symbolic = Symbolic(lib, self._factor, self._indptr, self._indices,
+                                {v: k for k, v in ORDERINGS.items()}.get(f.ordering, str(f.ordering)),
+                                float(chosen.lnz), float(chosen.fl))
+        #: the analysis, shareable with factors of other matrices of this pattern
+        self.symbolic = symbolic
+        self.ordering = symbolic.ordering
         #: nonzeros of L and flops of the numeric factor, as CHOLMOD's analysis predicts them
-        self.factor_nonzeros, self.factor_flops = float(chosen.lnz), float(chosen.fl)
+        self.factor_nonzeros, self.factor_flops = symbolic.factor_nonzeros, symbolic.factor_flops
         self.positive_definite = self.usable = False
-        self.negative_pivots = 0
+        self.negative_pivots = self.rows_factored = 0
 
     def factorize(self, values: np.ndarray, indefinite: bool = False) -> bool:
         """Numeric factor for new values (same pattern, [nnz] float64); True if it can be
@@ -247,18 +176,17 @@ class CholmodFactor:
         by Sylvester's law of inertia the number of eigenvalues of the matrix below 0 (for a
         shifted pencil ``R - σS``, the eigenvalues of ``R w = λ S w`` below σ)."""
         self._values[:] = values
-        ok = self._lib.cholmod_factorize(C.byref(self._matrix), self._factor, C.byref(self._common))
-        if not ok:
+        plan = self.symbolic.two_thread_plan() if torch.get_num_threads() > 1 else None
+        if plan is not None:
+            self._factor_rows(plan)
+        elif not self._lib.cholmod_factorize(C.byref(self._matrix), self._factor, C.byref(self._common)):
             raise SolverError(f"CHOLMOD failed to factor a matrix of order {self.n} (out of memory?)")
+        self.rows_factored = self.n
+        pivots = self._pivots(0, self.n)
         f = self._factor.contents
-        if not (f.is_super == 0 and f.is_ll == 0 and f.xtype == _REAL and f.n == self.n):
-            raise SolverError("CHOLMOD's factor header does not read as expected")
         # LDLᵀ without pivoting does not stop at a negative pivot, so definiteness is read
         # off D (the first entry of each column of the simplicial factor): A = L D Lᵀ is
         # positive definite iff every D_jj > 0 (a NaN from a breakdown fails the test too).
-        colptr = np.ctypeslib.as_array(C.cast(f.p, C.POINTER(C.c_int)), shape=(self.n + 1,))
-        x = np.ctypeslib.as_array(C.cast(f.x, C.POINTER(C.c_double)), shape=(int(f.nzmax),))
-        pivots = x[colptr[:-1]]
         self.positive_definite = bool(f.minor == self.n and np.all(pivots > 0))
         self.negative_pivots = int(np.count_nonzero(pivots < 0))
         size = np.abs(pivots)
@@ -268,6 +196,79 @@ class CholmodFactor:
             indefinite and f.minor == self.n and np.all(np.isfinite(pivots))
             and size.min() >= PIVOT_FLOOR * size.max())
         return self.usable
+
+    def positive_definite_at(self, values: np.ndarray) -> bool:
+        """Whether the matrix with ``values`` (same pattern) is positive definite: the answer of
+        :meth:`factorize`, bit for bit, for a fraction of its work where it is not.
+
+        The rows of L are computed in steps (CHOLMOD's own row-by-row LDLᵀ, the arithmetic of
+        :meth:`factorize`) and the work stops after the first step with a pivot that is not
+        positive: a matrix with an eigenvalue below 0 shows one long before the last, expensive
+        rows (on PSB meshes at 1-47% of the rows, 0-17% of the work). Where every pivot is
+        positive the factor is complete and solves like one from :meth:`factorize`.
+        ``rows_factored`` says how many rows of L were computed."""
+        self._values[:] = values
+        lib, c, f = self._lib, self._common, self._factor.contents
+        beta = (C.c_double * 2)(0.0, 0.0)
+        step = max(_ROWS_PER_STEP, -(-self.n // 64))
+        self.positive_definite = self.usable = False
+        with self._upper() as upper:
+            for start in range(0, self.n, step):
+                stop = min(start + step, self.n)
+                if not lib.cholmod_rowfac(upper, None, beta, start, stop, self._factor, C.byref(c)):
+                    raise SolverError(f"CHOLMOD failed to factor a matrix of order {self.n} (out of memory?)")
+                pivots = self._pivots(start, stop)
+                self.rows_factored = stop
+                if not (f.minor == self.n and np.all(pivots > 0)):
+                    self.negative_pivots = int(np.count_nonzero(pivots < 0))
+                    return False
+        self.positive_definite = self.usable = True
+        self.negative_pivots = 0
+        return True
+
+    @contextlib.contextmanager
+    def _upper(self):
+        """triu(A(p, p)), the matrix cholmod_factorize hands to its row-by-row factorization,
+        with the factor made ready to compute rows from 0 as cholmod_factorize makes it: a
+        numeric factor's rows reset, a symbolic one allocated (exactly the room its column
+        counts need) by an empty first call."""
+        lib, c, f = self._lib, self._common, self._factor.contents
+        upper = lib.cholmod_ptranspose(C.byref(self._matrix), 2, None if f.ordering == _NATURAL else f.Perm,
+                                       None, 0, C.byref(c))
+        if not upper:
+            raise SolverError(f"CHOLMOD could not permute a matrix of order {self.n} (out of memory?)")
+        try:
+            f.is_ll = 0
+            if f.xtype != _PATTERN:
+                np.ctypeslib.as_array(C.cast(f.nz, C.POINTER(C.c_int)), shape=(self.n,))[:] = 1
+                f.minor = self.n
+            else:
+                grow2 = c.grow2
+                c.grow2 = 0 if c.final_pack else grow2
+                ok = lib.cholmod_rowfac(upper, None, (C.c_double * 2)(0.0, 0.0), 0, 0, self._factor, C.byref(c))
+                c.grow2 = grow2
+                if not ok:
+                    raise SolverError(f"CHOLMOD could not allocate a factor of order {self.n} (out of memory?)")
+            yield upper
+        finally:
+            lib.cholmod_free_sparse(C.byref(upper), C.byref(c))
+
+    def _factor_rows(self, plan) -> None:
+        """The numeric factor on two threads (:mod:`.cholmod_subtrees`): the same bits."""
+        if not hasattr(self, "_second"):
+            self._second = _start(self._lib)
+            weakref.finalize(self, self._lib.cholmod_finish, C.byref(self._second))
+        with self._upper() as upper:
+            subtrees.factor_rows(self._lib, upper, self._factor, [self._common, self._second], plan)
+
+    def _pivots(self, start: int, stop: int) -> np.ndarray:
+        """D's entries of rows start..stop-1 (a view; the first entry of each column)."""
+        f = self._factor.contents
+        if not (f.is_super == 0 and f.is_ll == 0 and f.xtype == _REAL and f.n == self.n):
+            raise SolverError("CHOLMOD's factor header does not read as expected")
+        colptr = np.ctypeslib.as_array(C.cast(f.p, C.POINTER(C.c_int)), shape=(self.n + 1,))
+        x = np.ctypeslib.as_array(C.cast(f.x, C.POINTER(C.c_double)), shape=(int(f.nzmax),))
+        return x[colptr[start:stop]]
 
     def solve_rows(self, rows: torch.Tensor) -> torch.Tensor:
         """A⁻¹ applied to each row of rows [k, n] (float64, CPU): returns [k, n].
@@ -289,12 +290,3 @@ class CholmodFactor:
             raise SolverError(f"CHOLMOD's solve failed for {k} right-hand sides of order {self.n}")
         out = np.ctypeslib.as_array(C.cast(x.x, C.POINTER(C.c_double)), shape=(k, self.n))
         return torch.from_numpy(out.copy())
-
-
-def _free(lib, common, factor, *dense) -> None:
-    for d in dense:
-        if d:
-            lib.cholmod_free_dense(C.byref(d), C.byref(common))
-    if factor:
-        lib.cholmod_free_factor(C.byref(factor), C.byref(common))
-    lib.cholmod_finish(C.byref(common))

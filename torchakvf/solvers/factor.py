@@ -43,11 +43,11 @@ class ShiftedFactor:
         return self._solver
 
     def __init__(self, rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor,
-                 mass: torch.Tensor, name: str = "mesh", shifts=None):
+                 mass: torch.Tensor, name: str = "mesh", shifts=None, like=None):
         shifts = SHIFTS if shifts is None else tuple(shifts)
         self.device = check_factor_device(mass.device)
         pattern = _lower_pattern(rows, cols, vals, len(mass))
-        engine = _engine(pattern, self.device)
+        engine = _engine(pattern, self.device, like)
         last = None
         for sigma in shifts:
             diagonal = -sigma * mass.to(torch.float64)
@@ -63,6 +63,16 @@ class ShiftedFactor:
 
     #: σ lies below the spectrum (see :class:`InteriorFactor`)
     below = 0
+
+    @classmethod
+    def made(cls, engine: "_CpuFactor", sigma: float) -> "ShiftedFactor":
+        """The factor ``engine`` holds, positive definite at ``sigma``: where the ladder would
+        stop at that shift (its first), the same factor without making it again."""
+        if not engine.factor.positive_definite:
+            raise SolverError("internal: a factor that is not positive definite kept as the definite one")
+        out = cls.__new__(cls)
+        out.device, out._solver, out.sigma = torch.device("cpu"), engine.factor, float(sigma)
+        return out
 
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
         """(R - σS1)^{-1} rhs for rhs [E, k] (float64, on the factor's device)."""
@@ -118,17 +128,18 @@ class InteriorFactor:
         return self._made
 
 
-def interior_factor(system, b: int, need: int, definite) -> InteriorFactor | ShiftedFactor:
+def interior_factor(system, b: int, need: int, definite, like=None) -> InteriorFactor | ShiftedFactor:
     """Mesh b's :class:`InteriorFactor` at σ = INTERIOR_SHIFT_PER_PAIR · need on the CPU, where
     it has at most ``need`` eigenvalues below it (else once more at half that σ); otherwise
     (another device, no direct CHOLMOD, a breakdown, more eigenvalues below: a mesh with many
-    spurious modes) ``definite()``, the positive definite :class:`ShiftedFactor`."""
+    spurious modes) ``definite()``, the positive definite :class:`ShiftedFactor`. ``like``: a
+    symbolic analysis to share where the pattern is the same (:class:`_CpuFactor`)."""
     r, c, v, size = system.block(b)
     if system.mass.device.type != "cpu" or cholmod.library() is None or need < 1:
         return definite()
     lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
     mass = system.mass[lo:hi].to(torch.float64)
-    engine = _CpuFactor(_lower_pattern(r, c, v, size))
+    engine = _CpuFactor(_lower_pattern(r, c, v, size), like=like)
     sigma = INTERIOR_SHIFT_PER_PAIR * need
     for _ in range(2):
         if engine.factorize(-sigma * mass, indefinite=True) and engine.factor.negative_pivots <= need:
@@ -197,9 +208,12 @@ def _lower_pattern(rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor, n
 
 class _CpuFactor:
     """R + diag(d) for changing d, factored by CHOLMOD directly: the lower CSC pattern and the
-    symbolic analysis are built once, each :meth:`factorize` only refills the diagonal."""
+    symbolic analysis are built once, each :meth:`factorize` only refills the diagonal.
 
-    def __init__(self, pattern, ordering: str | None = None):
+    like : a :class:`~torchakvf.solvers.cholmod.Symbolic` analysis of another matrix (the
+    paper's operator of the same mesh), used where its pattern is this one's (else a new one)."""
+
+    def __init__(self, pattern, ordering: str | None = None, like=None):
         import scipy.sparse as sp
 
         n, r, c, base = pattern
@@ -213,21 +227,36 @@ class _CpuFactor:
         self._diag = lower.indptr[:-1].copy()
         if not np.array_equal(lower.indices[self._diag], np.arange(n)):
             raise SolverError("internal: a diagonal slot is missing from R's lower pattern")
+        shared = like if like is not None and like.matches(lower.indptr, lower.indices) else None
         self.factor = cholmod.CholmodFactor(n, lower.indptr, lower.indices, self._base,
-                                             ordering=ordering)
+                                             ordering=ordering, symbolic=shared)
 
-    def factorize(self, diagonal: torch.Tensor, indefinite: bool = False):
+    @property
+    def symbolic(self):
+        """The symbolic analysis of this pattern (shareable: ``like=`` of another factor)."""
+        return self.factor.symbolic
+
+    def _values(self, diagonal: torch.Tensor) -> np.ndarray:
         values = self._base.copy()
         values[self._diag] += diagonal.detach().cpu().numpy()
-        return self.factor.factorize(values, indefinite=indefinite)
+        return values
+
+    def factorize(self, diagonal: torch.Tensor, indefinite: bool = False):
+        return self.factor.factorize(self._values(diagonal), indefinite=indefinite)
+
+    def positive_definite_at(self, diagonal: torch.Tensor) -> bool:
+        """Whether R + diag(diagonal) is positive definite (what :meth:`factorize` says, stopped
+        at the first non-positive pivot; where it is, the factor is complete)."""
+        return self.factor.positive_definite_at(self._values(diagonal))
 
 
-def _engine(pattern, device: torch.device):
-    """A :class:`_CpuFactor` on the CPU where CHOLMOD can be called directly, else None
-    (cholespy then factors each trial shift from scratch)."""
+def _engine(pattern, device: torch.device, like=None):
+    """A :class:`_CpuFactor` on the CPU where CHOLMOD can be called directly (sharing ``like``'s
+    analysis where the pattern is the same), else None (cholespy then factors each trial shift
+    from scratch)."""
     if device.type != "cpu" or cholmod.library() is None:
         return None
-    return _CpuFactor(pattern)
+    return _CpuFactor(pattern, like=like)
 
 
 def _cholesky(pattern, diagonal: torch.Tensor, engine=None):
@@ -284,15 +313,16 @@ def contiguous_transpose(x: torch.Tensor) -> torch.Tensor:
     return x.T.contiguous()
 
 
-def mesh_factor(system, b: int, name: str, device=None) -> ShiftedFactor:
+def mesh_factor(system, b: int, name: str, device=None, like=None) -> ShiftedFactor:
     """The :class:`ShiftedFactor` of mesh b of a :class:`~torchakvf.operators.killing.KillingSystem`
-    (its block of R and its S1), on ``device`` (default: the system's)."""
+    (its block of R and its S1), on ``device`` (default: the system's); ``like``: a symbolic
+    analysis to share where the pattern is the same (:class:`_CpuFactor`)."""
     r, c, v, _ = system.block(b)
     lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
     mass = system.mass[lo:hi]
     if device is not None:
         r, c, v, mass = (t.to(device) for t in (r, c, v, mass))
-    return ShiftedFactor(r, c, v, mass, name=name)
+    return ShiftedFactor(r, c, v, mass, name=name, like=like)
 
 
 def mesh_shift(system, b: int, name: str) -> float:
