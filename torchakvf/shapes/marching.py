@@ -171,7 +171,7 @@ def _face_measures(v: np.ndarray, faces: np.ndarray, g: np.ndarray):
 
 
 def relax(sdf, vertices: np.ndarray, faces: np.ndarray, iterations: int = 15) -> np.ndarray:
-    """:func:`relax_onto` at 2/5 of its cost, and safe: each step one Newton projection, the
+    """:func:`relax_onto` at 1/5 of its cost, and safe: each step one Newton projection, the
     distance and its (forward-difference) gradient in one call of ``sdf``; a step moves each
     vertex half way to the mean of its neighbours within the surface's tangent plane, then
     back onto it. Where a step would fold a face (turn it against the surface's normal) or
@@ -200,9 +200,8 @@ def relax(sdf, vertices: np.ndarray, faces: np.ndarray, iterations: int = 15) ->
         n = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
         move -= np.einsum("ij,ij->i", move, n)[:, None] * n
         new = v + 0.5 * move
-        val, gn = _value_and_gradient(sdf, new)
+        val, gn = _value_and_gradient(sdf, new)        # gn: the normal here and for the next step
         new = new - (val / np.maximum(np.einsum("ij,ij->i", gn, gn), 1e-12))[:, None] * gn
-        val, gn = _value_and_gradient(sdf, new)
         for _ in range(3):
             b = bad(new, gn)
             if not b.any():

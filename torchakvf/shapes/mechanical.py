@@ -56,7 +56,7 @@ def shaft(rng) -> Design:
     lengths = [_u(rng, 0.2, 0.9) for _ in range(n)]
     z = np.concatenate([[0.0], np.cumsum(lengths)]) - sum(lengths) / 2
     chamfer = rng.random() < 0.5
-    parts = []
+    parts, free = [], {}
     for i in range(n):
         r = radii[i]
         below = radii[i - 1] if i > 0 else 0.0
@@ -70,14 +70,18 @@ def shaft(rng) -> Design:
         c0 = _u(rng, 0.1, 0.3) * min(r0 - below if below < r else 0.0, lengths[i] / 2) if chamfer else 0.0
         c1 = _u(rng, 0.1, 0.3) * min(r1 - above if above < r else 0.0, lengths[i] / 2) if chamfer else 0.0
         parts.append((f"section {i + 1}", _turned(z0, z1, r0, r1, c0, c1)))
+        if i in (0, n - 1):
+            free[i] = (r0 - c0) if i == 0 else (r1 - c1)        # the end face's radius
     holes, thin = [], min(min(lengths), 2 * min(radii))
     for end in (0, n - 1) if rng.random() < 0.3 else ():
         # A blind centre bore in an end section (one through every section would leave a middle
-        # section's bore wall apart from its outside).
-        rb, depth = _u(rng, 0.2, 0.4) * radii[end], _u(rng, 0.3, 0.8) * lengths[end]   # inside a taper's 0.7 r
+        # section's bore wall apart from its outside), where the end face is wide enough.
+        if free[end] < 0.25:
+            continue
+        rb, depth = _u(rng, 0.2, 0.4) * free[end], _u(rng, 0.3, 0.8) * lengths[end]
         top = z[-1] if end else z[0]
         holes.append(cylinder((0, 0, top - (depth if end else -depth)), (0, 0, top + (1 if end else -1)), rb))
-        thin = min(thin, radii[end] * 0.7 - rb)
+        thin = min(thin, free[end] - rb)
     blend = _u(rng, 0.03, 0.08) * min(radii) if rng.random() < 0.4 else 0.0
     return Design(parts, thin, blend, holes, params={"sections": n, "radii": radii, "lengths": lengths,
                                                       "bore": bool(holes), "chamfer": chamfer, "fillet": blend})
@@ -137,7 +141,8 @@ def bracket(rng) -> Design:
     parts.append(("upright", Box(center=(t / 2, 0, (t / 2 + top) / 2), half=(t / 2, w / 2, (top - t / 2) / 2))))
     if style == "U":
         b2 = _u(rng, 0.6, 1.0) * b
-        parts.append(("second upright", Box(center=(1 - t / 2, 0, (t / 2 + b2) / 2), half=(t / 2, w / 2, (b2 - t / 2) / 2))))
+        parts.append(("second upright", Box(center=(1 - t / 2, 0, (t / 2 + b2) / 2),
+                                            half=(t / 2, w / 2, (b2 - t / 2) / 2))))
     elif style == "Z":
         c = _u(rng, 0.3, 0.8)
         parts.append(("flange", Box(center=((t - c) / 2, 0, b - t / 2), half=((t + c) / 2, w / 2, t / 2))))
@@ -161,7 +166,8 @@ def bracket(rng) -> Design:
 def table(rng) -> Design:
     """A table: a rectangular or round top (thickness varied) on 3-4 legs (square, round or
     tapered, sometimes splayed), or a round top on a pedestal and foot. A part per leg."""
-    W, H, tt = _u(rng, 1.0, 1.8), _u(rng, 0.5, 1.0), _u(rng, 0.03, 0.1)
+    W, H = _u(rng, 1.0, 1.8), _u(rng, 0.5, 1.0)
+    tt = _u(rng, 0.035, 0.08) * W
     round_top = rng.random() < 0.35
     top_z = H - tt / 2
     if round_top:
@@ -186,14 +192,15 @@ def table(rng) -> Design:
             a = 2 * np.pi * i / n + np.pi / 4
             xy = (R - inset - lw) * np.array([np.cos(a), np.sin(a)])
         else:
-            xy = np.array([(W / 2 - inset - lw) * (1 if i in (0, 3) else -1), (D / 2 - inset - lw) * (1 if i < 2 else -1)])
+            xy = np.array([(W / 2 - inset - lw) * (1 if i in (0, 3) else -1),
+                           (D / 2 - inset - lw) * (1 if i < 2 else -1)])
         foot = xy + np.tan(splay) * top_z * xy / np.linalg.norm(xy)
+        length = np.hypot(top_z, np.linalg.norm(foot - xy))
         if style == "square":
             leg = Box(center=(*xy, top_z / 2), half=(lw, lw, top_z / 2))
         else:
             leg = Revolved(center=(*foot, 0.0), rotation=_tilt(foot, xy, top_z),
-                           profile=((0, 0), (lw * (0.6 if style == "tapered" else 1.0), 0),
-                                    (lw, np.hypot(top_z, np.linalg.norm(foot - xy))), (0, np.hypot(top_z, np.linalg.norm(foot - xy)))))
+                           profile=((0, 0), (lw * (0.6 if style == "tapered" else 1.0), 0), (lw, length), (0, length)))
         parts.append((f"leg {i + 1}", leg))
     return Design(parts, min(tt, 2 * lw), 0.0, params={"top": "round" if round_top else "rect", "legs": n,
                                                         "leg_style": style, "height": H, "top_thickness": tt,
@@ -234,7 +241,10 @@ def chair(rng) -> Design:
     for i in range(4):
         x, y = (sw / 2 - inset - lw) * (1 if i in (0, 3) else -1), (sd / 2 - inset - lw) * (1 if i < 2 else -1)
         top = sh - st / 2
-        leg = cylinder((x, y, 0), (x, y, top), lw) if round_legs else Box(center=(x, y, top / 2), half=(lw, lw, top / 2))
+        if round_legs:
+            leg = cylinder((x, y, 0), (x, y, top), lw)
+        else:
+            leg = Box(center=(x, y, top / 2), half=(lw, lw, top / 2))
         parts.append((f"leg {i + 1}", leg))
     arms = rng.random() < 0.3
     if arms:

@@ -46,9 +46,9 @@ def quadruped(rng) -> Design:
     drawn per leg), sometimes a tail and ears."""
     a, b, c = _u(rng, 0.7, 1.2), _u(rng, 0.25, 0.45), _u(rng, 0.25, 0.45)
     if rng.random() < 0.5:
+        hips = (0.65 * a, _u(rng, 0.8, 1.1) * b, _u(rng, 0.8, 1.1) * c)
         body = Union((Ellipsoid(center=(0.35 * a, 0, 0.05 * c), axes=(0.65 * a, b, c)),
-                      Ellipsoid(center=(-0.35 * a, 0, 0), axes=(0.65 * a, _u(rng, 0.8, 1.1) * b, _u(rng, 0.8, 1.1) * c))),
-                     0.2 * b)
+                      Ellipsoid(center=(-0.35 * a, 0, 0), axes=hips)), 0.2 * b)
     else:
         body = Ellipsoid(axes=(a, b, c))
     ll, lr = c * _u(rng, 1.8, 3.5), _u(rng, 0.06, 0.13)
@@ -90,7 +90,7 @@ def quadruped(rng) -> Design:
             e0 = hc + np.array([-0.3 * hs, side * 0.3 * hs, 0.4 * hs])
             head.append(capsule(e0, e0 + _u(rng, 0.15, 0.3) * np.array([-0.3, side * 0.3, 1.0]), 0.12 * hs))
     parts = [("body", body), ("head", Union(tuple(head), 0.05))]
-    parts += [(f"{'front' if i < 2 else 'hind'} {'left' if i % 2 == 0 else 'right'} leg", g) for i, g in enumerate(legs)]
+    parts += [(f"{('front', 'hind')[i // 2]} {('left', 'right')[i % 2]} leg", g) for i, g in enumerate(legs)]
     thin = 2 * 0.7 * lr
     if rng.random() < 0.65:
         tr = _u(rng, 0.045, 0.08)
@@ -134,8 +134,8 @@ def fish(rng) -> Design:
     sweep = _u(rng, 0.0, 0.6)
     dx = _u(rng, -0.3, 0.3)
     dz = c * np.sqrt(max(1 - dx * dx, 0.2))
-    parts.append(("dorsal fin", _flat((dx, 0, 0.85 * dz), [np.sin(-sweep), 0, np.cos(sweep)], [1, 0, 0],
-                                      (_u(rng, 0.2, 0.45), _u(rng, 0.12, 0.3) + 0.15 * dz, ft))))
+    parts.append(("dorsal fin", _flat((dx, 0, 0.9 * dz), [np.sin(-sweep), 0, np.cos(sweep)], [1, 0, 0],
+                                      (_u(rng, 0.2, 0.45), _u(rng, 0.18, 0.35), ft))))
     droop, pl = _u(rng, 0.1, 0.7), _u(rng, 0.12, 0.28)
     psweep = _u(rng, 0.2, 0.8)
     for s, name in ((1, "left pectoral fin"), (-1, "right pectoral fin")):
@@ -160,7 +160,8 @@ def bird(rng) -> Design:
     hc = n0 + (nl + 0.5 * hr) * np.array([np.cos(el), 0, np.sin(el)])
     pitch, bl = _u(rng, -0.5, 0.2), _u(rng, 0.6, 2.0) * hr
     tip = hc + (0.6 * hr + bl) * np.array([np.cos(pitch), 0, np.sin(pitch)])
-    head = Union((RoundCone(tuple(n0), tuple(hc), 0.7 * hr, 0.8 * hr), Ellipsoid(center=tuple(hc), axes=(hr, 0.9 * hr, hr)),
+    head = Union((RoundCone(tuple(n0), tuple(hc), 0.7 * hr, 0.8 * hr),
+                  Ellipsoid(center=tuple(hc), axes=(hr, 0.9 * hr, hr)),
                   RoundCone(tuple(hc), tuple(tip), 0.45 * hr, 0.06 * hr)), 0.03)
     parts = [("body", body), ("head", head)]
     span, chord, wt = _u(rng, 0.5, 1.1), _u(rng, 0.15, 0.3), _u(rng, 0.035, 0.06)
@@ -225,7 +226,8 @@ def humanoid(rng) -> Design:
 
     def ok(o):
         limbs = o[0] + o[1]
-        return apart(limbs, max(0.3 * ar, blend), torso) and all(clear_of(torso, g, max(0.2 * ar, blend)) for g in limbs)
+        gap = max(0.3 * ar, blend)
+        return apart(limbs, gap, torso) and all(clear_of(torso, g, gap) for g in limbs)
 
     arms, legs = _posed(rng, draw, ok)
     parts = [("torso", torso), ("head", Union(tuple(head), 0.05))]
@@ -285,15 +287,15 @@ def _profile(rng, z0: float, z1: float, radii) -> tuple:
     """A smooth profile of revolution through ``radii`` at evenly spaced heights (monotone
     cubic between them), closed along the axis: ((radius, z), ...)."""
     zs = np.linspace(z0, z1, len(radii))
-    z = np.linspace(z0, z1, 32)
+    z = np.linspace(z0, z1, 16)
     r = PchipInterpolator(zs, radii)(z)
     return tuple([(0.0, z0)] + [(float(a), float(b)) for a, b in zip(r, z)] + [(0.0, z1)]), PchipInterpolator(zs, radii)
 
 
 def vase(rng) -> Design:
     """A vase or a mug: a smooth body of revolution (or a near-cylinder), sometimes a neck and
-    a foot (parts of their own), one or two D-shaped handles, sometimes a hollow at the
-    mouth."""
+    a foot (parts of their own), one or two handles bowed out from the body, sometimes a
+    hollow at the mouth."""
     mug = rng.random() < 0.3
     if mug:
         r = _u(rng, 0.3, 0.45)
@@ -317,14 +319,17 @@ def vase(rng) -> Design:
     n_handles = 1 if mug else int(rng.integers(1, 3))
     z1 = _u(rng, 0.55, 0.85) * H
     z2 = z1 - _u(rng, 0.3, 0.5) * H
-    zz = np.linspace(z2, z1, 16)
-    out = float(rad(zz).max()) + tr + _u(rng, 0.08, 0.2)
+    ext = _u(rng, 0.12, 0.3) * H + 2 * tr
+    # A handle follows the body's outline, ext * cos(t) out from it: outside the body between
+    # its ends, which sink into the body.
+    t = np.linspace(-np.pi / 2, np.pi / 2, 7)
+    zt = 0.5 * (z1 + z2) + 0.5 * (z1 - z2) * np.sin(t)
+    xt = rad(zt) - tr + ext * np.cos(t)
     for i in range(n_handles):
         s = 1 if i == 0 else -1
-        pts = [(s * (float(rad(z1)) - tr), 0, z1), (s * out, 0, z1 + 0.3 * tr), (s * out, 0, z2 - 0.3 * tr),
-               (s * (float(rad(z2)) - tr), 0, z2)]
-        caps = tuple(capsule(pts[j], pts[j + 1], tr) for j in range(3))
-        parts.append((f"handle {i + 1}", Union(caps, 0.5 * tr)))
+        pts = [(s * x, 0.0, z) for x, z in zip(xt, zt)]
+        caps = tuple(capsule(pts[j], pts[j + 1], tr) for j in range(len(pts) - 1))
+        parts.append((f"handle {i + 1}", Union(caps)))
     holes = []
     if rng.random() < 0.5:
         rm = float(rad(H)) if len(parts) < 2 or parts[1][0] != "neck" else 0.0
@@ -354,8 +359,8 @@ def hand(rng) -> Design:
                                 rk * r * np.array([1.0, 0.95, 0.9, 0.8]), bends, (1, 0, 0)))
         a = _u(rng, 0.3, 1.0)
         d = (np.cos(a), -_u(rng, 0.1, 0.6), np.sin(a))
-        thumb = limb((0.42 * pw, -0.1 * pt, -0.05 * ph), d, base * np.array([0.8, 0.6]), 1.15 * r * np.array([1.0, 0.95, 0.85]),
-                     [0.0, _u(rng, 0, 0.8) * curl], (0, 0, 1))
+        thumb = limb((0.42 * pw, -0.1 * pt, -0.05 * ph), d, base * np.array([0.8, 0.6]),
+                     1.15 * r * np.array([1.0, 0.95, 0.85]), [0.0, _u(rng, 0, 0.8) * curl], (0, 0, 1))
         return fingers, thumb
 
     def ok(o):

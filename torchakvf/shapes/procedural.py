@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from ..errors import ParameterError
+from ..errors import MeshError, ParameterError
 from .design import Design, Family
 from .marching import marching_cubes, relax
 from .mechanical import FAMILIES as MECHANICAL
@@ -140,7 +140,7 @@ def _face_graph(faces: np.ndarray) -> sp.csr_matrix:
     return sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)).tocsr()
 
 
-def _keep_main_component(vertices, faces, min_share: float = 0.01):
+def _keep_main_component(name: str, vertices, faces, min_share: float = 0.01):
     """Drop the surface's components with under ``min_share`` of the faces (specks where a
     solid's tip crosses the grid alone); more than one larger component is a design error."""
     graph = _face_graph(faces)
@@ -149,7 +149,7 @@ def _keep_main_component(vertices, faces, min_share: float = 0.01):
         sizes = np.bincount(comp)
         big = np.flatnonzero(sizes >= min_share * len(faces))
         if len(big) != 1:
-            raise ParameterError(f"procedural design fell into {len(big)} pieces on the grid")
+            raise MeshError(name, f"the design fell into {len(big)} pieces on the grid")
         faces = faces[comp == big[0]]
     used, inv = np.unique(faces, return_inverse=True)
     return vertices[used], inv.reshape(-1, 3).astype(np.int64)
@@ -181,19 +181,20 @@ def _join_islands(faces: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, in
         moved += int(size[p])
 
 
-def _mesh_design(design: Design, rng: np.random.Generator, detail: float) -> tuple[Shape, dict]:
+def _mesh_design(name: str, design: Design, rng: np.random.Generator, detail: float) -> tuple[Shape, dict]:
     """Draw the pose and the mesh quality, mesh the design, label its faces."""
     rot = random_rotation(rng)
     scale = float(np.exp(rng.uniform(*np.log(SCALE))))
     target = float(np.exp(rng.uniform(*np.log(FACE_TARGET)))) * detail
     raw = bool(rng.random() < RAW_SHARE)
-    steps = 0 if raw else int(rng.integers(RELAX_STEPS[0], RELAX_STEPS[1] + 1))
+    relax_steps = 0 if raw else int(rng.integers(RELAX_STEPS[0], RELAX_STEPS[1] + 1))
     lo, hi = _world_box(design, rot, 0.0)
     # A coarse pass measures the area, which sets the step for the face target.
     hc = float(np.max(hi - lo)) / 40
     _, sdf = _design_sdfs(design, rot, max(3 * hc, 2 * design.blend))
     area = _surface_area(*marching_cubes(sdf, lo - 2 * hc, hi + 2 * hc, hc, clamp=RAW_CLAMP))
-    h = min(design.thin / STEPS_ACROSS, float(np.sqrt(FACES_PER_STEP2 * area / target)))
+    across = max(MIN_STEPS, STEPS_ACROSS * min(detail, 1.0) ** 0.5)      # a small detail: coarser
+    h = min(design.thin / across, float(np.sqrt(FACES_PER_STEP2 * area / target)))
     # Over the face budget, fewer steps across the thinnest part, but never under MIN_STEPS.
     h = max(h, min(design.thin / MIN_STEPS, float(np.sqrt(FACES_PER_STEP2 * area / MAX_FACES))))
     parts, sdf = _design_sdfs(design, rot, max(3 * h, 2 * design.blend))
@@ -202,27 +203,29 @@ def _mesh_design(design: Design, rng: np.random.Generator, detail: float) -> tup
         h = min(h * 1.02 * np.sqrt(len(f) / MAX_FACES), design.thin / MIN_STEPS)
         parts, sdf = _design_sdfs(design, rot, max(3 * h, 2 * design.blend))
         v, f = marching_cubes(sdf, lo - 2 * h, hi + 2 * h, h, clamp=RAW_CLAMP)
-    v, f = _keep_main_component(v, f)
-    if steps:
-        v = relax(sdf, v, f, iterations=steps)
+    v, f = _keep_main_component(name, v, f)
+    if relax_steps:
+        v = relax(sdf, v, f, iterations=relax_steps)
     d = parts(v[f].mean(1))
     tie = 1e-9 * float(np.max(hi - lo)) * np.arange(len(d))[:, None]   # coplanar faces: the first part
     labels = np.argmin(d + tie, axis=0).astype(np.int64)
     labels, moved = _join_islands(f, labels)
     missing = sorted(set(range(len(design.parts))) - set(np.unique(labels).tolist()))
     if missing:
-        raise ParameterError(f"procedural design lost its part(s) {[design.parts[i][0] for i in missing]} on the grid")
+        raise MeshError(name, f"the grid lost part(s) {[design.parts[i][0] for i in missing]}")
     v = v * scale
-    meta = {"grid_step": h * scale, "steps_across": design.thin / h, "scale": scale, "quality": "raw" if raw else "relaxed", "relax_steps": steps,
-            "face_target": round(target), "relabelled_faces": moved}
-    return Shape("", v, f, labels, len(design.parts)), meta
+    meta = {"grid_step": h * scale, "steps_across": design.thin / h, "scale": scale,
+            "quality": "raw" if raw else "relaxed", "relax_steps": relax_steps, "face_target": round(target),
+            "relabelled_faces": moved, "rotation": rot.tolist()}
+    return Shape(name, v, f, labels, len(design.parts)), meta
 
 
 def make_procedural(family: str, seed: int, detail: float = 1.0) -> ProceduralShape:
     """The shape of ``family`` drawn from ``seed``, with its part names and parameters.
 
-    detail : multiplies the face target (the grid step never exceeds a third of the thinnest
-        part, so thin parts survive any detail); small values make small meshes for tests.
+    detail : multiplies the face target; under 1 it also lowers the grid steps across the
+        thinnest part from STEPS_ACROSS (times sqrt(detail)) down to MIN_STEPS, which still
+        keeps every part: small values make small meshes for tests.
     Raises :class:`ParameterError` for an unknown family or a non-positive detail.
     """
     if family not in FAMILIES:
@@ -232,8 +235,7 @@ def make_procedural(family: str, seed: int, detail: float = 1.0) -> ProceduralSh
     fam = FAMILIES[family]
     rng = family_rng(family, seed)
     design = fam.generator(rng)
-    shape, meta = _mesh_design(design, rng, detail)
-    shape.name = f"{family}_{seed}"
+    shape, meta = _mesh_design(f"{family}_{seed}", design, rng, detail)
     params = {**{k: _plain(v) for k, v in design.params.items()}, **meta}
     return ProceduralShape(shape, family, fam.kind, int(seed), [n for n, _ in design.parts], params)
 

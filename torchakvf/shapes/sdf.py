@@ -44,17 +44,21 @@ def capsule_sdf(x: np.ndarray, a, b, radius: float) -> np.ndarray:
     return np.linalg.norm(x - a - t[:, None] * ab, axis=1) - radius
 
 
-def polygon_sdf(p: np.ndarray, poly) -> np.ndarray:
+def polygon_sdf(p: np.ndarray, poly, skip=None) -> np.ndarray:
     """Exact signed distance of 2-D points p [N, 2] to a simple polygon (vertices [M, 2] in
-    order, either winding): negative inside."""
+    order, either winding): negative inside. skip : [M] bool, edges (edge i joins vertex
+    i - 1 to vertex i) that bound the region without being surface (a profile's axis): they
+    count for inside and outside, not for the distance."""
     poly = np.asarray(poly, dtype=np.float64)
-    d = np.sum((p - poly[0]) ** 2, axis=1)
+    skip = np.zeros(len(poly), dtype=bool) if skip is None else np.asarray(skip)
+    d = np.full(len(p), np.inf)
     sign = np.ones(len(p))
     for i in range(len(poly)):
         vi, vj = poly[i], poly[i - 1]
         e, w = vj - vi, p - vi
-        b = w - e * np.clip(w @ e / (e @ e), 0.0, 1.0)[:, None]
-        d = np.minimum(d, np.sum(b * b, axis=1))
+        if not skip[i]:
+            b = w - e * np.clip(w @ e / (e @ e), 0.0, 1.0)[:, None]
+            d = np.minimum(d, np.sum(b * b, axis=1))
         c = np.stack([p[:, 1] >= vi[1], p[:, 1] < vj[1], e[0] * w[:, 1] > e[1] * w[:, 0]])
         sign[c.all(0) | (~c).all(0)] *= -1      # crossing-number parity: the point is inside
     return sign * np.sqrt(d)
@@ -264,12 +268,15 @@ class Extrusion(Placed):
 @dataclass(frozen=True, eq=False)
 class Revolved(Placed):
     """A solid of revolution about local z: the profile [M, 2] of (radius >= 0, z) points, a
-    polygon that closes along the axis (a chamfered turned section): exact distance."""
+    polygon that closes along the axis (a chamfered turned section): exact distance (the
+    edges on the axis are not surface)."""
     profile: tuple = ((0, -1), (1, -1), (1, 1), (0, 1))
 
     def __call__(self, x):
         p = self.local(x)
-        return polygon_sdf(np.stack([np.hypot(p[:, 0], p[:, 1]), p[:, 2]], axis=1), self.profile)
+        prof = np.asarray(self.profile, dtype=np.float64)
+        on_axis = (prof[:, 0] == 0) & (np.roll(prof[:, 0], 1) == 0)
+        return polygon_sdf(np.stack([np.hypot(p[:, 0], p[:, 1]), p[:, 2]], axis=1), prof, on_axis)
 
     def bounds(self):
         prof = np.asarray(self.profile, dtype=np.float64)
