@@ -311,7 +311,8 @@ def wheel(rng) -> Design:
         if web and rng.random() < 0.5:
             g = min(_u(rng, 0.25, 0.4) * W, rw)
             rim = Difference(rim, Torus(major=1.0 + 0.4 * g, minor=g))
-        mid, thin, fit = 1.0 - rw / 2, min(rw, W), 0.4 * W
+        # Spokes and the web reach 0.3 of the way into the rim: clear of a pulley's groove.
+        mid, thin, fit = 1.0 - 0.7 * rw, min(rw, W), 0.4 * W
     else:
         rt = _u(rng, 0.06, 0.12)
         rim, mid, thin, fit = Torus(major=1.0 - rt, minor=rt), 1.0 - rt, 2 * rt, 0.8 * rt

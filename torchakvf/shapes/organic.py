@@ -249,12 +249,14 @@ def octopus(rng) -> Design:
     star = rng.random() < 0.35
     if star:
         r0, h0 = _u(rng, 0.2, 0.35), _u(rng, 0.08, 0.15)
-        body, n, z0 = Ellipsoid(axes=(r0, r0, h0)), int(rng.integers(4, 8)), 0.0
+        body, n, z0, out_r = Ellipsoid(axes=(r0, r0, h0)), int(rng.integers(4, 8)), 0.0, 0.5 * r0
         base_r, segs = _u(rng, 0.45, 0.65) * h0 * 1.6, 4
     else:
         r0 = _u(rng, 0.3, 0.5)
         body = Ellipsoid(center=(0, 0, 0.3), axes=(r0, _u(rng, 0.8, 1.0) * r0, _u(rng, 0.4, 0.7)))
-        n, z0, base_r, segs = int(rng.integers(4, 9)), 0.0, _u(rng, 0.06, 0.11), 5
+        c = float(body.axes[2])
+        # Tentacles grow from the mantle's lower rim, so the middle of its underside stays body.
+        n, z0, out_r, base_r, segs = int(rng.integers(4, 9)), 0.3 - 0.5 * c, 0.6 * r0, _u(rng, 0.06, 0.11), 5
     tip = max(0.3 * base_r, 0.03)
     length = _u(rng, 0.7, 1.3)
     phase = _u(rng, 0, 2 * np.pi)
@@ -274,7 +276,7 @@ def octopus(rng) -> Design:
                 d, axis = unit(out - [0, 0, _u(rng, 0.3, 1.0)]), side
                 bends = [0] + [_u(rng, -0.15, 0.5) for _ in range(segs - 1)]
             lens = length * np.linspace(1.2, 0.8, segs) / segs
-            arms.append(limb(0.5 * r0 * out + [0, 0, z0], d, lens, np.linspace(base_r, tip, segs + 1), bends, axis))
+            arms.append(limb(out_r * out + [0, 0, z0], d, lens, np.linspace(base_r, tip, segs + 1), bends, axis))
         return arms
 
     arms = _posed(rng, draw, lambda o: apart(o, gap, body) and all(clear_of(body, g, gap) for g in o))
@@ -283,13 +285,12 @@ def octopus(rng) -> Design:
                                                                "base_radius": base_r})
 
 
-def _profile(rng, z0: float, z1: float, radii) -> tuple:
+def _profile(z0: float, z1: float, radii) -> tuple:
     """A smooth profile of revolution through ``radii`` at evenly spaced heights (monotone
-    cubic between them), closed along the axis: ((radius, z), ...)."""
-    zs = np.linspace(z0, z1, len(radii))
+    cubic between them), closed along the axis: (((radius, z), ...), the radius function)."""
+    rad = PchipInterpolator(np.linspace(z0, z1, len(radii)), radii)
     z = np.linspace(z0, z1, 16)
-    r = PchipInterpolator(zs, radii)(z)
-    return tuple([(0.0, z0)] + [(float(a), float(b)) for a, b in zip(r, z)] + [(0.0, z1)]), PchipInterpolator(zs, radii)
+    return tuple([(0.0, z0)] + [(float(a), float(b)) for a, b in zip(rad(z), z)] + [(0.0, z1)]), rad
 
 
 def vase(rng) -> Design:
@@ -303,13 +304,13 @@ def vase(rng) -> Design:
     else:
         radii = [_u(rng, 0.15, 0.3), _u(rng, 0.3, 0.5), _u(rng, 0.2, 0.45), _u(rng, 0.12, 0.3)]
     H = _u(rng, 0.8, 1.2) * (0.8 if mug else 1.0)
-    prof, rad = _profile(rng, 0.0, H, radii)
+    prof, rad = _profile(0.0, H, radii)
     parts = [("body", Revolved(profile=prof))]
     top = H
     if not mug and rng.random() < 0.5:
         rn, nh = radii[-1] * _u(rng, 0.6, 0.9), _u(rng, 0.15, 0.4)
         flare = rn * _u(rng, 1.0, 1.5)
-        nprof, _ = _profile(rng, H - 0.08, H + nh, [rn, 0.95 * rn, flare])
+        nprof, _ = _profile(H - 0.08, H + nh, [rn, 0.95 * rn, flare])
         parts.append(("neck", Revolved(profile=nprof)))
         top = H + nh
     if rng.random() < 0.4:

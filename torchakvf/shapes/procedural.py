@@ -4,7 +4,7 @@ its part. Training and selection data for the segmentation's rules, regenerated 
 ``datasets_scripts/make_parts_corpus.py`` (see docs/procedural_corpus.md).
 
 A family's generator (:mod:`.mechanical`, :mod:`.organic`) draws a :class:`Design`: named
-parts, each a solid (a leg of two capsules is one solid, one part); holes cut from the whole
+parts, each a solid (a leg of two round cones is one solid, one part); holes cut from the whole
 (never parts); fillers (solid, never a part, never on the surface); a blend radius (0: plain
 union, parts meet at creases); and the thinnest dimension the mesh must resolve.
 
@@ -15,12 +15,13 @@ island (a few faces where a solid grazes the surface, a hole's wall) join the ne
 part they share most edges with, so every part is one connected region.
 
 Meshing, all drawn from the seed: a uniform random rotation and a scale in [0.5, 2] (the pose
-must not matter); a grid step of at most 1/3 of the thinnest dimension, else set by a face
-target drawn log-uniformly in [8,000, 24,000] (so thin discs and fins keep both their sides);
-a quarter of the shapes left as raw marching output (slivers, like raw marching cubes; each
-vertex kept at least 1/10 of its grid edge from the edge's ends, so no face degenerates), the
-rest relaxed onto the surface with 8-30 steps. Face counts come out between about 5,000 and
-40,000.
+must not matter); marching cubes on a grid of step at most 1/3 of the thinnest dimension (so
+thin discs and fins keep both their sides), else set by a face target drawn log-uniformly in
+[8,000, 24,000]; a design that would exceed 40,000 faces so gets fewer steps across, never
+under 2. A quarter of the shapes are left as raw marching output (poor triangles at creases,
+as raw marching cubes makes; each vertex kept at least 1/10 of its grid edge from the edge's
+ends, so no face degenerates), the rest relaxed onto the surface in 8-30 steps. At the default
+detail the 450 shapes of the default corpus have 8,056-39,596 faces (median 19,810).
 """
 from __future__ import annotations
 
