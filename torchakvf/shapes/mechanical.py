@@ -332,8 +332,10 @@ def wheel(rng) -> Design:
             holes.append(cylinder((*c, -wt), (*c, wt), rl))
         thin, n = min(thin, wt), 0
     else:
-        parts.append(("hub", cylinder((0, 0, -hl / 2), (0, 0, hl / 2), rh)))
         n, sr = int(rng.integers(3, 9)), min(_u(rng, 0.025, 0.06), fit)   # a spoke's end fits in the rim
+        # Spokes take at most 0.7 of the hub's girth: a closed ring of them would cut the hub in two.
+        rh = max(rh, n * sr / (0.7 * np.pi))
+        parts.append(("hub", cylinder((0, 0, -hl / 2), (0, 0, hl / 2), rh)))
         phase = _u(rng, 0, 2 * np.pi)
         for i, a in enumerate(phase + 2 * np.pi * np.arange(n) / n):
             parts.append((f"spoke {i + 1}", cylinder((0, 0, 0), (mid * np.cos(a), mid * np.sin(a), 0), sr)))
