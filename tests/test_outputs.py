@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import torchakvf as ta
+from torchakvf import shapes
 
 
 def test_write_seg_is_checked(tmp_path):
@@ -34,3 +35,16 @@ def test_write_seg_is_atomic(tmp_path, monkeypatch):
     assert not list(tmp_path.glob(f".*{ta.io.TEMP_SUFFIX}"))     # no temp file left
 
 
+
+
+def test_write_off_reads_back_the_same_arrays(tmp_path):
+    s = shapes.fish()
+    v = s.vertices * np.pi          # coordinates with full float64 mantissas
+    for name in ("fish.off", "fish.off.gz"):
+        mesh = ta.load_mesh(ta.io.write_off(tmp_path / name, v, s.faces))
+        assert np.array_equal(mesh.vertices, v) and np.array_equal(mesh.faces, s.faces)
+    for bad_v, bad_f, problem in [(v[:, :2], s.faces, "shape"), (v, s.faces + len(v), "in 0.."),
+                                  (v, s.faces.astype(float), "integers")]:
+        with pytest.raises(ta.errors.ParameterError, match=problem):
+            ta.io.write_off(tmp_path / "bad.off", bad_v, bad_f)
+    assert not (tmp_path / "bad.off").exists()

@@ -1,4 +1,4 @@
-"""Writing results: .seg (PSB format), .npz, face-coloured PLY. Every write is atomic."""
+"""Writing results: .seg (PSB format), .npz, face-coloured PLY, OFF meshes. Every write is atomic."""
 from __future__ import annotations
 
 import errno
@@ -127,6 +127,31 @@ def write_seg(path, labels) -> Path:
     if path.name.endswith(".gz"):
         text = gzip.compress(text, mtime=0)
     atomic_write_bytes(path, text)
+    return path
+
+
+def write_off(path, vertices, faces) -> Path:
+    """Write a triangle mesh as ASCII OFF (vertices [V, 3], faces [F, 3] 0-based), atomically;
+    each coordinate as the shortest decimal that reads back to the same float64, so
+    :func:`~torchakvf.io.load_mesh` returns the same arrays; a name ending in ``.gz`` is
+    written gzip-compressed. Returns the path.
+
+    Raises :class:`ParameterError` unless vertices are [V, 3] finite and faces [F, 3] integers
+    in range.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
+        raise ParameterError(f"{path}: vertices must be finite with shape [V, 3], got shape {list(v.shape)}")
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer) or len(f) == 0 \
+            or f.min() < 0 or f.max() >= len(v):
+        raise ParameterError(f"{path}: faces must be [F, 3] integers in 0..{len(v) - 1}, got shape {list(f.shape)}")
+    lines = [f"OFF\n{len(v)} {len(f)} 0\n"]
+    lines += [f"{a!r} {b!r} {c!r}\n" for a, b, c in v.tolist()]
+    lines += [f"3 {a} {b} {c}\n" for a, b, c in f.tolist()]
+    path = Path(path)
+    data = "".join(lines).encode("ascii")
+    atomic_write_bytes(path, gzip.compress(data, mtime=0) if path.name.endswith(".gz") else data)
     return path
 
 

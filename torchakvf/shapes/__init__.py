@@ -1,14 +1,19 @@
-"""Built-in triangle meshes generated in code (pure numpy + scipy), one module a family:
+"""Built-in triangle meshes generated in code (numpy and scipy; libigl's marching cubes for the
+procedural shapes), one module a family:
 :mod:`.shape` (the record), :mod:`.icosphere`, :mod:`.revolution`, :mod:`.planar`,
 :mod:`.composites` (known parts), :mod:`.implicit` (a table, a mug, a four-legged animal
-and a fish: voxel and level-set surfaces with known parts) and :mod:`.deformations`.
+and a fish: voxel and level-set surfaces with known parts) and :mod:`.deformations`; and the
+procedural corpus of part-labelled shapes drawn from seeds, :mod:`.procedural` (families in
+:mod:`.mechanical` and :mod:`.organic`, solids in :mod:`.sdf`, meshing in :mod:`.marching`).
 
-They serve two purposes:
+They serve three purposes:
 
 1. test oracles for eigenvalue tables of the discrete Killing operator (spheres,
    ellipsoids, tori, tubes, flat patches, ...);
 2. composite shapes with *known* parts (blobs joined by thin necks, disconnected tori)
-   for segmentation tests and the demo, with a ground-truth label per face.
+   for segmentation tests and the demo, with a ground-truth label per face;
+3. training and selection data with exact parts, the procedural corpus (imported as
+   ``torchakvf.shapes.procedural``, not here: its families load on demand).
 
 Conventions for every mesh: faces are counter-clockwise seen from outside (outward
 normals; +z for the planar ones), the mesh is manifold, and it has no duplicate vertices

@@ -4,21 +4,17 @@ surface), a four-legged animal and a fish (protrusions people mark as parts: leg
 fins).
 
 numpy only. The table is the boundary of a union of voxels (exact flat boxes); the others are
-marching-tetrahedra surfaces of a signed distance function (a smooth union of primitives, one
-per part), relaxed tangentially and projected back onto the surface so that their triangles
-are well shaped.
+marching-tetrahedra surfaces (:mod:`.marching`) of a signed distance function (:mod:`.sdf`: a
+smooth union of primitives, one per part), relaxed tangentially and projected back onto the
+surface so that their triangles are well shaped.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .marching import gradient, marching_tetrahedra, relax_onto
+from .sdf import capsule_sdf, ellipsoid_sdf, smooth_union
 from .shape import Shape
-
-# The 6 tetrahedra of a cube around its diagonal 0-6 (corner c has offset bits x=c&1...,
-# numbered as below); every cube splits the same way, so shared faces match (conforming).
-_CORNERS = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
-                     [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]])
-_TETS = np.array([[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]])
 
 
 def _voxel_surface(occupied: np.ndarray, h: float, origin) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -72,73 +68,6 @@ def table(h: float = 0.05) -> Shape:
     return Shape("table", v, f, part.reshape(-1)[owner], 5)
 
 
-def _marching_tetrahedra(sdf, lo, hi, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """The zero set of ``sdf`` (vectorized [N, 3] -> [N], negative inside) on a grid of step h
-    over the box [lo, hi]: (vertices, faces), faces not yet oriented."""
-    axes = [np.arange(a, b + h, h) for a, b in zip(lo, hi)]
-    n = np.array([len(a) for a in axes])
-    pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    val = sdf(pts)
-    val[val == 0] = 1e-12          # no surface vertex on a grid point: no zero-length edges
-    cells = np.stack(np.meshgrid(*[np.arange(m - 1) for m in n], indexing="ij"), axis=-1).reshape(-1, 3)
-    corner = np.ravel_multi_index((cells[:, None, :] + _CORNERS[None]).transpose(2, 0, 1), tuple(n))
-    tets = corner[:, _TETS].reshape(-1, 4)
-    inside = val[tets] < 0
-    count = inside.sum(1)
-    tets, inside, count = tets[(count > 0) & (count < 4)], inside[(count > 0) & (count < 4)], count[(count > 0) & (count < 4)]
-    tris = []
-    # One corner apart (1 or 3 inside): a triangle on its three edges.
-    one = (count == 1) | (count == 3)
-    t1, in1 = tets[one], inside[one]
-    odd = np.where((count[one] == 1)[:, None], in1, ~in1)
-    apex = np.argmax(odd, axis=1)
-    others = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])[apex]
-    a = t1[np.arange(len(t1)), apex]
-    rest = np.take_along_axis(t1, others, axis=1)
-    tris.append(np.stack([np.stack([a, rest[:, i]], axis=1) for i in range(3)], axis=1))
-    # Two inside (p, q), two outside (r, s): the quad pr, ps, qs, qr as two triangles.
-    t2, in2 = tets[count == 2], inside[count == 2]
-    order = np.argsort(~in2, axis=1, kind="stable")
-    p, q, r, s = np.take_along_axis(t2, order, axis=1).T
-    pr, ps, qs, qr = (np.stack(e, axis=1) for e in ((p, r), (p, s), (q, s), (q, r)))
-    tris.append(np.stack([pr, ps, qs], axis=1))
-    tris.append(np.stack([pr, qs, qr], axis=1))
-    edges = np.concatenate(tris)                        # [T, 3, 2] grid-edge endpoints
-    edges = np.sort(edges, axis=2)
-    key = edges[..., 0] * len(pts) + edges[..., 1]
-    ukey, inv = np.unique(key, return_inverse=True)
-    i, j = ukey // len(pts), ukey % len(pts)
-    t = val[i] / (val[i] - val[j])
-    vertices = pts[i] + t[:, None] * (pts[j] - pts[i])
-    return vertices, inv.reshape(-1, 3)
-
-
-def _gradient(sdf, x: np.ndarray, d: float = 1e-5) -> np.ndarray:
-    return np.stack([(sdf(x + d * e) - sdf(x - d * e)) / (2 * d) for e in np.eye(3)], axis=1)
-
-
-def _relax_onto(sdf, vertices: np.ndarray, faces: np.ndarray, iterations: int = 15) -> np.ndarray:
-    """Tangential umbrella smoothing, each step projected back onto sdf = 0 (Newton)."""
-    v = vertices.copy()
-    nv = len(v)
-    i = faces.reshape(-1)
-    j = np.roll(faces, -1, axis=1).reshape(-1)
-    deg = np.bincount(i, minlength=nv) + np.bincount(j, minlength=nv)
-    for _ in range(iterations):
-        acc = np.zeros_like(v)
-        np.add.at(acc, i, v[j])
-        np.add.at(acc, j, v[i])
-        move = acc / deg[:, None] - v
-        g = _gradient(sdf, v)
-        g /= np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
-        move -= np.einsum("ij,ij->i", move, g)[:, None] * g
-        v = v + 0.5 * move
-        for _ in range(2):
-            g = _gradient(sdf, v)
-            v = v - (sdf(v) / np.maximum(np.einsum("ij,ij->i", g, g), 1e-12))[:, None] * g
-    return v
-
-
 def _mug_sdfs(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # Body: a closed can, radius 0.5, height 1.2, edges rounded by 0.1.
     rad = np.hypot(x[:, 0], x[:, 1])
@@ -163,43 +92,15 @@ def _implicit_shape(name: str, parts, lo, hi, h: float, blend: float, relax: int
     creases where primitives meet; ``relax``: steps of tangential relaxation (thin parts need
     more to lose the slivers marching tetrahedra leaves across them)."""
     def sdf(x):
-        return _smooth_union(parts(x), blend)
-    v, f = _marching_tetrahedra(sdf, lo, hi, h)
-    v = _relax_onto(sdf, v, f, iterations=relax)
+        return smooth_union(parts(x), blend)
+    v, f = marching_tetrahedra(sdf, lo, hi, h)
+    v = relax_onto(sdf, v, f, iterations=relax)
     tri = v[f]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    outward = np.einsum("ij,ij->i", normal, _gradient(sdf, tri.mean(1))) > 0
+    outward = np.einsum("ij,ij->i", normal, gradient(sdf, tri.mean(1))) > 0
     f = np.where(outward[:, None], f, f[:, ::-1])
     labels = np.argmin(parts(v[f].mean(1)), axis=0).astype(np.int64)
     return Shape(name, v, f, labels, int(labels.max()) + 1)
-
-
-def _smooth_union(d: np.ndarray, blend: float) -> np.ndarray:
-    """[P, N] distances -> [N]: min over the primitives, its creases rounded over ``blend``
-    (the polynomial smooth minimum, applied pairwise in order)."""
-    out = d[0]
-    for other in d[1:]:
-        if blend <= 0:
-            out = np.minimum(out, other)
-            continue
-        mix = np.maximum(blend - np.abs(out - other), 0.0) / blend
-        out = np.minimum(out, other) - mix * mix * blend / 4
-    return out
-
-
-def _ellipsoid_sdf(x: np.ndarray, center, axes) -> np.ndarray:
-    """Approximate signed distance to an axis-aligned ellipsoid (exact zero set; distances
-    scaled by the smallest semi-axis)."""
-    q = (x - np.asarray(center)) / np.asarray(axes)
-    return (np.linalg.norm(q, axis=1) - 1.0) * min(axes)
-
-
-def _capsule_sdf(x: np.ndarray, a, b, radius: float) -> np.ndarray:
-    """Signed distance to the capsule of ``radius`` around the segment a-b."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    ab = b - a
-    t = np.clip((x - a) @ ab / (ab @ ab), 0.0, 1.0)
-    return np.linalg.norm(x - a - t[:, None] * ab, axis=1) - radius
 
 
 def _mug_parts(x: np.ndarray) -> np.ndarray:
@@ -220,10 +121,10 @@ _LEG_XY = ((0.55, 0.22), (0.55, -0.22), (-0.55, 0.22), (-0.55, -0.22))
 
 
 def _quadruped_parts(x: np.ndarray) -> np.ndarray:
-    body = _ellipsoid_sdf(x, (0.0, 0.0, 0.0), (0.95, 0.4, 0.38))
-    head = np.minimum(_ellipsoid_sdf(x, (1.25, 0.0, 0.42), (0.3, 0.2, 0.2)),
-                      _capsule_sdf(x, (0.8, 0.0, 0.12), (1.1, 0.0, 0.38), 0.14))
-    legs = [_capsule_sdf(x, (lx, ly, -0.1), (lx, ly, -0.92), 0.12) for lx, ly in _LEG_XY]
+    body = ellipsoid_sdf(x, (0.0, 0.0, 0.0), (0.95, 0.4, 0.38))
+    head = np.minimum(ellipsoid_sdf(x, (1.25, 0.0, 0.42), (0.3, 0.2, 0.2)),
+                      capsule_sdf(x, (0.8, 0.0, 0.12), (1.1, 0.0, 0.38), 0.14))
+    legs = [capsule_sdf(x, (lx, ly, -0.1), (lx, ly, -0.92), 0.12) for lx, ly in _LEG_XY]
     return np.stack([body, head, *legs])
 
 
@@ -246,10 +147,10 @@ _FIN = 0.09
 
 
 def _fish_parts(x: np.ndarray) -> np.ndarray:
-    body = _ellipsoid_sdf(x, (0.0, 0.0, 0.0), (1.0, 0.3, 0.45))
-    tail = _ellipsoid_sdf(x, (-1.2, 0.0, 0.0), (0.35, _FIN, 0.45))
-    dorsal = _ellipsoid_sdf(x, (0.0, 0.0, 0.5), (0.4, _FIN, 0.25))
-    fins = [_ellipsoid_sdf(x, (0.3, side * 0.35, -0.15), (0.25, 0.22, _FIN)) for side in (1, -1)]
+    body = ellipsoid_sdf(x, (0.0, 0.0, 0.0), (1.0, 0.3, 0.45))
+    tail = ellipsoid_sdf(x, (-1.2, 0.0, 0.0), (0.35, _FIN, 0.45))
+    dorsal = ellipsoid_sdf(x, (0.0, 0.0, 0.5), (0.4, _FIN, 0.25))
+    fins = [ellipsoid_sdf(x, (0.3, side * 0.35, -0.15), (0.25, 0.22, _FIN)) for side in (1, -1)]
     return np.stack([body, tail, dorsal, *fins])
 
 
