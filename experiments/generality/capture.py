@@ -1,7 +1,8 @@
 """Capture what the merge decision sees on every labelled shape (PSB and the procedural corpus).
 
 For each shape, as the default pipeline runs it (coarse ``--coarse-faces`` faces, refine off)
-under an over-segmentation variant (:data:`OVERSEG`): the over-segmentation the merge starts
+under an over-segmentation variant (:data:`OVERSEG`) and, with ``--weights``, the merge weights
+fitted without the shape's group (the final labels are then held out): the over-segmentation the merge starts
 from at each k (labels on the fine cleaned mesh after the clean-up, unit feature rows, face
 areas), the default's final labels at each k, the cleaned mesh and the truths. merge_cv.py then
 redoes only the merge on exactly these over-segmentations.
@@ -12,6 +13,7 @@ redoes only the merge on exactly these over-segmentations.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import pickle
@@ -43,7 +45,7 @@ def options(variant: str, merge_changes: dict | None = None):
 
 
 def capture_item(args) -> str:
-    item, out, variant, coarse_faces, rings = args
+    item, out, variant, coarse_faces, rings, weights = args
     import torch
     from torchakvf.operators import killing
 
@@ -62,7 +64,7 @@ def capture_item(args) -> str:
     if path.exists():
         return f"{item.key} cached"
     t0 = time.perf_counter()
-    opts = options(variant)
+    opts = options(variant, weights.get(item.group, weights.get("*")) if weights else None)
     try:
         mesh = load_mesh(item.mesh_path)
         gts = [read_truth(s) for s in item.truths]
@@ -111,6 +113,9 @@ def main():
     ap.add_argument("--keys", default=None, help="comma-separated item keys (default: all)")
     ap.add_argument("--coarse-faces", type=int, default=4000)
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--weights", default=None,
+                    help="JSON file {group or '*': MergeWeights fields}: the merge each group's shapes are "
+                         "segmented with (held-out weights per group)")
     ap.add_argument("--curvature-rings", type=int, default=None,
                     help="rings of the 'smooth' remedy's curvature averaging (default: the package's)")
     a = ap.parse_args()
@@ -120,7 +125,8 @@ def main():
     if a.keys:
         want = set(a.keys.split(","))
         todo = [i for i in todo if i.key in want]
-    jobs = [(i, str(out), a.variant, a.coarse_faces, a.curvature_rings) for i in todo]
+    weights = json.loads(Path(a.weights).read_text()) if a.weights else None
+    jobs = [(i, str(out), a.variant, a.coarse_faces, a.curvature_rings, weights) for i in todo]
     os.environ.update({v: "1" for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")})
     if a.workers == 1:
         for j in jobs:

@@ -20,6 +20,7 @@ shape the mean over its truths, per group the mean over its shapes.
 from __future__ import annotations
 
 import argparse
+import json
 import pickle
 import time
 from multiprocessing import get_context
@@ -261,6 +262,13 @@ def fitted_cost(train: list, policy: Cost, pool, corpus_share: float, cols=None,
     return Cost(w, b, gamma)
 
 
+def weight_fields(cost: Cost) -> dict:
+    """The MergeWeights fields of a fitted cost (the "small" column is part_size)."""
+    fields = {FIELD_OF_TERM[name]: float(f"{x:.4g}") for name, x in zip(TERM_NAMES, cost.w)}
+    fields.update(size=0.0, intercept=float(f"{cost.b:.4g}"), rand_gamma=cost.gamma)
+    return fields
+
+
 def group_scores(keys: list, cost: Cost, pool) -> dict:
     errs = pool.starmap(shape_error, [(m, cost) for m in keys])
     by: dict = {}
@@ -319,6 +327,8 @@ def main():
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--corpus-share", default="0,0.5", help="comma-separated shares of the corpus in the fit")
     ap.add_argument("--stage", default="all", choices=["prep", "all"])
+    ap.add_argument("--weights-out", default=None,
+                    help="write {group: weights fitted without it, '*': fitted on all} of the last share (JSON)")
     a = ap.parse_args()
     prep = Path(a.prep)
     prep.mkdir(parents=True, exist_ok=True)
@@ -343,8 +353,14 @@ def main():
         policy = Cost.of(MergeWeights.hand_set())
         for share in [float(x) for x in a.corpus_share.split(",")]:
             print(f"corpus share {share}", flush=True)
-            sc, _ = held_out(policy, pool, share)
+            sc, costs = held_out(policy, pool, share)
             results[f"learned, corpus share {share} (held out)"] = sc
+            everything = fitted_cost(keys, policy, pool, share)
+            results[f"learned, corpus share {share} (fitted on all: in-sample)"] = group_scores(keys, everything, pool)
+            if a.weights_out:
+                out = {g: weight_fields(c) for g, c in costs.items()}
+                out["*"] = weight_fields(everything)
+                Path(a.weights_out).write_text(json.dumps(out, indent=1) + "\n")
     text = table(results)
     print(text)
     if a.out:

@@ -107,6 +107,12 @@ def crease_split_on(opts: SegmentOptions) -> bool:
     return opts.merges_parts and opts.merge.crease_split is not None
 
 
+def joining_weights(dual: DualEdges) -> np.ndarray:
+    """[P] weight of each dual edge when a small piece chooses the neighbour to join: 1 on flat
+    and convex surface, falling to 0 on concave creases of 45° and more (the minima rule)."""
+    return 1.0 - np.clip(dual.dihedral / (np.pi / 4), 0.0, 1.0)
+
+
 def part_floor(k: int, opts: SegmentOptions) -> float:
     """The area fraction below which pieces are cleaned away at k parts: ``min_part_fraction``,
     at most :data:`~torchakvf.options.PART_FLOOR_OF_MEAN` / k (so the floor changes nothing up
@@ -142,7 +148,15 @@ def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: t
             if cache.dual is None:
                 cache.dual = dual_edges(clean.vertices, clean.faces)
             cache.patches[key] = crease_patches(clean.vertices, clean.faces, cache.dual, *key)
-        labels, n_patches = split_by_patches(labels, cache.patches[key])
+        patches = cache.patches[key]
+        labels, n_patches = split_by_patches(labels, patches)
+        # A small piece joins a piece of its own patch where it has one (the k-means boundary is
+        # the weaker of the two it was cut by), else the neighbour across its least concave
+        # boundary (creases where primitives meet are concave; convex ones run inside parts).
+        same = patches[cache.adjacency[:, 0]] == patches[cache.adjacency[:, 1]]
+        labels = remove_small_parts(labels, cache.adjacency[same], area, floor, into_connecting=False)
+        labels = remove_small_parts(labels, cache.adjacency, area, floor, into_connecting=False,
+                                    weights=joining_weights(cache.dual))
     if opts.eps == 0:
         labels = remove_small_parts(labels, cache.adjacency, area, floor, into_connecting=False)
         unit = unit_rows(feats)    # the merge, its cost and the next merge's all read them
