@@ -3,6 +3,7 @@ against plain loops, adjacency-only merges, the over-segmentation count, shared 
 fresh ones, and the two failure-mode shapes (table, mug) part for part."""
 from __future__ import annotations
 
+import math
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -151,6 +152,18 @@ def test_merged_distances_take_the_least_over_united_parts():
     np.testing.assert_allclose(merged_distances(d, before, after), [[0.1, 0.9], [0.2, 0.4]])
 
 
+def test_merged_distances_of_crease_pieces_meet_on_their_crease():
+    # two faces sharing the edge 1-2; one center cut by a crease into two pieces, which the
+    # merge put in different parts: off its patch a piece is one farther, on the shared edge
+    # (both patches) the two parts tie
+    faces = np.array([[0, 1, 2], [2, 1, 3]])
+    d = np.array([[0.3], [0.2], [0.1], [0.4]])
+    got = merged_distances(d, np.array([0, 0]), np.array([0, 1]), faces=faces, patches=np.array([0, 1]))
+    np.testing.assert_allclose(got, [[0.3, 1.3], [0.2, 0.2], [0.1, 0.1], [1.4, 0.4]])
+    # without patches the two parts cannot be told apart
+    np.testing.assert_allclose(merged_distances(d, np.array([0, 0]), np.array([0, 1])), np.c_[d[:, 0], d[:, 0]])
+
+
 def test_oversegment_k_and_parameter_errors():
     assert oversegment_k(5, 2.0, 10 ** 6) == 10 and oversegment_k(3, 1.5, 10 ** 6) == 5
     assert oversegment_k(4, 3.0, 7) == 7 and oversegment_k(4, 1.0, 100) == 4
@@ -164,6 +177,11 @@ def test_oversegment_k_and_parameter_errors():
         MergeWeights(concavity=-1.0)
     with pytest.raises(ParameterError):
         MergeWeights(ratio=0.5)
+    for bad in (0.0, math.pi, -0.3):
+        with pytest.raises(ParameterError, match="crease_split"):
+            MergeWeights(crease_split=bad)
+    with pytest.raises(ParameterError, match="crease_rings"):
+        MergeWeights(crease_rings=0)
     s = shapes.table()
     with pytest.raises(ParameterError, match="method"):
         ta.segment(ta.Mesh(s.vertices, s.faces), k=5, method="nope")

@@ -131,6 +131,14 @@ class MergeWeights:
     thickness: float = 1.718
     #: weight of log(t_small / t_median), the smaller part's thickness against the mesh's median
     thin: float = -0.1241
+    #: radians in (0, π): the over-segmentation is also cut along creases where the surface
+    #: normal turns by more than this within ``crease_rings`` dual rings
+    #: (:mod:`torchakvf.parts.creases`), so the merge can keep parts apart that only a crease
+    #: separates (coaxial cylinders, a slab and its legs); None: not cut
+    crease_split: float | None = None
+    #: dual rings (>= 1) over which ``crease_split`` measures a crease (a crease rounded over up
+    #: to about this many triangles is found)
+    crease_rings: int = 3
     #: weight of (d_small - d_large) / R, the smaller part's distance from the surface's centroid
     #: beyond the larger one's, R the RMS radius (a protrusion lies further out)
     centricity: float = -0.1763
@@ -171,6 +179,10 @@ class MergeWeights:
             raise ParameterError(f"extra_max must be None or an integer >= 0, got {self.extra_max!r}")
         if not is_int(self.min_k, 1):
             raise ParameterError(f"min_k must be an integer >= 1, got {self.min_k!r}")
+        if self.crease_split is not None and not 0 < self.crease_split < math.pi:
+            raise ParameterError(f"crease_split must be None or in (0, π) radians, got {self.crease_split!r}")
+        if not is_int(self.crease_rings, 1):
+            raise ParameterError(f"crease_rings must be an integer >= 1, got {self.crease_rings!r}")
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from ..mesh import MeshBatch
 from ..options import PART_FLOOR_OF_MEAN, GraphCut, SegmentOptions
 from .boundaries import face_margins, isoline_face_labels, refine_along_isolines, vertex_distances
 from .concavity import DualEdges, dual_edges
+from .creases import crease_patches, split_by_patches
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .field_counts import cluster_count
 from .generators import part_generators
@@ -41,9 +42,11 @@ class OverSegmentation:
         an identical clustering under the same options
     mesh : the mesh the parts are cut on (the fine one when solved on a decimated mesh) and, on
         it, vdist [V, k'] (each vertex's distance to each center), feats [F, n], labels [F]
-        (with ε = 0 cleaned of small pieces), area [F] (unit total), unit [F, n] (unit feature
+        (with ε = 0 cleaned of small pieces; cut along creases where the merge asks for it:
+        then center ``labels // n_patches``), area [F] (unit total), unit [F, n] (unit feature
         rows; None with ε > 0)
     graphs : the merge's region graph of ``labels`` by crease angle (made when first asked)
+    n_patches : the crease patches ``labels`` were cut along (1: not cut)
     """
 
     source: tuple
@@ -55,6 +58,12 @@ class OverSegmentation:
     area: np.ndarray
     unit: np.ndarray | None
     graphs: dict[float, RegionGraph] = field(default_factory=dict)
+    n_patches: int = 1
+
+    @property
+    def centers(self) -> np.ndarray:
+        """[F] the k-means center (a column of ``vdist``) of each face's piece."""
+        return self.labels // self.n_patches if self.n_patches > 1 else self.labels
 
     def made_from(self, clustered: tuple, opts: SegmentOptions, floor: float) -> bool:
         """Whether this entry is for exactly this clustering (equal arrays) and these options."""
@@ -74,9 +83,11 @@ class MeshCache:
     over : the last :class:`OverSegmentation` (ε = 0), for the next k clustered alike
     sums_inputs : (centroids, thickness) of the mesh the merge terms read
         (:func:`~torchakvf.parts.merge.mesh_sums_inputs`), made when first needed
+    patches : {(angle, rings): [F] :func:`~torchakvf.parts.creases.crease_patches`}
     """
 
     adjacency: np.ndarray | None = None
+    patches: dict[tuple, np.ndarray] = field(default_factory=dict)
     sums_inputs: tuple | None = None
     dual: DualEdges | None = None
     bends: dict[float, tuple] = field(default_factory=dict)
@@ -87,7 +98,19 @@ class MeshCache:
 def over_settings(opts: SegmentOptions, floor: float) -> tuple:
     """The options an :class:`OverSegmentation` depends on besides its clustering (floor:
     :func:`part_floor` of its k)."""
-    return (opts.boundary, opts.eps > 0, floor)
+    split = (opts.merge.crease_split, opts.merge.crease_rings) if crease_split_on(opts) else None
+    return (opts.boundary, opts.eps > 0, floor, split)
+
+
+def crease_split_on(opts: SegmentOptions) -> bool:
+    """Whether the over-segmentation is cut along creases: only where parts are merged."""
+    return opts.merges_parts and opts.merge.crease_split is not None
+
+
+def joining_weights(dual: DualEdges) -> np.ndarray:
+    """[P] weight of each dual edge when a small piece chooses the neighbour to join: 1 on flat
+    and convex surface, falling to 0 on concave creases of 45° and more (the minima rule)."""
+    return 1.0 - np.clip(dual.dihedral / (np.pi / 4), 0.0, 1.0)
 
 
 def part_floor(k: int, opts: SegmentOptions) -> float:
@@ -118,6 +141,22 @@ def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: t
     if cache.adjacency is None:
         cache.adjacency = face_adjacency(clean.faces)
     unit = None
+    n_patches = 1
+    if crease_split_on(opts):
+        key = (opts.merge.crease_split, opts.merge.crease_rings)
+        if key not in cache.patches:
+            if cache.dual is None:
+                cache.dual = dual_edges(clean.vertices, clean.faces)
+            cache.patches[key] = crease_patches(clean.vertices, clean.faces, cache.dual, *key)
+        patches = cache.patches[key]
+        labels, n_patches = split_by_patches(labels, patches)
+        # A small piece joins a piece of its own patch where it has one (the k-means boundary is
+        # the weaker of the two it was cut by), else the neighbour across its least concave
+        # boundary (creases where primitives meet are concave; convex ones run inside parts).
+        same = patches[cache.adjacency[:, 0]] == patches[cache.adjacency[:, 1]]
+        labels = remove_small_parts(labels, cache.adjacency[same], area, floor, into_connecting=False)
+        labels = remove_small_parts(labels, cache.adjacency, area, floor, into_connecting=False,
+                                    weights=joining_weights(cache.dual))
     if opts.eps == 0:
         labels = remove_small_parts(labels, cache.adjacency, area, floor, into_connecting=False)
         unit = unit_rows(feats)    # the merge, its cost and the next merge's all read them
@@ -125,7 +164,8 @@ def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: t
         if shared is not None:     # read by every k that shares them: a write would be a bug
             shared.flags.writeable = False
     return OverSegmentation(source=tuple(np.array(a) for a in clustered), settings=over_settings(opts, floor),
-                            mesh=clean, vdist=vdist, feats=feats, labels=labels, area=area, unit=unit)
+                            mesh=clean, vdist=vdist, feats=feats, labels=labels, area=area, unit=unit,
+                            n_patches=n_patches)
 
 
 @dataclass
@@ -215,7 +255,9 @@ def _segmentation_labels(over: OverSegmentation, cache: MeshCache, opts: Segment
                                                centroids=centroids, thickness=thickness)
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
                              dual=dual, unit=unit, bends=bends, graph=over.graphs[crease])
-        vdist = merged_distances(vdist, labels, merged)   # the refined cut follows the merged parts
+        # the refined cut and the graph cut's data term follow the merged parts
+        vdist = merged_distances(vdist, over.centers, merged, faces=clean.faces,
+                                 patches=over.labels % over.n_patches if over.n_patches > 1 else None)
         labels = merged
         # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
         cost = partition_cost(labels, feats, unit=unit) * n_solved / len(labels)

@@ -33,7 +33,7 @@ def absorb_single_neighbour_regions(labels: np.ndarray, adjacency: np.ndarray) -
 
 
 def remove_small_parts(labels: np.ndarray, adjacency: np.ndarray, face_area: np.ndarray,
-                       min_fraction: float, into_connecting: bool) -> np.ndarray:
+                       min_fraction: float, into_connecting: bool, weights: np.ndarray | None = None) -> np.ndarray:
     """Connected pieces of a part with less than ``min_fraction`` of the area are removed.
 
     into_connecting=True (part discovery): they become connecting region.
@@ -44,21 +44,25 @@ def remove_small_parts(labels: np.ndarray, adjacency: np.ndarray, face_area: np.
     join only the labels of neighbouring pieces that are not small, until none is left or none
     has such a neighbour. (Seen on a dumbbell: a 0.2% piece left by the first pass ended as
     one of its two parts at k = 2.)
+
+    weights : [P] a weight per adjacency pair: a small piece then joins the label whose shared
+    edges weigh most (e.g. edges on a concave crease weighing little: the piece joins across
+    its weakest boundary).
     """
     if min_fraction <= 0:
         return labels
     threshold = min_fraction * face_area.sum()
-    out, moved = small_pieces_pass(labels, adjacency, face_area, threshold, into_connecting, False)
+    out, moved = small_pieces_pass(labels, adjacency, face_area, threshold, into_connecting, False, weights)
     if into_connecting:
         return out
     while moved:       # each pass that moves a piece leaves fewer small pieces: it ends
-        out, moved = small_pieces_pass(out, adjacency, face_area, threshold, False, True)
+        out, moved = small_pieces_pass(out, adjacency, face_area, threshold, False, True, weights)
     return out
 
 
 def small_pieces_pass(labels: np.ndarray, adjacency: np.ndarray, face_area: np.ndarray,
-                      threshold: float, into_connecting: bool, large_only: bool
-                      ) -> tuple[np.ndarray, bool]:
+                      threshold: float, into_connecting: bool, large_only: bool,
+                      weights: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
     """One pass of :func:`remove_small_parts` over the pieces of area below ``threshold``:
     (new labels, whether any piece moved). large_only: a small piece joins only labels of
     neighbouring pieces that are not small (edges between two small pieces are not counted)."""
@@ -76,10 +80,12 @@ def small_pieces_pass(labels: np.ndarray, adjacency: np.ndarray, face_area: np.n
         out[small[piece]] = CONNECTING
         return out, True
     if large_only:
-        adjacency = adjacency[~(small[piece[adjacency[:, 0]]] & small[piece[adjacency[:, 1]]])]
+        among_large = ~(small[piece[adjacency[:, 0]]] & small[piece[adjacency[:, 1]]])
+        adjacency = adjacency[among_large]
+        weights = None if weights is None else weights[among_large]
     # Each small piece joins the neighbouring label (not the connecting region) it shares the
     # most edges with; ties go to the label piece_neighbours met first.
-    p, lab, count, first = piece_label_counts(piece, out, adjacency)
+    p, lab, count, first = piece_label_counts(piece, out, adjacency, weights)
     keep = (lab != CONNECTING) & small[p]
     p, lab, count, first = p[keep], lab[keep], count[keep], first[keep]
     best = np.lexsort((first, -count, p))

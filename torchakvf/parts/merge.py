@@ -308,23 +308,44 @@ def partition_cost(labels: np.ndarray, features: np.ndarray, *, unit: np.ndarray
     return float(np.sum(1.0 - np.einsum("ij,ij->i", unit, centers[lab])))
 
 
-def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarray) -> np.ndarray:
-    """[V, k] distance of each vertex to each merged part: the least over the parts it unites.
+def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarray, *,
+                     faces: np.ndarray | None = None, patches: np.ndarray | None = None) -> np.ndarray:
+    """[V, k] distance of each vertex to each merged part: the least over the pieces it unites.
 
     distances : [V, K'] per-vertex distances to the over-segmentation's k-means centers
-    (:func:`~torchakvf.parts.boundaries.vertex_distances`); before : [F] labels of the
-    over-segmentation (center ids), after : [F] the merged labels. Centers owning no face
-    after clean-up are left out. Isolines of the result are the merged parts' boundaries.
+    (:func:`~torchakvf.parts.boundaries.vertex_distances`); before : [F] the center of each face's
+    piece, after : [F] the merged labels. Centers owning no face after clean-up are left out.
+    Isolines of the result are the merged parts' boundaries.
+
+    faces [F, 3], patches [F]: the crease patches the pieces were cut along
+    (:func:`~torchakvf.parts.creases.crease_patches`), if they were. A piece is then a (center,
+    patch) pair, and its distance is its center's on the vertices of its patch and one more
+    (cosine distances are at most 2) off them: two merged parts that share a center, one on each
+    side of a crease, then meet on the crease rather than everywhere.
     """
     before, after = np.asarray(before), np.asarray(after)
     ok = (before >= 0) & (after >= 0)
     k = int(after[ok].max()) + 1 if ok.any() else 0
     out = np.full((distances.shape[0], k), np.inf)
-    # distinct (old, new) pairs by one small integer key and a bincount (np.unique over rows
-    # sorts F records)
-    for key in np.flatnonzero(np.bincount(before[ok].astype(np.int64) * k + after[ok])):
-        old, new = divmod(int(key), k)
-        out[:, new] = np.minimum(out[:, new], distances[:, old])
+    if patches is None:
+        # distinct (old, new) pairs by one small integer key and a bincount (np.unique over rows
+        # sorts F records)
+        for key in np.flatnonzero(np.bincount(before[ok].astype(np.int64) * k + after[ok])):
+            old, new = divmod(int(key), k)
+            out[:, new] = np.minimum(out[:, new], distances[:, old])
+        return out
+    patches = np.asarray(patches, dtype=np.int64)
+    n_patches = int(patches.max()) + 1
+    key = (before[ok].astype(np.int64) * n_patches + patches[ok]) * k + after[ok]
+    on_patch = {}
+    for piece in np.unique(key):
+        rest, new = divmod(int(piece), k)
+        old, patch = divmod(rest, n_patches)
+        if patch not in on_patch:
+            on_patch[patch] = np.zeros(distances.shape[0], dtype=bool)
+            on_patch[patch][np.asarray(faces)[patches == patch].ravel()] = True
+        d = np.where(on_patch[patch], distances[:, old], distances[:, old] + 1.0)
+        out[:, new] = np.minimum(out[:, new], d)
     return out
 
 

@@ -40,13 +40,15 @@ def piece_neighbours(piece: np.ndarray, labels: np.ndarray, adjacency: np.ndarra
     return out
 
 
-def piece_label_counts(piece: np.ndarray, labels: np.ndarray, adjacency: np.ndarray
+def piece_label_counts(piece: np.ndarray, labels: np.ndarray, adjacency: np.ndarray,
+                       weights: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`piece_neighbours` as arrays: (piece [M], neighbouring label [M], shared edges [M],
     first [M]) for each distinct (piece, label) pair, ordered by piece then label. ``first`` is
     the pair's rank in the order piece_neighbours inserts its dict keys (the edges' a-sides
     first, then their b-sides, each in edge order), so ties can be broken as a max over that
-    dict would break them."""
+    dict would break them. weights : [P] a weight per adjacency pair; the shared edges are then
+    their summed weights (float) instead of their count."""
     a, b = adjacency[:, 0], adjacency[:, 1]
     cross = piece[a] != piece[b]
     p = np.r_[piece[a][cross], piece[b][cross]].astype(np.int64)
@@ -56,5 +58,7 @@ def piece_label_counts(piece: np.ndarray, labels: np.ndarray, adjacency: np.ndar
         return empty, empty, empty, empty
     span = int(lab.max()) - int(lab.min()) + 1
     key = p * span + (lab - lab.min())
-    uniq, first, counts = np.unique(key, return_index=True, return_counts=True)
+    uniq, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    if weights is not None:
+        counts = np.bincount(inverse, weights=np.r_[weights[cross], weights[cross]], minlength=len(uniq))
     return uniq // span, uniq % span + lab.min(), counts, first

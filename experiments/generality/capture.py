@@ -1,0 +1,141 @@
+"""Capture what the merge decision sees on every labelled shape (PSB and the procedural corpus).
+
+For each shape, as the default pipeline runs it (coarse ``--coarse-faces`` faces, refine off)
+under an over-segmentation variant (:data:`OVERSEG`) and, with ``--weights``, the merge weights
+fitted without the shape's group (the final labels are then held out): the over-segmentation the merge starts
+from at each k (labels on the fine cleaned mesh after the clean-up, unit feature rows, face
+areas), the default's final labels at each k, the cleaned mesh and the truths. merge_cv.py then
+redoes only the merge on exactly these over-segmentations.
+
+    PYTHONPATH=$PWD nice python3 experiments/generality/capture.py --variant crease60 \\
+        --corpus /tmp/corpus --out /tmp/capture_crease60 --workers 2
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import pickle
+import sys
+import time
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from items import items as all_items, read_truth  # noqa: E402
+
+#: over-segmentation variants: MergeWeights changes (the weights themselves do not matter here)
+OVERSEG = {
+    "base": {},
+    "crease60": dict(crease_split=math.radians(60), crease_rings=3),
+    "crease45": dict(crease_split=math.radians(45), crease_rings=3),
+    "crease75": dict(crease_split=math.radians(75), crease_rings=3),
+    "crease60r2": dict(crease_split=math.radians(60), crease_rings=2),
+    "crease60r4": dict(crease_split=math.radians(60), crease_rings=4),
+}
+
+
+def options(variant: str, merge_changes: dict | None = None):
+    from torchakvf.options import MergeWeights, SegmentOptions
+
+    return SegmentOptions(refine=False, merge=MergeWeights(**{**OVERSEG[variant], **(merge_changes or {})}))
+
+
+def capture_item(args) -> str:
+    item, out, variant, coarse_faces, rings, weights = args
+    import torch
+    from torchakvf.operators import killing
+
+    if rings is not None:
+        killing.CURVATURE_RINGS["smooth"] = rings
+
+    torch.set_num_threads(1)
+    from torchakvf.io import load_mesh
+    from torchakvf.mesh import MeshBatch
+    from torchakvf.parts import cut as C
+    from torchakvf.parts.field_counts import akvf_count
+    from torchakvf.parts.rounds import segment_rounds
+    from torchakvf.parts.solve import solve_akvfs
+
+    path = Path(out) / f"{item.key.replace(':', '_')}.pkl"
+    if path.exists():
+        return f"{item.key} cached"
+    t0 = time.perf_counter()
+    opts = options(variant, weights.get(item.group, weights.get("*")) if weights else None)
+    try:
+        mesh = load_mesh(item.mesh_path)
+        gts = [read_truth(s) for s in item.truths]
+        ks = sorted({int(g.max()) + 1 for g in gts})
+        mb = MeshBatch.from_meshes([mesh], coarse_faces=coarse_faces or None)
+        # the eval's fixed AKVF count for the PSB, the segment command's for the corpus
+        n_akvf = 36 if item.source == "psb" else akvf_count([ks], None, opts.method, opts.merge_min_k)
+        fields, _ = solve_akvfs(mb, n_akvf, opts)
+    except Exception as exc:                         # noqa: BLE001 - recorded, the run goes on
+        return f"{item.key} FAILED {type(exc).__name__}: {exc}"
+    record = {"overs": [], "k_over": {}, "final": {}}
+    original = C._segmentation_labels
+
+    def recording(over, cache, o, k, floor, cost, n_solved):
+        ids = [i for i, s in enumerate(record["overs"]) if s["labels"] is over.labels]
+        if not ids:
+            record["overs"].append({"labels": over.labels, "unit": over.unit.astype(np.float32),
+                                    "area": over.area, "n_clusters": int(over.source[1].shape[0]),
+                                    "n_patches": int(over.n_patches)})
+            ids = [len(record["overs"]) - 1]
+        record["k_over"][int(k)] = ids[0]
+        record["mesh"] = over.mesh
+        return original(over, cache, o, k, floor, cost, n_solved)
+
+    C._segmentation_labels = recording
+    try:
+        for rnd in segment_rounds(fields, [ks], opts):
+            for b in rnd.active:
+                record["final"][int(rnd.ks[b])] = rnd.meshes[b].labels.astype(np.int32)
+    finally:
+        C._segmentation_labels = original
+    record.update(key=item.key, group=item.group, kind=item.kind, gts=[g.astype(np.int32) for g in gts],
+                  variant=variant, coarse_faces=coarse_faces, remedy=fields.remedies[0], rings=rings,
+                  seconds=time.perf_counter() - t0)
+    with open(path, "wb") as fh:
+        pickle.dump(record, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    return f"{item.key} {item.group} ks {ks} {record['seconds']:.1f}s"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--variant", default="base", choices=sorted(OVERSEG))
+    ap.add_argument("--corpus", default=None, help="procedural corpus folder (index.json)")
+    ap.add_argument("--no-psb", action="store_true")
+    ap.add_argument("--keys", default=None, help="comma-separated item keys (default: all)")
+    ap.add_argument("--coarse-faces", type=int, default=4000)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--weights", default=None,
+                    help="JSON file {group or '*': MergeWeights fields}: the merge each group's shapes are "
+                         "segmented with (held-out weights per group)")
+    ap.add_argument("--curvature-rings", type=int, default=None,
+                    help="rings of the 'smooth' remedy's curvature averaging (default: the package's)")
+    a = ap.parse_args()
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    todo = all_items(psb=not a.no_psb, corpus=a.corpus)
+    if a.keys:
+        want = set(a.keys.split(","))
+        todo = [i for i in todo if i.key in want]
+    weights = json.loads(Path(a.weights).read_text()) if a.weights else None
+    jobs = [(i, str(out), a.variant, a.coarse_faces, a.curvature_rings, weights) for i in todo]
+    os.environ.update({v: "1" for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")})
+    if a.workers == 1:
+        for j in jobs:
+            print(capture_item(j), flush=True)
+        return
+    with get_context("fork").Pool(a.workers, maxtasksperchild=50) as pool:
+        for line in pool.imap_unordered(capture_item, jobs):
+            print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,371 @@
+"""The merge decision fitted on the PSB and the procedural corpus together, reported held out.
+
+Reads capture.py's files (one variant of the over-segmentation) and redoes only the merge. A
+candidate cost is a weight vector on :data:`~torchakvf.parts.merge_terms.TERM_NAMES` read as the
+log-odds that two adjacent parts lie in one true part, p = sigmoid(b - terms . w), merged by the
+expected change of the Rand disagreement (a_i a_j)^γ (1 - 2p) (the package's cost,
+:func:`torchakvf.parts.merge.state_costs`).
+
+The weights are a logistic regression of "one true part" (soft target: the share of the face
+pairs of the two parts that one truth puts together) on the pairs the merge meets as it merges
+under a policy (the weights being evaluated, or the hand-set ones), every mesh weighing alike
+within its data set and the two data sets weighing ``--corpus-share`` and 1 - it. Every score
+is held out: a PSB category (or a corpus family) is scored with weights fitted without it.
+Scores are 1 - Rand index of the merged labels (before the graph cut) on the input faces, per
+shape the mean over its truths, per group the mean over its shapes.
+
+    PYTHONPATH=$PWD nice python3 experiments/generality/merge_cv.py --capture /tmp/capture_crease60 \\
+        --prep /tmp/prep_crease60 --out /tmp/merge_cv_crease60.md
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import time
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+from torchakvf.options import MergeWeights
+from torchakvf.parts.concavity import dual_edges
+from torchakvf.parts.merge import boundary_bends, region_graph, term_weights
+from torchakvf.parts.merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
+
+T = len(TERM_NAMES)
+PREP: dict = {}
+#: MergeWeights field of each column of pair_terms
+FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
+                     small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
+                     thin="thin", centricity="centricity")
+
+
+def rand_error(a: np.ndarray, b: np.ndarray) -> float:
+    """1 - RI (faces counted, unordered pairs) of two labellings with labels >= 0."""
+    n = a.size
+    nb = int(b.max()) + 1
+    cell = np.bincount(a * nb + b).astype(np.float64)
+    sa = np.bincount(a).astype(np.float64)
+    sb = np.bincount(b).astype(np.float64)
+    c2 = lambda x: (x * (x - 1) / 2).sum()  # noqa: E731
+    return float((c2(sa) + c2(sb) - 2 * c2(cell)) / (n * (n - 1) / 2))
+
+
+# ---------------------------------------------------------------- preparation (once per shape)
+
+def prepare(args) -> str:
+    cap_file, prep = args
+    out = Path(prep) / cap_file.name
+    if out.exists():
+        return f"{cap_file.stem} cached"
+    rec = pickle.load(open(cap_file, "rb"))
+    mesh = rec["mesh"]
+    dual = dual_edges(mesh.vertices, mesh.faces)
+    bends = boundary_bends(dual)
+    cent = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)].mean(axis=1)
+    thick = face_thickness(mesh.vertices, mesh.faces)
+    overs = []
+    for o in rec["overs"]:
+        unit = o["unit"].astype(np.float64)
+        g = region_graph(o["labels"], dual, unit, o["area"], unit=unit, bends=bends)
+        sums = part_sums(g.labels, g.n_parts, o["area"], cent, thick)
+        overs.append(dict(graph=(g.area, g.mean, g.length, g.concave, g.convex), sums=sums,
+                          lab_in=mesh.labels_to_input_faces(g.labels)))
+    gts = []
+    for gt in rec["gts"]:
+        gt = gt.astype(np.int64)
+        k = int(gt.max()) + 1
+        oi = rec["k_over"][k]
+        lab_in = overs[oi]["lab_in"]
+        K = len(overs[oi]["graph"][0])
+        ok = lab_in >= 0
+        counts = np.bincount(lab_in[ok] * k + gt[ok], minlength=K * k).reshape(K, k).astype(np.float64)
+        final = rec["final"][k].astype(np.int64)
+        gts.append(dict(k=k, over=oi, gt=gt, counts=counts, final_err=rand_error(np.maximum(final, 0), gt)))
+    data = dict(key=rec["key"], group=rec["group"], kind=rec["kind"], overs=overs, gts=gts)
+    with open(out, "wb") as fh:
+        pickle.dump(data, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    return f"{rec['key']} prepared"
+
+
+def load_prep(prep: Path, keep=None) -> None:
+    PREP.clear()
+    for f in sorted(prep.glob("*.pkl")):
+        d = pickle.load(open(f, "rb"))
+        if keep is None or keep(d):
+            PREP[d["key"]] = d
+
+
+def new_state(over: dict) -> MergeState:
+    area, mean, length, concave, convex = over["graph"]
+    s = over["sums"]
+    return MergeState(area.copy(), mean.copy(), length.copy(), concave.copy(), convex.copy(),
+                      thick=s["thick"].copy(), thick_area=s["thick_area"].copy(), centroid=s["centroid"].copy(),
+                      center=s["center"], radius=s["radius"], thick_median=s["thick_median"])
+
+
+# ---------------------------------------------------------------- the merge under a cost
+
+class Cost:
+    """A merge cost: weights w [T] on the terms, intercept b, Rand exponent gamma (None: the
+    weighted sum itself is the cost, as the hand-set merge)."""
+
+    def __init__(self, w, b=0.0, gamma=0.5):
+        self.w, self.b, self.gamma = np.asarray(w, dtype=np.float64), float(b), gamma
+
+    @classmethod
+    def of(cls, weights: MergeWeights, k: int = 1) -> "Cost":
+        return cls(term_weights(weights, k), weights.intercept, weights.rand_gamma)
+
+    def __call__(self, terms, state, rows):
+        s = terms @ self.w
+        if self.gamma is None:
+            return s
+        a = state.area / state.total
+        return np.outer(a[rows], a) ** self.gamma * np.tanh(0.5 * (s - self.b))
+
+
+def greedy(state: MergeState, k: int, cost: Cost, record=None) -> np.ndarray:
+    """Merge the cheapest adjacent pair until k parts remain; the owner [K] of each part.
+    record(terms, adjacent, rows): each new row of terms; record.merge(i, j): each merge."""
+    K = len(state.area)
+    rows = np.arange(K)
+    terms, adj = pair_terms(state, rows, k)
+    if record is not None:
+        record(terms, adj, rows)
+    c = np.where(adj, cost(terms, state, rows), np.inf)
+    np.fill_diagonal(c, np.inf)
+    owner = np.arange(K)
+    for _ in range(K - k):
+        i, j = divmod(int(np.argmin(c)), K)
+        if not np.isfinite(c[i, j]):
+            break
+        i, j = min(i, j), max(i, j)
+        state.merge(i, j)
+        if record is not None:
+            record.merge(i, j)
+        owner[owner == j] = i
+        c[j, :] = c[:, j] = np.inf
+        t, a = pair_terms(state, np.array([i]), k)
+        if record is not None:
+            record(t, a, np.array([i]))
+        row = np.where(a[0], cost(t, state, np.array([i]))[0], np.inf)
+        row[i] = np.inf
+        c[i, :] = c[:, i] = row
+    return owner
+
+
+def shape_error(key: str, cost: Cost) -> float:
+    """Mean 1-RI over the shape's truths of its merged labels."""
+    d = PREP[key]
+    errs, memo = [], {}
+    for g in d["gts"]:
+        mk = (g["over"], g["k"])
+        if mk not in memo:
+            owner = greedy(new_state(d["overs"][g["over"]]), g["k"], cost)
+            lab = d["overs"][g["over"]]["lab_in"]
+            memo[mk] = np.where(lab >= 0, owner[np.maximum(lab, 0)], owner.max() + 1)
+        errs.append(rand_error(memo[mk], g["gt"]))
+    return float(np.mean(errs))
+
+
+def final_error(key: str) -> float:
+    return float(np.mean([g["final_err"] for g in PREP[key]["gts"]]))
+
+
+# ---------------------------------------------------------------- training rows
+
+class Recorder:
+    """(terms, soft target, Rand stake) of each adjacent pair as the merge meets it."""
+
+    def __init__(self, counts: np.ndarray, n_faces: int):
+        self.counts = counts.copy()
+        self.n2 = float(n_faces) ** 2
+        self.X, self.y, self.wt = [], [], []
+
+    def merge(self, i, j):
+        self.counts[i] += self.counts[j]
+        self.counts[j] = 0.0
+
+    def __call__(self, terms, adj, rows):
+        n = self.counts.sum(axis=1)
+        for r_i, r in enumerate(rows):
+            js = np.flatnonzero(adj[r_i])
+            js = js[js > r] if len(rows) > 1 else js
+            nn = n[r] * n[js]
+            js, nn = js[nn > 0], nn[nn > 0]
+            if len(js) == 0:
+                continue
+            self.X.append(terms[r_i, js])
+            self.y.append((self.counts[js] @ self.counts[r]) / nn)
+            self.wt.append(nn / self.n2)
+
+
+def shape_rows(key: str, policy: Cost):
+    """Training rows of one shape under the policy's merges; its weights sum to 1."""
+    d = PREP[key]
+    X, y, wt = [], [], []
+    for g in d["gts"]:
+        rec = Recorder(g["counts"], len(g["gt"]))
+        greedy(new_state(d["overs"][g["over"]]), g["k"], policy, record=rec)
+        if rec.X:
+            X.append(np.concatenate(rec.X))
+            y.append(np.concatenate(rec.y))
+            wt.append(np.concatenate(rec.wt))
+    if not X:
+        return np.zeros((0, T)), np.zeros(0), np.zeros(0)
+    wt = np.concatenate(wt)
+    return np.concatenate(X), np.concatenate(y), wt / max(wt.sum(), 1e-300)
+
+
+def fit_logistic(X, y, wt, l2=1e-3, cols=None):
+    """(w [T] cost weights = -beta, intercept b): weighted cross-entropy of sigmoid(c + X beta)
+    against the soft targets y, + l2 |beta|^2 on standardized columns; b = -c (the cost reads
+    p = sigmoid(b - X w))."""
+    cols = list(range(X.shape[1])) if cols is None else list(cols)
+    Xc = X[:, cols]
+    mu, sd = Xc.mean(axis=0), Xc.std(axis=0) + 1e-12
+    Z = (Xc - mu) / sd
+    wt = wt / wt.sum()
+
+    def f(p):
+        z = Z @ p[1:] + p[0]
+        loss = np.sum(wt * (np.logaddexp(0, z) - y * z)) + l2 * p[1:] @ p[1:]
+        r = wt * (1 / (1 + np.exp(-z)) - y)
+        return loss, np.r_[r.sum(), Z.T @ r + 2 * l2 * p[1:]]
+
+    p = minimize(f, np.zeros(len(cols) + 1), jac=True, method="L-BFGS-B").x
+    beta = np.zeros(X.shape[1])
+    beta[cols] = p[1:] / sd
+    c = p[0] - mu @ beta[cols]
+    return -beta, c
+
+
+ROWS: dict = {}
+
+
+def fitted_cost(train: list, policy: Cost, pool, corpus_share: float, cols=None, gamma=0.5) -> Cost:
+    """Logistic fit on the training shapes' rows (each shape weighing alike in its data set)."""
+    missing = [m for m in train if (m, id(policy)) not in ROWS]
+    for m, r in zip(missing, pool.starmap(shape_rows, [(m, policy) for m in missing])):
+        ROWS[(m, id(policy))] = r
+    n_psb = sum(PREP[m]["kind"] == "psb" for m in train)
+    n_cor = len(train) - n_psb
+    share = {True: (1 - corpus_share) / max(n_psb, 1) if n_cor else 1.0 / max(n_psb, 1),
+             False: corpus_share / max(n_cor, 1) if n_psb else 1.0 / max(n_cor, 1)}
+    X = np.concatenate([ROWS[(m, id(policy))][0] for m in train])
+    y = np.concatenate([ROWS[(m, id(policy))][1] for m in train])
+    wt = np.concatenate([ROWS[(m, id(policy))][2] * share[PREP[m]["kind"] == "psb"] for m in train])
+    w, b = fit_logistic(X, y, wt, cols=cols)
+    return Cost(w, b, gamma)
+
+
+def weight_fields(cost: Cost) -> dict:
+    """The MergeWeights fields of a fitted cost (the "small" column is part_size)."""
+    fields = {FIELD_OF_TERM[name]: float(f"{x:.4g}") for name, x in zip(TERM_NAMES, cost.w)}
+    fields.update(size=0.0, intercept=float(f"{cost.b:.4g}"), rand_gamma=cost.gamma)
+    return fields
+
+
+def group_scores(keys: list, cost: Cost, pool) -> dict:
+    errs = pool.starmap(shape_error, [(m, cost) for m in keys])
+    by: dict = {}
+    for m, e in zip(keys, errs):
+        by.setdefault(PREP[m]["group"], []).append(e)
+    return {g: float(np.mean(v)) for g, v in by.items()}
+
+
+def groups_of(kind_filter) -> list:
+    return sorted({d["group"] for d in PREP.values() if kind_filter(d["kind"])})
+
+
+def held_out(policy: Cost, pool, corpus_share: float, cols=None, gamma=0.5, groups=None) -> tuple[dict, dict]:
+    """({group: held-out score}, {group: Cost fitted without it})."""
+    groups = sorted({d["group"] for d in PREP.values()}) if groups is None else groups
+    scores, costs = {}, {}
+    for g in groups:
+        train = [m for m, d in PREP.items() if d["group"] != g]
+        test = [m for m, d in PREP.items() if d["group"] == g]
+        cost = fitted_cost(train, policy, pool, corpus_share, cols, gamma)
+        scores[g] = group_scores(test, cost, pool)[g]
+        costs[g] = cost
+        print(f"  held out {g}: {scores[g]:.4f}", flush=True)
+    return scores, costs
+
+
+def summary(scores: dict) -> dict:
+    kinds = {g: PREP[next(m for m, d in PREP.items() if d["group"] == g)]["kind"] for g in scores}
+    out = {}
+    for name, sel in (("PSB", ("psb",)), ("organic", ("organic",)), ("mechanical", ("mechanical",)),
+                      ("corpus", ("organic", "mechanical"))):
+        vals = [s for g, s in scores.items() if kinds[g] in sel]
+        if vals:
+            out[name] = float(np.mean(vals))
+    return out
+
+
+def table(results: dict) -> str:
+    groups = sorted({g for sc in results.values() for g in sc},
+                    key=lambda g: (PREP[next(m for m, d in PREP.items() if d["group"] == g)]["kind"], g))
+    names = ["PSB", "organic", "mechanical", "corpus"]
+    lines = ["| setting | " + " | ".join(names) + " | " + " | ".join(groups) + " |",
+             "|---|" + "---:|" * (len(names) + len(groups))]
+    for name, sc in results.items():
+        s = summary(sc)
+        lines.append(f"| {name} | " + " | ".join(f"{s[n]:.4f}" if n in s else "" for n in names) + " | "
+                     + " | ".join(f"{sc[g]:.3f}" if g in sc else "" for g in groups) + " |")
+    return "\n".join(lines)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--capture", required=True)
+    ap.add_argument("--prep", required=True)
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--corpus-share", default="0,0.5", help="comma-separated shares of the corpus in the fit")
+    ap.add_argument("--stage", default="all", choices=["prep", "all"])
+    ap.add_argument("--weights-out", default=None,
+                    help="write {group: weights fitted without it, '*': fitted on all} of the last share (JSON)")
+    a = ap.parse_args()
+    prep = Path(a.prep)
+    prep.mkdir(parents=True, exist_ok=True)
+    ctx = get_context("fork")
+    t0 = time.time()
+    with ctx.Pool(a.workers) as pool:
+        for _ in pool.imap_unordered(prepare, [(f, str(prep)) for f in sorted(Path(a.capture).glob("*.pkl"))]):
+            pass
+    print(f"prepared in {time.time() - t0:.0f}s", flush=True)
+    if a.stage == "prep":
+        return
+    load_prep(prep)
+    keys = sorted(PREP)
+    with ctx.Pool(a.workers) as pool:
+        results = {}
+        fin = {}
+        for m in keys:
+            fin.setdefault(PREP[m]["group"], []).append(final_error(m))
+        results["captured default, merged + graph cut"] = {g: float(np.mean(v)) for g, v in fin.items()}
+        results["shipped weights (fitted on the PSB), merged"] = group_scores(keys, Cost.of(MergeWeights()), pool)
+        results["hand-set weights, merged"] = group_scores(keys, Cost.of(MergeWeights.hand_set()), pool)
+        policy = Cost.of(MergeWeights.hand_set())
+        for share in [float(x) for x in a.corpus_share.split(",")]:
+            print(f"corpus share {share}", flush=True)
+            sc, costs = held_out(policy, pool, share)
+            results[f"learned, corpus share {share} (held out)"] = sc
+            everything = fitted_cost(keys, policy, pool, share)
+            results[f"learned, corpus share {share} (fitted on all: in-sample)"] = group_scores(keys, everything, pool)
+            if a.weights_out:
+                out = {g: weight_fields(c) for g, c in costs.items()}
+                out["*"] = weight_fields(everything)
+                Path(a.weights_out).write_text(json.dumps(out, indent=1) + "\n")
+    text = table(results)
+    print(text)
+    if a.out:
+        Path(a.out).write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,58 @@
+"""Crease patches (:mod:`torchakvf.parts.creases`): the band on a folded hinge by hand, no patch
+across a part boundary on crease-delimited shapes (crisp voxel creases, rounded marching
+creases), one patch on smooth surfaces, and the (label, patch) split."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from torchakvf import shapes
+from torchakvf.mesh.clean import face_areas
+from torchakvf.parts.concavity import dual_edges
+from torchakvf.parts.creases import crease_band, crease_patches, split_by_patches, unit_face_normals
+from torchakvf.parts.topology import face_adjacency
+from helpers.planar_meshes import hinge
+
+
+def misassigned_area(s, patches) -> float:
+    """Share of the surface whose patch's largest part is another part."""
+    a = face_areas(s.vertices, s.faces)
+    wrong = 0.0
+    for q in np.unique(patches):
+        c = np.bincount(s.part_labels[patches == q], weights=a[patches == q])
+        wrong += c.sum() - c.max()
+    return wrong / a.sum()
+
+
+@pytest.mark.parametrize("fold, band", [(math.radians(90), True), (math.radians(30), False)])
+def test_band_of_a_hinge_by_hand(fold, band):
+    v, f = hinge(fold)
+    got = crease_band(unit_face_normals(v, f), face_adjacency(f), angle=math.radians(60), rings=1)
+    assert got.tolist() == [band, band]
+
+
+def test_crisp_creases_of_a_voxel_table_bound_its_parts():
+    # every face of the slab and the legs is flat and meets the next part at 90° over one edge;
+    # the legs are 3 voxels wide, narrower than a 3-ring band on both sides
+    s = shapes.table(0.05)
+    patches = crease_patches(s.vertices, s.faces, dual_edges(s.vertices, s.faces))
+    assert misassigned_area(s, patches) == 0.0
+    assert len(np.unique(patches)) >= s.n_parts
+
+
+def test_a_smooth_surface_is_one_patch():
+    s = shapes.icosphere(3)
+    d = dual_edges(s.vertices, s.faces)
+    assert not crease_band(unit_face_normals(s.vertices, s.faces), d.pairs).any()
+    assert np.all(crease_patches(s.vertices, s.faces, d) == 0)
+
+
+def test_split_by_patches_keeps_the_label_and_separates_the_pairs():
+    labels = np.array([0, 0, 1, 1, 2])
+    patches = np.array([0, 1, 1, 1, 0])
+    split, n = split_by_patches(labels, patches)
+    assert n == 2
+    np.testing.assert_array_equal(split // n, labels)
+    assert len(np.unique(split)) == 4            # (0,0) (0,1) (1,1) (2,0)
