@@ -1,12 +1,13 @@
 """Crease patches (:mod:`torchakvf.parts.creases`): the band on a folded hinge by hand, no patch
 across a part boundary on crease-delimited shapes (crisp voxel creases, rounded marching
-creases), one patch on smooth surfaces, and the (label, patch) split."""
+creases), only concave creases where asked, one patch on smooth surfaces, and the (label, patch) split."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
+import trimesh
 
 from torchakvf import shapes
 from torchakvf.mesh.clean import face_areas
@@ -31,6 +32,29 @@ def test_band_of_a_hinge_by_hand(fold, band):
     v, f = hinge(fold)
     got = crease_band(unit_face_normals(v, f), face_adjacency(f), angle=math.radians(60), rings=1)
     assert got.tolist() == [band, band]
+
+
+@pytest.mark.parametrize("fold, concave", [(math.radians(90), True), (math.radians(-90), False)])
+def test_only_a_valley_is_a_concave_band(fold, concave):
+    # fold > 0 folds the second triangle up over the first's normal side: a valley
+    v, f = hinge(fold)
+    centroids = v[f].mean(axis=1)
+    got = crease_band(unit_face_normals(v, f), face_adjacency(f), angle=math.radians(60), rings=1,
+                      centroids=centroids)
+    assert got.tolist() == [concave, concave]
+
+
+def test_concave_creases_cut_a_table_into_its_parts_and_leave_a_box_whole():
+    # the legs meet the slab in concave creases; every other crease of the table and of a box is
+    # convex, the edge of one part
+    s = shapes.table(0.05)
+    patches = crease_patches(s.vertices, s.faces, dual_edges(s.vertices, s.faces), concave_only=True)
+    assert misassigned_area(s, patches) == 0.0
+    assert len(np.unique(patches)) == s.n_parts
+    box = trimesh.creation.box().subdivide().subdivide()
+    d = dual_edges(box.vertices, box.faces)
+    assert len(np.unique(crease_patches(box.vertices, box.faces, d))) >= 6
+    assert np.all(crease_patches(box.vertices, box.faces, d, concave_only=True) == 0)
 
 
 def test_crisp_creases_of_a_voxel_table_bound_its_parts():

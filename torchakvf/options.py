@@ -139,6 +139,9 @@ class MergeWeights:
     #: dual rings (>= 1) over which ``crease_split`` measures a crease (a crease rounded over up
     #: to about this many triangles is found)
     crease_rings: int = 3
+    #: only concave creases cut the over-segmentation (people cut where the surface turns
+    #: inward, the minima rule; a convex crease is usually the edge of one part: a box leg's)
+    crease_concave: bool = False
     #: weight of (d_small - d_large) / R, the smaller part's distance from the surface's centroid
     #: beyond the larger one's, R the RMS radius (a protrusion lies further out)
     centricity: float = -0.1763
@@ -183,6 +186,8 @@ class MergeWeights:
             raise ParameterError(f"crease_split must be None or in (0, π) radians, got {self.crease_split!r}")
         if not is_int(self.crease_rings, 1):
             raise ParameterError(f"crease_rings must be an integer >= 1, got {self.crease_rings!r}")
+        if not isinstance(self.crease_concave, bool):
+            raise ParameterError(f"crease_concave must be True or False, got {self.crease_concave!r}")
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,8 @@ OVERSEG = {
     "crease75": dict(crease_split=math.radians(75), crease_rings=3),
     "crease60r2": dict(crease_split=math.radians(60), crease_rings=2),
     "crease60r4": dict(crease_split=math.radians(60), crease_rings=4),
+    "concave60": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True),
+    "concave45": dict(crease_split=math.radians(45), crease_rings=3, crease_concave=True),
 }
 
 

@@ -60,10 +60,12 @@ def neighbour_table(adjacency: np.ndarray, n_faces: int) -> np.ndarray:
 
 
 def crease_band(normals: np.ndarray, adjacency: np.ndarray, angle: float = CREASE_SPLIT_ANGLE,
-                rings: int = CREASE_RINGS) -> np.ndarray:
+                rings: int = CREASE_RINGS, centroids: np.ndarray | None = None) -> np.ndarray:
     """[F] whether a face lies within ``rings`` dual rings of a face whose normal differs from its
     own by more than ``angle`` radians. normals : [F, 3] unit face normals; adjacency : [P, 2]
-    face pairs sharing an edge.
+    face pairs sharing an edge; centroids : [F, 3] face centroids, or None. With centroids only
+    concave bends count: faces f, g bend concavely where ``(c_g - c_f)·(n_g - n_f) < 0`` (each
+    lies on the normal side of the other's plane; > 0 on a convex sphere).
 
     Ring r is gathered as the neighbours of ring r - 1 (:func:`neighbour_table`, repeats kept:
     they do not change a minimum), D^r faces per face, in float32 (the test is far from its
@@ -71,16 +73,22 @@ def crease_band(normals: np.ndarray, adjacency: np.ndarray, angle: float = CREAS
     n_faces = len(normals)
     table = neighbour_table(adjacency, n_faces)
     unit = np.asarray(normals, dtype=np.float32)
+    centers = None if centroids is None else np.asarray(centroids, dtype=np.float32)
     least = np.ones(n_faces, dtype=np.float32)
     ring = np.arange(n_faces)[:, None]
     for _ in range(int(rings)):
         ring = table[ring].reshape(n_faces, -1)
-        least = np.minimum(least, np.einsum("fk,fjk->fj", unit, unit[ring]).min(axis=1))
+        dots = np.einsum("fk,fjk->fj", unit, unit[ring])
+        if centers is not None:
+            bend = np.einsum("fjk,fjk->fj", centers[ring] - centers[:, None], unit[ring] - unit[:, None])
+            dots = np.where(bend < 0, dots, np.float32(1.0))
+        least = np.minimum(least, dots.min(axis=1))
     return least < math.cos(angle)
 
 
 def crease_patches(vertices: np.ndarray, faces: np.ndarray, dual: DualEdges,
-                   angle: float = CREASE_SPLIT_ANGLE, rings: int = CREASE_RINGS) -> np.ndarray:
+                   angle: float = CREASE_SPLIT_ANGLE, rings: int = CREASE_RINGS,
+                   concave_only: bool = False) -> np.ndarray:
     """[F] int64 patch of each face.
 
     Creases are found at two scales. A dual edge whose faces' normals differ by more than
@@ -93,10 +101,13 @@ def crease_patches(vertices: np.ndarray, faces: np.ndarray, dual: DualEdges,
     own, one per such region.
 
     vertices : [V, 3]; faces : [F, 3]; dual : :func:`~torchakvf.parts.concavity.dual_edges` of
-    the mesh; angle : radians; rings : >= 1."""
+    the mesh; angle : radians; rings : >= 1; concave_only : only concave creases cut (where
+    people cut a shape into parts, the minima rule; a convex crease is the edge of one part).
+    """
     n_faces = len(faces)
-    crisp = np.abs(dual.dihedral) > angle
-    band = crease_band(unit_face_normals(vertices, faces), dual.pairs, angle, rings)
+    crisp = (dual.dihedral if concave_only else np.abs(dual.dihedral)) > angle
+    centroids = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)].mean(axis=1) if concave_only else None
+    band = crease_band(unit_face_normals(vertices, faces), dual.pairs, angle, rings, centroids)
     a, b = dual.pairs[~crisp, 0], dual.pairs[~crisp, 1]
     smooth = dual_graph(np.stack([a, b], axis=1), n_faces)           # crisp creases cut
     keep = ~band[a] & ~band[b]

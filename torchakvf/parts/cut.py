@@ -83,7 +83,7 @@ class MeshCache:
     over : the last :class:`OverSegmentation` (ε = 0), for the next k clustered alike
     sums_inputs : (centroids, thickness) of the mesh the merge terms read
         (:func:`~torchakvf.parts.merge.mesh_sums_inputs`), made when first needed
-    patches : {(angle, rings): [F] :func:`~torchakvf.parts.creases.crease_patches`}
+    patches : {(angle, rings, concave only): [F] :func:`~torchakvf.parts.creases.crease_patches`}
     """
 
     adjacency: np.ndarray | None = None
@@ -98,8 +98,13 @@ class MeshCache:
 def over_settings(opts: SegmentOptions, floor: float) -> tuple:
     """The options an :class:`OverSegmentation` depends on besides its clustering (floor:
     :func:`part_floor` of its k)."""
-    split = (opts.merge.crease_split, opts.merge.crease_rings) if crease_split_on(opts) else None
+    split = crease_key(opts) if crease_split_on(opts) else None
     return (opts.boundary, opts.eps > 0, floor, split)
+
+
+def crease_key(opts: SegmentOptions) -> tuple:
+    """(angle, rings, concave only): the arguments of the crease patches the options ask for."""
+    return (opts.merge.crease_split, opts.merge.crease_rings, opts.merge.crease_concave)
 
 
 def crease_split_on(opts: SegmentOptions) -> bool:
@@ -143,7 +148,7 @@ def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: t
     unit = None
     n_patches = 1
     if crease_split_on(opts):
-        key = (opts.merge.crease_split, opts.merge.crease_rings)
+        key = crease_key(opts)
         if key not in cache.patches:
             if cache.dual is None:
                 cache.dual = dual_edges(clean.vertices, clean.faces)
