@@ -134,14 +134,16 @@ class MergeWeights:
     #: radians in (0, π): the over-segmentation is also cut along creases where the surface
     #: normal turns by more than this within ``crease_rings`` dual rings
     #: (:mod:`torchakvf.parts.creases`), so the merge can keep parts apart that only a crease
-    #: separates (coaxial cylinders, a slab and its legs); None: not cut
-    crease_split: float | None = None
+    #: separates (coaxial cylinders, a slab and its legs); None: not cut. Chosen with
+    #: ``crease_concave`` leave-one-group-out over the PSB categories and the procedural
+    #: corpus's families (docs/design.md, "Creases").
+    crease_split: float | None = math.radians(60.0)
     #: dual rings (>= 1) over which ``crease_split`` measures a crease (a crease rounded over up
     #: to about this many triangles is found)
     crease_rings: int = 3
     #: only concave creases cut the over-segmentation (people cut where the surface turns
     #: inward, the minima rule; a convex crease is usually the edge of one part: a box leg's)
-    crease_concave: bool = False
+    crease_concave: bool = True
     #: weight of (d_small - d_large) / R, the smaller part's distance from the surface's centroid
     #: beyond the larger one's, R the RMS radius (a protrusion lies further out)
     centricity: float = -0.1763

@@ -29,12 +29,12 @@ from items import items as all_items, read_truth  # noqa: E402
 
 #: over-segmentation variants: MergeWeights changes (the weights themselves do not matter here)
 OVERSEG = {
-    "base": {},
-    "crease60": dict(crease_split=math.radians(60), crease_rings=3),
-    "crease45": dict(crease_split=math.radians(45), crease_rings=3),
-    "crease75": dict(crease_split=math.radians(75), crease_rings=3),
-    "crease60r2": dict(crease_split=math.radians(60), crease_rings=2),
-    "crease60r4": dict(crease_split=math.radians(60), crease_rings=4),
+    "base": dict(crease_split=None),
+    "crease60": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=False),
+    "crease45": dict(crease_split=math.radians(45), crease_rings=3, crease_concave=False),
+    "crease75": dict(crease_split=math.radians(75), crease_rings=3, crease_concave=False),
+    "crease60r2": dict(crease_split=math.radians(60), crease_rings=2, crease_concave=False),
+    "crease60r4": dict(crease_split=math.radians(60), crease_rings=4, crease_concave=False),
     "concave60": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True),
     "concave45": dict(crease_split=math.radians(45), crease_rings=3, crease_concave=True),
 }

@@ -92,7 +92,7 @@ def _face_geometry(V: np.ndarray, F: np.ndarray):
 #: oracle must not import it): star1 floored at this fraction of its mean |star1| ...
 REMEDY_FLOOR = 0.1
 #: ... and, for "smooth", Gaussian curvature averaged over this many vertex rings.
-SMOOTH_RINGS = 4
+SMOOTH_RINGS = 2
 
 
 def killing_operator_scipy(V, F, boundary_correction: bool = True, remedy: str = "none"):
