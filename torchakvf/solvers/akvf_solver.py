@@ -34,12 +34,12 @@ from typing import NamedTuple
 import torch
 
 from ..errors import ConvergenceWarning, FieldCountError, ParameterError, SolverError
-from ..fields.akvf_result import AKVFResult
-from ..fields.whitney import whitney_face_vectors
 from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
+from ..operators.whitney import whitney_face_vectors
+from .akvf_result import AKVFResult
 from .factor import BlockDiagonalFactor, ShiftedFactor, check_factor_device, interior_factor, mesh_factor, mesh_shift
 from . import lobpcg
 from .krylov import block_krylov
