@@ -135,7 +135,8 @@ class C:
 def test_a_cycle_fails_the_layers(tmp_path):
     # The checker on a copy of two stages where the lower one imports the upper inside a function.
     root = tmp_path / "torchakvf"
-    for sub, text in (("solvers", "def f():\n    from ..fields import akvf\n"), ("fields", "from ..solvers import f\n")):
+    for sub, text in (("solvers", "def f():\n    from ..fields import akvf\n"),
+                      ("fields", "from ..solvers import f\n")):
         (root / sub).mkdir(parents=True)
         (root / sub / "__init__.py").write_text(text)
     edges = {(a, b) for a, b, _, _ in package_imports(root)}
