@@ -39,7 +39,7 @@ def _worker(args) -> None:
 
     sys.path.insert(0, str(HERE.parent / "tests"))
     import torchakvf as ta
-    from torchakvf.solvers import akvf_solver, factor, lobpcg as lobpcg_module
+    from torchakvf.solvers import akvf_solver, factor, group_solver, lobpcg as lobpcg_module
 
     # The accelerator's preconditioner (one block-diagonal factor per batch) on the CPU too,
     # for a checkout whose batched=True would take one factor per mesh there.
@@ -49,7 +49,7 @@ def _worker(args) -> None:
     meshes = [ta.load_mesh(args.psb / "meshes" / f"{i}.off.gz") for i in args.ids]
     batch = ta.MeshBatch.from_meshes(meshes, coarse_faces=args.coarse_faces)
     sizes, groups = [], []
-    real_cholesky, real_lobpcg = factor._cholesky, akvf_solver.segmented_lobpcg
+    real_cholesky, real_lobpcg = factor._cholesky, group_solver.segmented_lobpcg
 
     def cholesky(pattern, diagonal, engine=None):
         sizes.append(int(pattern[0]))
@@ -59,12 +59,12 @@ def _worker(args) -> None:
         groups.append(len(kw.get("names") or []))
         return real_lobpcg(system, n, **kw)
 
-    factor._cholesky, akvf_solver.segmented_lobpcg = cholesky, lobpcg
+    factor._cholesky, group_solver.segmented_lobpcg = cholesky, lobpcg
     t, cpu = time.perf_counter(), time.process_time()
     solver = akvf_solver.AKVFSolver(batch, batched=True)
     res = solver.solve(args.n)
     wall, cpu = time.perf_counter() - t, time.process_time() - cpu
-    factor._cholesky, akvf_solver.segmented_lobpcg = real_cholesky, real_lobpcg
+    factor._cholesky, group_solver.segmented_lobpcg = real_cholesky, real_lobpcg
     print(json.dumps({"wall": wall, "cpu": cpu, "factorizations": len(sizes), "factored_rows": sum(sizes),
                       "lobpcg_calls": groups, "fell_back": [b for b, _ in solver.fell_back],
                       "eigenvalues": res.eigenvalues.tolist(), "shifts": res.shifts.tolist(),

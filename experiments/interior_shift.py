@@ -51,7 +51,7 @@ def definite_only(system, b, need, definite):
 def interior_factor_as(fn):
     """Within the block, ``ta.akvf`` makes its Krylov factors with ``fn`` (the signature of
     :func:`torchakvf.solvers.factor.interior_factor`) instead; restored on leaving."""
-    akvf_module = importlib.import_module("torchakvf.solvers.akvf_solver")
+    akvf_module = importlib.import_module("torchakvf.solvers.group_solver")
     kept = akvf_module.interior_factor
     akvf_module.interior_factor = fn
     try:

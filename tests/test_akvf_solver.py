@@ -1,4 +1,5 @@
-"""The AKVF solver object (torchakvf.solvers.akvf_solver): factors kept across solves, the
+"""The AKVF solver object (torchakvf.solvers.akvf_solver, and the group solves of
+torchakvf.solvers.group_solver it holds): factors kept across solves, the
 solver chosen per mesh, a CPU batch solved one mesh at a time (the pieces add up to the
 whole-batch computation), spurious modes re-solved per mesh, the Krylov -> Lanczos and
 decimated -> full-resolution fallbacks, the advice in its errors."""
@@ -13,7 +14,7 @@ from torchakvf import shapes
 from torchakvf.errors import ConvergenceWarning, FieldCountError
 from torchakvf.fields.akvf import akvf_falling_back
 from torchakvf.solvers.remedy import killing_system
-from torchakvf.solvers import AKVFSolver, akvf_solver, lobpcg
+from torchakvf.solvers import AKVFSolver, akvf_solver, group_solver, lobpcg
 from torchakvf.solvers.akvf_solver import KRYLOV_MIN_EDGES, remedy_advice, solver_for
 
 from helpers.eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines
@@ -170,8 +171,8 @@ def test_spurious_mode_resolve_is_per_mesh(monkeypatch, batch_path):
     eigenpairs they get alone. Spurious modes are simulated by calling every eigenvalue below
     1 spurious, which makes the sphere's three rotations (λ ≈ 0.12) spurious, and one mode
     of the ellipsoid (λ ≈ -0.12), with room for one: only the sphere must be solved again."""
-    monkeypatch.setattr(akvf_solver, "SPURIOUS_BELOW", 1.0)
-    monkeypatch.setattr(akvf_solver, "SPURIOUS_MARGIN", 1)
+    monkeypatch.setattr(group_solver, "SPURIOUS_BELOW", 1.0)
+    monkeypatch.setattr(group_solver, "SPURIOUS_MARGIN", 1)
     sphere, ell = mesh_of(shapes.icosphere(2), "sphere"), mesh_of(shapes.ellipsoid(level=3), "ellipsoid")
     for solver in ("lanczos", "lobpcg"):
         both = ta.akvf([ell, sphere], n=6, remedy="smooth", solver=solver)
@@ -261,8 +262,8 @@ def test_solver_reuses_its_factors_and_gives_akvf_bits(solver, monkeypatch):
     second makes no new definite factor."""
     meshes = [mesh_of(shapes.table()), mesh_of(shapes.dumbbell(n_around=24))]
     made = []
-    real = akvf_solver.mesh_factor
-    monkeypatch.setattr(akvf_solver, "mesh_factor", lambda *a, **k: made.append(a[1]) or real(*a, **k))
+    real = group_solver.mesh_factor
+    monkeypatch.setattr(group_solver, "mesh_factor", lambda *a, **k: made.append(a[1]) or real(*a, **k))
     s = AKVFSolver(meshes, solver=solver)
     first = s.solve(12, seed=1)
     count = len(made)
@@ -301,14 +302,14 @@ def test_krylov_not_converged_falls_back_to_lanczos(monkeypatch):
     """A mesh the block Krylov solver returns unconverged is solved by ARPACK on its definite
     factor: the result is Lanczos's, at the definite shift."""
     mesh = mesh_of(shapes.table())
-    real = akvf_solver.block_krylov
+    real = group_solver.block_krylov
 
     def stopped_early(*args, **kwargs):
         eig = real(*args, **kwargs)
         eig.converged[:] = False
         return eig
 
-    monkeypatch.setattr(akvf_solver, "block_krylov", stopped_early)
+    monkeypatch.setattr(group_solver, "block_krylov", stopped_early)
     got = ta.akvf(mesh, n=8, solver="krylov")
     want = ta.akvf(mesh, n=8, solver="lanczos")
     assert bool(got.converged.all()) and float(got.shifts[0]) == -1.0
@@ -324,14 +325,14 @@ def test_decimated_mesh_that_fails_is_solved_at_full_resolution(monkeypatch):
     batch = ta.MeshBatch.from_meshes([sphere, disk, blob], coarse_faces=1000)
     assert batch.coarse_of(0) is not None and batch.coarse_of(1) is not None and batch.coarse_of(2) is None
     decimated_sphere_edges = int(batch.edge_ptr[1])
-    real = akvf_solver.mesh_factor
+    real = group_solver.mesh_factor
 
     def refuse_the_decimated_sphere(system, b, name, **kw):
         if name == "sphere" and int(system.edge_ptr[b + 1] - system.edge_ptr[b]) == decimated_sphere_edges:
             raise ta.SolverError("sphere: no shift made R - σS1 positive definite")
         return real(system, b, name, **kw)
 
-    monkeypatch.setattr(akvf_solver, "mesh_factor", refuse_the_decimated_sphere)
+    monkeypatch.setattr(group_solver, "mesh_factor", refuse_the_decimated_sphere)
     with pytest.raises(ta.SolverError, match="full resolution"):
         ta.akvf(batch, n=6, solver="lanczos")
     s = AKVFSolver(batch, solver="lanczos")
@@ -351,7 +352,7 @@ def test_without_decimated_meshes_the_error_is_raised(monkeypatch):
     def refuse(system, b, name, **kw):
         raise ta.SolverError(f"{name}: no shift made R - σS1 positive definite")
 
-    monkeypatch.setattr(akvf_solver, "mesh_factor", refuse)
+    monkeypatch.setattr(group_solver, "mesh_factor", refuse)
     # (under remedy "auto" the sphere would keep the paper's operator, and with it the factor
     # its decision made: it has one by definition)
     with pytest.raises(ta.SolverError, match="no shift made"):
@@ -425,14 +426,14 @@ def test_decimated_mesh_that_fails_is_solved_alone_at_full_resolution(monkeypatc
     blob = mesh_of(shapes.three_blobs(n_around=24), "blobs")
     batch = ta.MeshBatch.from_meshes([sphere, disk, blob], coarse_faces=1000)
     decimated_sphere_edges = _edges(batch, 0)
-    real = akvf_solver.mesh_shift
+    real = group_solver.mesh_shift
 
     def refuse_the_decimated_sphere(system, b, name):
         if name == "sphere" and int(system.edge_ptr[b + 1] - system.edge_ptr[b]) == decimated_sphere_edges:
             raise ta.SolverError("sphere: no shift made R - σS1 positive definite")
         return real(system, b, name)
 
-    monkeypatch.setattr(akvf_solver, "mesh_shift", refuse_the_decimated_sphere)
+    monkeypatch.setattr(group_solver, "mesh_shift", refuse_the_decimated_sphere)
     log = SolveLog(monkeypatch)
     s = AKVFSolver(batch, batched=True)
     got = s.solve(8, tol=1e-8)
@@ -451,7 +452,7 @@ def test_a_batch_failing_for_no_known_mesh_is_bisected(monkeypatch):
     names = ["a", "b", "bad", "c"]
     meshes = [mesh_of(shapes.icosphere(1), x) for x in names]
     calls = []
-    real = akvf_solver.segmented_lobpcg
+    real = group_solver.segmented_lobpcg
 
     def failing(system, n, **kw):
         calls.append(kw["names"])
@@ -459,7 +460,7 @@ def test_a_batch_failing_for_no_known_mesh_is_bisected(monkeypatch):
             raise ta.SolverError(f"{', '.join(kw['names'])}: the device's solve failed its check")
         return real(system, n, **kw)
 
-    monkeypatch.setattr(akvf_solver, "segmented_lobpcg", failing)
+    monkeypatch.setattr(group_solver, "segmented_lobpcg", failing)
     with pytest.raises(ta.SolverError, match="bad") as exc:
         ta.akvf(meshes, n=6, batched=True)
     assert exc.value.failed_meshes == [2]

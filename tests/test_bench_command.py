@@ -238,11 +238,11 @@ def test_batched_flag_runs_the_accelerator_path_and_is_recorded(fake_psb, tmp_pa
     """--batched: every batch through the batched LOBPCG (none on the per-mesh CPU solvers),
     the batched budget, and the flag in the report."""
     from torchakvf.pipeline.batches import BATCHED_BATCH_FACES
-    from torchakvf.solvers import akvf_solver
+    from torchakvf.solvers import group_solver
 
     calls = []
-    real = akvf_solver.segmented_lobpcg
-    monkeypatch.setattr(akvf_solver, "segmented_lobpcg", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = group_solver.segmented_lobpcg
+    monkeypatch.setattr(group_solver, "segmented_lobpcg", lambda *a, **k: calls.append(1) or real(*a, **k))
     root, _ = fake_psb
     out = tmp_path / "b"
     assert main(["bench", "--psb", str(root), "--out", str(out), "--baseline-every", "0",

@@ -11,7 +11,7 @@ import torch
 
 import torchakvf as ta
 from torchakvf import shapes
-from torchakvf.solvers import akvf_solver, cholmod
+from torchakvf.solvers import akvf_solver, cholmod, group_solver
 from torchakvf.solvers.factor import INTERIOR_SHIFT_PER_PAIR, InteriorFactor
 
 from helpers.eigen_checks import batch_with_a_low_mesh
@@ -67,7 +67,7 @@ def table_mesh() -> ta.Mesh:
 
 
 def definite_only(monkeypatch):
-    monkeypatch.setattr(akvf_solver, "interior_factor", lambda system, b, need, definite, **kw: definite())
+    monkeypatch.setattr(group_solver, "interior_factor", lambda system, b, need, definite, **kw: definite())
 
 
 @needs_cholmod
@@ -101,7 +101,7 @@ def test_a_failed_check_solves_again_at_the_definite_shift(monkeypatch, caplog, 
     definite_only(monkeypatch)
     want = ta.akvf(mesh, n=n)
     monkeypatch.undo()
-    real = akvf_solver.interior_factor
+    real = group_solver.interior_factor
 
     def spoiled(system, b, need, definite, **kw):
         f = real(system, b, need, definite, **kw)
@@ -112,7 +112,7 @@ def test_a_failed_check_solves_again_at_the_definite_shift(monkeypatch, caplog, 
             f.floor = 1e9
         return f
 
-    monkeypatch.setattr(akvf_solver, "interior_factor", spoiled)
+    monkeypatch.setattr(group_solver, "interior_factor", spoiled)
     with caplog.at_level(logging.INFO, logger="torchakvf.solvers.krylov"):
         got = ta.akvf(mesh, n=n)
     assert "solving again at a definite shift" in caplog.text
@@ -127,7 +127,7 @@ def test_no_definite_shift_still_raises(monkeypatch):
     """A mesh with an eigenvalue below every definite shift raised a SolverError (so that a
     decimated one is solved at full resolution): at the interior shift it still does."""
     mesh = table_mesh()
-    real = akvf_solver.interior_factor
+    real = group_solver.interior_factor
 
     def no_definite(system, b, need, definite, **kw):
         def raising():
@@ -136,7 +136,7 @@ def test_no_definite_shift_still_raises(monkeypatch):
         f.floor = 1e9                     # every eigenvalue counts as below the last shift
         return f
 
-    monkeypatch.setattr(akvf_solver, "interior_factor", no_definite)
+    monkeypatch.setattr(group_solver, "interior_factor", no_definite)
     with pytest.raises(ta.SolverError, match="no shift made"):
         ta.akvf(mesh, n=16)
 

@@ -99,11 +99,11 @@ def test_batched_flag_solves_batches_as_one_and_is_recorded(tmp_path, capsys, mo
     """--batched on the CPU: the batch through the batched LOBPCG (the accelerator's path, not the
     per-mesh CPU solvers), recorded in the manifest's params; without it the params are as
     before (earlier manifests resume)."""
-    from torchakvf.solvers import akvf_solver
+    from torchakvf.solvers import group_solver
 
     calls = []
-    real = akvf_solver.segmented_lobpcg
-    monkeypatch.setattr(akvf_solver, "segmented_lobpcg", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = group_solver.segmented_lobpcg
+    monkeypatch.setattr(group_solver, "segmented_lobpcg", lambda *a, **k: calls.append(1) or real(*a, **k))
     s = shapes.dumbbell(n_around=12)
     srcs = [write_off(tmp_path / "in" / f"{n}.off", s.vertices, s.faces) for n in ("a", "b")]
     rc, stdout, err = cli_run([command[0], *srcs, "--out", tmp_path / "b", *command[1:], "--batched"], capsys)

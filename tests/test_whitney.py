@@ -1,4 +1,4 @@
-"""Whitney interpolation (torchakvf.fields.whitney): exact on gradients, the CPU's sparse
+"""Whitney interpolation (torchakvf.operators.whitney): exact on gradients, the CPU's sparse
 product against the gathered einsum."""
 from __future__ import annotations
 
@@ -10,8 +10,7 @@ import torch
 
 import torchakvf as ta
 from torchakvf import shapes
-from torchakvf.fields import whitney_face_vectors
-from torchakvf.operators import batch_geometry, d0
+from torchakvf.operators import batch_geometry, d0, whitney_face_vectors
 
 from helpers.eigen_checks import mesh_of
 

@@ -79,9 +79,9 @@ class SolveLog:
     of each)."""
 
     def __init__(self, monkeypatch):
-        from torchakvf.solvers import akvf_solver, factor
+        from torchakvf.solvers import factor, group_solver
         self.sizes, self.groups = [], []
-        real_cholesky, real_lobpcg = factor._cholesky, akvf_solver.segmented_lobpcg
+        real_cholesky, real_lobpcg = factor._cholesky, group_solver.segmented_lobpcg
 
         def cholesky(pattern, diagonal, engine=None):
             self.sizes.append(int(pattern[0]))
@@ -92,7 +92,7 @@ class SolveLog:
             return real_lobpcg(system, n, **kw)
 
         monkeypatch.setattr(factor, "_cholesky", cholesky)
-        monkeypatch.setattr(akvf_solver, "segmented_lobpcg", lobpcg)
+        monkeypatch.setattr(group_solver, "segmented_lobpcg", lobpcg)
 
 
 class FactorLog:

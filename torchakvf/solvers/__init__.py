@@ -6,7 +6,8 @@ from .factor import BlockDiagonalFactor, ShiftedFactor
 from .krylov import block_krylov
 from .lobpcg import EigenResult, relative_residuals, segmented_lobpcg
 from .lanczos import shift_invert_lanczos
-from .akvf_solver import AKVFResult, AKVFSolver
+from .akvf_result import AKVFResult
+from .akvf_solver import AKVFSolver
 from .remedy import killing_system
 
 __all__ = ["AKVFResult", "AKVFSolver", "BlockDiagonalFactor", "ShiftedFactor", "EigenResult", "block_krylov",

@@ -24,28 +24,24 @@ Policy, in the order it applies:
 """
 from __future__ import annotations
 
-import itertools
 import numbers
 import sys
 import warnings
-from dataclasses import dataclass
-from typing import NamedTuple
 
 import torch
 
-from ..errors import ConvergenceWarning, FieldCountError, ParameterError, SolverError
-from ..fields.akvf_result import AKVFResult
-from ..fields.whitney import whitney_face_vectors
+from ..errors import ConvergenceWarning, ParameterError, SolverError
 from ..mesh.batch import MeshBatch
 from ..mesh.clean import CleanMesh
 from ..mesh.mesh import Mesh
 from ..operators.killing import DEFAULT_REMEDY, REMEDIES, KillingSystem, killing_operator
-from .factor import BlockDiagonalFactor, ShiftedFactor, check_factor_device, interior_factor, mesh_factor, mesh_shift
-from . import lobpcg
-from .krylov import block_krylov
-from .lanczos import shift_invert_lanczos
-from .lobpcg import EigenResult, segmented_lobpcg
+from .akvf_result import AKVFResult
+from .factor import ShiftedFactor, check_factor_device
+from .group_solver import SPURIOUS_MARGIN, SPURIOUS_SOLVES, GroupSolver, SolveSettings, remedy_advice
 from .remedy import SPURIOUS_BELOW, PaperCheck, auto_operator
+
+__all__ = ["AKVFSolver", "SOLVERS", "ONE_MESH_AT_A_TIME_ON", "KRYLOV_MIN_EDGES", "SPURIOUS_BELOW", "SPURIOUS_MARGIN",
+           "SPURIOUS_SOLVES", "as_batch", "batched_by_default", "field_count", "remedy_advice", "solver_for"]
 
 #: The eigensolvers a caller may ask for ("auto": :func:`solver_for` decides per mesh).
 SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
@@ -56,12 +52,6 @@ SOLVERS = ("auto", "lobpcg", "lanczos", "krylov")
 #: batched stage took 1.35x the time of the same meshes one by one (see docs/design.md). The
 #: batched paths are the GPU's, whose caching allocator reuses memory.
 ONE_MESH_AT_A_TIME_ON = ("cpu",)
-
-#: Extra eigenpairs computed to make room for spurious ones.
-SPURIOUS_MARGIN = 8
-#: Solves of a mesh at most under a remedy: the first, then again with more room while it has
-#: more spurious modes than room (each time what it was short of plus SPURIOUS_MARGIN).
-SPURIOUS_SOLVES = 4
 
 #: On CPU, "auto" solves meshes with at least this many edges with the block Krylov solver and
 #: smaller ones with ARPACK Lanczos (same factor): below it the Krylov solver's per-step dense
@@ -112,35 +102,6 @@ def field_count(n) -> int:
     if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
         raise ParameterError(f"n must be a positive integer, got {n!r}")
     return int(n)
-
-
-def remedy_advice(remedy: str, decimated: bool = False) -> str:
-    """What to try after a failed solve under ``remedy`` (never what was just tried)."""
-    if remedy != "smooth":
-        return f"it was solved with remedy={remedy!r}; try remedy='smooth'"
-    if decimated:
-        return ("it was solved decimated with remedy='smooth', the strongest remedy; solve it at "
-                "full resolution (akvf_falling_back does) or repair the input mesh")
-    return ("it was solved with remedy='smooth', the strongest remedy; repair the mesh (remesh "
-            "it, close its holes)")
-
-
-class _Pairs(NamedTuple):
-    """One mesh's eigenpairs as solved (room for spurious modes included)."""
-    values: torch.Tensor        # [k]
-    vectors: torch.Tensor       # [E, k]
-    residuals: torch.Tensor     # [k]
-    iterations: torch.Tensor    # []
-    shift: torch.Tensor         # []
-
-
-@dataclass(frozen=True)
-class _Settings:
-    """What a solve asks for (the rest is the solver's)."""
-    n: int
-    tol: float
-    seed: int
-    max_iter: int
 
 
 class AKVFSolver:
@@ -204,10 +165,8 @@ class AKVFSolver:
         #: the eigensolver of each mesh ("auto" decides per mesh, by its size)
         self.solvers: list[str] = [solver_for(batch.device, e, self.batched) if self.solver == "auto" else self.solver
                                    for e in self.edges]
-        self._factors: dict[int, ShiftedFactor] = {}
-        self._interior: dict[tuple[int, int], object] = {}
-        self._blocks: dict[tuple[int, ...], BlockDiagonalFactor] = {}
         self._shifts: dict[int, float] = kept
+        self._grouped: GroupSolver | None = None
         self._system: KillingSystem | None = None
         #: what remedy "auto" learned of each mesh's paper operator (its analysis, its factor)
         self._checks: list[PaperCheck] | None = None
@@ -231,6 +190,20 @@ class AKVFSolver:
             self._system = KillingSystem.concatenate([s.system for s in self._alone], self.batch.edge_ptr)
         return self._system
 
+    @property
+    def _group_solver(self) -> GroupSolver:
+        """The eigensolves of the batch's meshes and their kept factors (made on first use)."""
+        if self._grouped is None:
+            self._grouped = GroupSolver(self.system, self.batch, self.solvers, batched=self.batched,
+                                       checks=self._checks, shifts=self._shifts,
+                                       full_resolution={b for b, _ in self.fell_back}, fixable=self._fixable)
+        return self._grouped
+
+    def factor(self, b: int) -> ShiftedFactor:
+        """Mesh b's positive definite shift-invert factor (made on first use, then kept): where
+        remedy "auto" kept the paper's operator, the factor its decision made."""
+        return self._group_solver.factor(b)
+
     def drops_spurious(self, b: int) -> bool:
         """Whether mesh b's spurious modes (below :data:`SPURIOUS_BELOW`) are skipped: under any
         remedy its operator was built with (``KillingSystem.remedies``, decided per mesh)."""
@@ -240,14 +213,14 @@ class AKVFSolver:
         """The ``n`` smallest AKVFs of each mesh (see :func:`~torchakvf.fields.akvf.akvf` for
         the parameters). A mesh that does not reach ``tol`` is flagged in
         ``AKVFResult.converged`` and named in one :class:`ConvergenceWarning`."""
-        settings = _Settings(field_count(n), tol, seed, max_iter)
+        settings = SolveSettings(field_count(n), tol, seed, max_iter)
         out = self._solve_falling_back(settings)
         _warn_unconverged(self.batch.names, out.residuals, out.converged, tol)
         return out
 
     # -- failures kept to their meshes, the decimated -> full-resolution fallback ------------
 
-    def _solve_falling_back(self, settings: _Settings) -> AKVFResult:
+    def _solve_falling_back(self, settings: SolveSettings) -> AKVFResult:
         """Every mesh solved; the meshes that fail (and only they) at full resolution, alone."""
         pieces, failed = self._solve_meshes(settings, list(range(len(self.batch))))
         if failed:
@@ -276,13 +249,14 @@ class AKVFSolver:
             exc.failed_meshes = sorted(failed)
             raise exc
 
-    def _solve_meshes(self, settings: _Settings, meshes: list[int]) -> tuple[dict, dict]:
+    def _solve_meshes(self, settings: SolveSettings, meshes: list[int]) -> tuple[dict, dict]:
         """({mesh: its piece of the result}, {mesh: the exception it failed with}) for
         ``meshes``: pieces are one-mesh :class:`AKVFResult` s (one mesh at a time) or
-        (:class:`_Pairs`, pairs solved) (a batch solved as one). A failure the fallback cannot
-        fix stops the work there: the solve will raise, and its mates' results would be lost."""
+        (eigenpairs, pairs solved) (a batch solved as one: :meth:`GroupSolver.solve`). A failure
+        the fallback cannot fix stops the work there: the solve will raise, and its mates'
+        results would be lost."""
         if self._alone is None:
-            pairs, counts, failed = self._solve_with_room(settings, meshes)
+            pairs, counts, failed = self._group_solver.solve(settings, meshes)
             return {b: (pairs[b], counts[b]) for b in pairs}, failed
         pieces, failed = {}, {}
         for b in meshes:
@@ -294,226 +268,21 @@ class AKVFSolver:
                     break
         return pieces, failed
 
-    def _assemble(self, pieces: dict, settings: _Settings) -> AKVFResult:
+    def _assemble(self, pieces: dict, settings: SolveSettings) -> AKVFResult:
         order = range(len(self.batch))
         if self._alone is not None:
             return AKVFResult.concatenate([pieces[b] for b in order], self.batch, self.system)
-        return self._result([pieces[b][0] for b in order], [pieces[b][1] for b in order], settings)
+        pairs, counts = zip(*(pieces[b] for b in order))
+        return self._group_solver.result(list(pairs), list(counts), settings)
 
     # -- one solve of the current batch ------------------------------------------------------
 
-    def _solve(self, settings: _Settings) -> AKVFResult:
+    def _solve(self, settings: SolveSettings) -> AKVFResult:
         """Every mesh solved (raising the first failure)."""
         pieces, failed = self._solve_meshes(settings, list(range(len(self.batch))))
         if failed:
             self._raise_unless_decimated(failed, decimated=False)
         return self._assemble(pieces, settings)
-
-    def _solve_with_room(self, settings: _Settings, meshes: list[int]) -> tuple[dict, dict, dict]:
-        """Each mesh's eigenpairs {b: _Pairs}, how many were solved {b: count} (n plus room for
-        spurious modes, capped below the mesh's edge count, solved again with more room where
-        they outnumber it) and the meshes that failed {b: exception}."""
-        n = settings.n
-        counts = {b: n + (min(SPURIOUS_MARGIN, max(self.edges[b] - n - 1, 0)) if self.drops_spurious(b) else 0)
-                  for b in meshes}
-        pairs: dict = {}
-        failed = self._without_shift(meshes)
-        if failed and not self._fixable(failed):
-            return pairs, counts, failed        # the solve raises: no work for the mates
-        todo = [b for b in meshes if b not in failed]
-        for _ in range(SPURIOUS_SOLVES):
-            for group in self._groups(todo, counts):
-                self._solve_group(group, counts[group[0]], settings, pairs, counts, failed)
-            todo = [b for b in todo if b not in failed]
-            todo = self._short_of_room([b for b in todo if self.drops_spurious(b)], pairs, counts, n)
-            if not todo:
-                break
-        return pairs, counts, failed
-
-    def _solve_group(self, group: list[int], count: int, settings: _Settings, pairs: dict, counts: dict,
-                     failed: dict) -> None:
-        """``group`` solved as one into ``pairs`` and ``counts``; where that fails, its halves
-        are (and theirs, down to single meshes, whose failures go to ``failed``)."""
-        try:
-            eig = self._eigensolve(group, count, self.solvers[group[0]], settings)
-        except (SolverError, torch.cuda.OutOfMemoryError) as exc:
-            if len(group) == 1:
-                failed[group[0]] = exc
-                return
-            half = len(group) // 2
-            for part in (group[:half], group[half:]):
-                self._solve_group(part, count, settings, pairs, counts, failed)
-            return
-        vecs = self.batch.split(eig.vectors, self._group_ptr(group))
-        for j, b in enumerate(group):
-            pairs[b] = _Pairs(eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j], eig.shifts[j])
-            counts[b] = max(counts[b], eig.eigenvalues.shape[1])
-
-    def _without_shift(self, meshes: list[int]) -> dict:
-        """{mesh: SolverError} of the meshes that no shift makes definite, found by each mesh's
-        own ladder where the batch is solved as one by LOBPCG (one block factor at the shifts
-        found): such a mesh leaves its group before any batch work."""
-        failed = {}
-        if not self.batched or self._alone is not None:
-            return failed
-        for b in meshes:
-            if self.solvers[b] == "lobpcg" and b not in self._shifts:
-                try:
-                    self._shifts[b] = mesh_shift(self.system, b, self.batch.names[b])
-                except SolverError as exc:
-                    advice = remedy_advice(self.system.remedies[b], self.batch.coarse_of(b) is not None)
-                    failed[b] = SolverError(f"{exc}; {advice}")
-        return failed
-
-    def _groups(self, todo: list[int], counts: list[int]) -> list[list[int]]:
-        """Meshes needing the same count from the same solver are solved together. The Krylov
-        solver works one mesh at a time and makes room for spurious modes itself (it returns
-        more pairs where they need it): each of its meshes is a group of one."""
-        alone = {b for b in todo if self.solvers[b] == "krylov" or self._full_resolution(b)}
-        others = [b for b in todo if b not in alone]
-        return [[b] for b in todo if b in alone] + [
-            [b for b in others if (counts[b], self.solvers[b]) == key]
-            for key in sorted({(counts[b], self.solvers[b]) for b in others})]
-
-    def _full_resolution(self, b: int) -> bool:
-        """Mesh b fell back to full resolution: it is solved alone, so that its edge count does
-        not pad its mates' arrays."""
-        return any(b == i for i, _ in self.fell_back)
-
-    def _short_of_room(self, todo: list[int], pairs: list[_Pairs], counts: list[int], n: int) -> list[int]:
-        """The meshes of ``todo`` with more spurious modes than room, their counts raised (in
-        place) to what they were short of plus SPURIOUS_MARGIN; their mates keep theirs."""
-        again = []
-        for b in todo:
-            spurious = int((pairs[b].values < SPURIOUS_BELOW).sum())
-            short = spurious - (counts[b] - n)
-            if short > 0 and counts[b] < self.edges[b] - 1:
-                counts[b] = min(counts[b] + short + SPURIOUS_MARGIN, self.edges[b] - 1)
-                again.append(b)
-        return again
-
-    def _group_ptr(self, group: list[int]) -> torch.Tensor:
-        """[len(group)+1] offsets of the group's meshes in a group's packed vectors."""
-        return torch.tensor([0] + list(itertools.accumulate(self.edges[b] for b in group)))
-
-    # -- the eigensolvers ---------------------------------------------------------------------
-
-    def _eigensolve(self, group: list[int], count: int, solver: str, settings: _Settings) -> EigenResult:
-        """``count`` eigenpairs of each mesh of ``group`` by ``solver``; a failure other than
-        too many fields gets advice on what to try next."""
-        try:
-            if solver == "lanczos":
-                return self._lanczos(group, count, settings)
-            if solver == "krylov":
-                return self._krylov(group, count, settings)
-            return self._lobpcg(group, count, settings)
-        except FieldCountError:
-            raise
-        except SolverError as exc:
-            decimated = any(self.batch.coarse_of(b) is not None for b in group)
-            raise SolverError(f"{exc}; {remedy_advice(self.system.remedies[group[0]], decimated)}") from None
-
-    def _lanczos(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
-        # ARPACK needs CPU factors; on CPU they are kept for a re-solve with more room.
-        cpu = self.system.mass.device.type == "cpu"
-        return shift_invert_lanczos(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
-                                    names=self._names(group),
-                                    factors=[self.factor(b) for b in group] if cpu else None)
-
-    def _lobpcg(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
-        # Where LOBPCG takes one factor per mesh, the solver's own are passed (and kept); a batch
-        # solved as one takes one block-diagonal factor of the group at the meshes' own shifts.
-        factors = self._block(group) if self.batched else [self.factor(b) for b in group]
-        return segmented_lobpcg(self._subsystem(group), count, tol=settings.tol, seed=settings.seed,
-                                names=self._names(group), max_iter=settings.max_iter, factors=factors)
-
-    def _block(self, group: list[int]) -> BlockDiagonalFactor:
-        """The group's block-diagonal factor at its meshes' own shifts (made once, then kept)."""
-        key = tuple(group)
-        if key not in self._blocks:
-            missing = self._without_shift(group)    # shifts not found yet (a caller's own group)
-            if missing:
-                raise missing[min(missing)]
-            self._blocks[key] = BlockDiagonalFactor(self._subsystem(group), self._names(group),
-                                                    shifts=[self._shifts[b] for b in group])
-        return self._blocks[key]
-
-    def _krylov(self, group: list[int], count: int, settings: _Settings) -> EigenResult:
-        """Only the n kept pairs (and the spurious ones below them) must converge; the room for
-        spurious modes is returned as it is. A mesh it does not converge (rare: seen on a mesh
-        with 33 spurious modes at shift -512, where the wanted pairs' 1/(λ - σ) all crowd
-        together) is solved by ARPACK on the definite factor."""
-        n = settings.n
-        eig = block_krylov(self.system, count, tol=settings.tol, seed=settings.seed, names=self._names(group),
-                           need=n, skip_below=SPURIOUS_BELOW if self.drops_spurious(group[0]) else None,
-                           factors=[self._interior_factor(b, n) for b in group], grow=len(group) == 1,
-                           meshes=group)
-        if len(group) == 1 and not bool(eig.converged[0]) and self.system.mass.device.type == "cpu":
-            k = min(eig.eigenvalues.shape[1], self.edges[group[0]] - 1)
-            eig = shift_invert_lanczos(self._subsystem(group), k, tol=settings.tol, seed=settings.seed,
-                                       names=self._names(group), factors=[self.factor(b) for b in group])
-        return eig
-
-    def factor(self, b: int) -> ShiftedFactor:
-        """Mesh b's positive definite shift-invert factor (made on first use, then kept): where
-        remedy "auto" kept the paper's operator, the factor its decision made."""
-        if b not in self._factors:
-            check = self._check(b)
-            kept = check.factor if check is not None and self.system.remedies[b] == "none" else None
-            self._factors[b] = kept or mesh_factor(self.system, b, self.batch.names[b], like=self._symbolic(b))
-        return self._factors[b]
-
-    def _interior_factor(self, b: int, need: int):
-        """Mesh b's factor for the Krylov solver at ``need`` wanted pairs (kept per need)."""
-        if (b, need) not in self._interior:
-            self._interior[b, need] = interior_factor(self.system, b, need, lambda: self.factor(b),
-                                                      like=self._symbolic(b))
-        return self._interior[b, need]
-
-    def _check(self, b: int) -> PaperCheck | None:
-        """What remedy "auto" learned of mesh b, where its factors can use it (on the CPU)."""
-        if self._checks is None or self.system.mass.device.type != "cpu":
-            return None
-        return self._checks[b]
-
-    def _symbolic(self, b: int):
-        """The analysis of mesh b's paper operator, which its factors share where the pattern is
-        the same (None: each factor analyses its own)."""
-        check = self._check(b)
-        return None if check is None else check.symbolic
-
-    def _subsystem(self, group: list[int]) -> KillingSystem:
-        return self.system if len(group) == len(self.batch) else self.system.select(group)
-
-    def _names(self, group: list[int]) -> list[str]:
-        return [self.batch.names[b] for b in group]
-
-    # -- the result ---------------------------------------------------------------------------
-
-    def _result(self, pairs: list[_Pairs], counts: list[int], settings: _Settings) -> AKVFResult:
-        """Per mesh, the first n eigenpairs that are not spurious (ascending order kept), their
-        Whitney vectors, in the batch's dtype."""
-        n = settings.n
-        lam, forms, res, dropped = [], [], [], []
-        for b, p in enumerate(pairs):
-            spurious = (p.values < SPURIOUS_BELOW if self.drops_spurious(b)
-                        else torch.zeros_like(p.values, dtype=torch.bool))
-            keep = torch.argsort(spurious.to(torch.int8), stable=True)[:n]
-            # Column slices where the kept pairs lead (no spurious ones): a view, not a gather.
-            cols = slice(0, n) if bool((keep == torch.arange(len(keep), device=keep.device)).all()) else keep
-            lam.append(p.values[cols]), forms.append(p.vectors[:, cols]), res.append(p.residuals[cols])
-            dropped.append(int(spurious.sum()))
-        dev = self.batch.device
-        eigenvalues, residuals, forms = torch.stack(lam), torch.stack(res), torch.cat(forms)
-        fv = whitney_face_vectors(self.batch, self.system.geometry, forms)
-        out_dt = self.batch.dtype
-        return AKVFResult(eigenvalues=eigenvalues.to(out_dt), forms=forms.to(out_dt),
-                          face_vectors=fv.to(out_dt), residuals=residuals,
-                          iterations=torch.stack([p.iterations for p in pairs]).to(dev),
-                          shifts=torch.stack([p.shift for p in pairs]).to(dev),
-                          converged=(residuals <= settings.tol).all(dim=1),
-                          dropped=torch.tensor(dropped, dtype=torch.long, device=dev), batch=self.batch,
-                          system=self.system, solved=torch.tensor(counts, dtype=torch.long, device=dev))
 
 
 def _warn_unconverged(names: list, residuals: torch.Tensor, converged: torch.Tensor, tol: float) -> None:
