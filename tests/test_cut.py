@@ -1,5 +1,6 @@
 """Cutting one mesh's parts (:mod:`torchakvf.parts.cut`): the kept over-segmentation serves only
-an identical clustering, and the part floor."""
+an identical clustering, the part floor, and the default's concave crease cut on shapes whose
+parts only a crease separates."""
 from __future__ import annotations
 
 import numpy as np
