@@ -27,12 +27,8 @@ try:
 except ImportError:
     from experiments import merge_learned_cv as cv
 
+from torchakvf.parts.merge import FIELD_OF_TERM
 from torchakvf.parts.merge_terms import TERM_NAMES
-
-#: MergeWeights field of each column of pair_terms ("small" is part_size: min(A_i, A_j) k / A)
-FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
-                     small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
-                     thin="thin", centricity="centricity")
 
 
 def main():

@@ -15,13 +15,11 @@ from __future__ import annotations
 
 import argparse
 import pickle
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from merge_cv import rand_error  # noqa: E402
+from torchakvf.evaluate.metrics import rand_index_error
 
 
 def shape_errors(folders: list[str]) -> dict:
@@ -31,7 +29,7 @@ def shape_errors(folders: list[str]) -> dict:
         for f in Path(folder).glob("*.pkl"):
             with open(f, "rb") as fh:
                 r = pickle.load(fh)
-            errs = [rand_error(np.maximum(r["final"][int(g.max()) + 1], 0).astype(np.int64), g.astype(np.int64))
+            errs = [rand_index_error(np.maximum(r["final"][int(g.max()) + 1], 0).astype(np.int64), g.astype(np.int64))
                     for g in r["gts"]]
             out[r["key"]] = (r["group"], r["key"].startswith("psb:"), float(np.mean(errs)))
     return out

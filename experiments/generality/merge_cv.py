@@ -31,26 +31,12 @@ from scipy.optimize import minimize
 
 from torchakvf.options import MergeWeights
 from torchakvf.parts.concavity import dual_edges
-from torchakvf.parts.merge import boundary_bends, region_graph, term_weights
+from torchakvf.evaluate.metrics import rand_index_error as rand_error
+from torchakvf.parts.merge import FIELD_OF_TERM, boundary_bends, region_graph, term_weights
 from torchakvf.parts.merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
 
 T = len(TERM_NAMES)
 PREP: dict = {}
-#: MergeWeights field of each column of pair_terms
-FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
-                     small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
-                     thin="thin", centricity="centricity")
-
-
-def rand_error(a: np.ndarray, b: np.ndarray) -> float:
-    """1 - RI (faces counted, unordered pairs) of two labellings with labels >= 0."""
-    n = a.size
-    nb = int(b.max()) + 1
-    cell = np.bincount(a * nb + b).astype(np.float64)
-    sa = np.bincount(a).astype(np.float64)
-    sb = np.bincount(b).astype(np.float64)
-    c2 = lambda x: (x * (x - 1) / 2).sum()  # noqa: E731
-    return float((c2(sa) + c2(sb) - 2 * c2(cell)) / (n * (n - 1) / 2))
 
 
 # ---------------------------------------------------------------- preparation (once per shape)

@@ -88,13 +88,19 @@ class RegionGraph:
                           thick_median=float(sums.get("thick_median", 1.0)))
 
 
+#: The :class:`MergeWeights` field weighing each column of
+#: :func:`~torchakvf.parts.merge_terms.pair_terms` (``small`` also takes ``size`` / k: see
+#: :func:`term_weights`).
+FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
+                     small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
+                     thin="thin", centricity="centricity")
+
+
 def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
     """[T] the weights of :data:`~torchakvf.parts.merge_terms.TERM_NAMES` the cost is the dot
     product with (the size terms folded into the ``small`` column, min(A_i, A_j) k / A)."""
-    small = weights.size / max(int(k), 1) + weights.part_size
-    values = dict(symmetry=weights.symmetry, concavity=weights.concavity, convexity=weights.convexity,
-                  share=weights.cut, small=small, size_ratio=weights.size_ratio, short_cut=weights.short_cut,
-                  thickness=weights.thickness, thin=weights.thin, centricity=weights.centricity)
+    values = {name: getattr(weights, field) for name, field in FIELD_OF_TERM.items()}
+    values["small"] = weights.size / max(int(k), 1) + weights.part_size
     return np.array([values[name] for name in TERM_NAMES], dtype=np.float64)
 
 
@@ -349,5 +355,5 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     return out
 
 
-__all__ = ["MergeWeights", "term_weights", "needs_thickness", "needs_part_sums", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
+__all__ = ["MergeWeights", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_part_sums", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
            "greedy_merge", "merge_parts"]
