@@ -54,6 +54,7 @@ import scipy
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
+from timing import psb_parser, write_report
 
 import torchakvf as ta
 from torchakvf import scipy_reference as ref
@@ -64,7 +65,6 @@ from torchakvf.mesh import clean_mesh
 from torchakvf.mesh.coarse import coarse_mesh
 from torchakvf.solvers import cholmod
 from torchakvf.solvers.factor import mesh_factor
-from timing import psb_parser, write_report
 
 REPO = Path(__file__).resolve().parents[1]
 IDS = [1, 21, 121, 181, 301]

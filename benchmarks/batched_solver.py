@@ -39,7 +39,8 @@ def _worker(args) -> None:
 
     sys.path.insert(0, str(HERE.parent / "tests"))
     import torchakvf as ta
-    from torchakvf.solvers import akvf_solver, factor, group_solver, lobpcg as lobpcg_module
+    from torchakvf.solvers import akvf_solver, factor, group_solver
+    from torchakvf.solvers import lobpcg as lobpcg_module
 
     # The accelerator's preconditioner (one block-diagonal factor per batch) on the CPU too,
     # for a checkout whose batched=True would take one factor per mesh there.
@@ -75,6 +76,7 @@ def _lobpcg_syncs() -> float:
     """Synchronizations per LOBPCG iteration (block factor), as tests/test_lobpcg.py counts them."""
     from helpers.eigen_checks import batch_with_a_low_mesh
     from helpers.syncs import SyncCounter
+
     from torchakvf.solvers import lobpcg
 
     system = batch_with_a_low_mesh()

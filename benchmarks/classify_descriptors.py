@@ -32,10 +32,9 @@ import logging
 import sys
 from pathlib import Path
 
+import descriptor_pass
 import numpy as np
 import torch
-
-import descriptor_pass
 
 SEED = 0
 FOLDS = 5

@@ -35,10 +35,9 @@ import sys
 import time
 from pathlib import Path
 
+import classical_descriptors as classical
 import numpy as np
 import scipy.sparse as sp
-
-import classical_descriptors as classical
 
 COARSE_FACES = 4000
 N_FIELDS = 32

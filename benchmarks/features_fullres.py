@@ -37,10 +37,11 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from timing import psb_parser  # noqa: E402
+
 import torchakvf as ta  # noqa: E402
 from torchakvf import scipy_reference as ref  # noqa: E402
 from torchakvf.interop import face_features  # noqa: E402
-from timing import psb_parser  # noqa: E402
 from torchakvf.mesh.clean import clean_mesh  # noqa: E402
 
 IDS = [1, 21, 121, 181, 301]

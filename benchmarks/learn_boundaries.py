@@ -32,10 +32,9 @@ import sys
 import time
 from pathlib import Path
 
+import descriptor_pass
 import numpy as np
 import torch
-
-import descriptor_pass
 
 STEPS = 1000
 BATCH = 2048

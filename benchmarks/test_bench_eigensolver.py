@@ -47,6 +47,7 @@ def _load(name: str, path: pathlib.Path):
 
 from torchakvf import scipy_reference as ref  # noqa: E402
 from torchakvf.evaluate.psb import default_psb_root  # noqa: E402
+
 bench = _load("eigensolver_psb", _HERE / "eigensolver_psb.py")
 
 N = 32

@@ -1,7 +1,9 @@
 """Check that every relative link in README.md and docs/*.md resolves inside the repository:
 files, folders and #anchors of Markdown files (slugged as GitHub does). Also prints the README's
 line count. Usage: python docs/check_links.py [REPO_ROOT]; exit code 1 when a link is broken."""
-import re, sys, unicodedata
+import re
+import sys
+import unicodedata
 from pathlib import Path
 
 root = Path(sys.argv[1] if len(sys.argv) > 1 else Path(__file__).parent.parent).resolve()

@@ -35,10 +35,10 @@ from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
 from torchakvf.operators.killing import killing_operator
 from torchakvf.solvers import cholmod
-from torchakvf.solvers.factor import _CpuFactor, _cholesky, _lower_pattern
+from torchakvf.solvers.factor import _cholesky, _CpuFactor, _lower_pattern
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
 from timing import best_of, write_report  # noqa: E402
-
 
 
 def shifted_pattern(mesh_id: int, psb: Path, sigma: float = -1.0):

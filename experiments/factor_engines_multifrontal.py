@@ -28,6 +28,7 @@ import time
 import numpy as np
 import torch
 
+
 def dissect(indptr, indices, coords, leaf=64):
     n = len(coords)
     rows = np.repeat(np.arange(n), np.diff(indptr)); cols = indices

@@ -37,6 +37,7 @@ from torchakvf.mesh import clean_mesh
 from torchakvf.operators import killing_operator
 from torchakvf.solvers import factor as factor_module
 from torchakvf.solvers.factor import SHIFTS, ShiftedFactor
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
 from timing import best_of  # noqa: E402
 

@@ -33,11 +33,11 @@ import time
 from pathlib import Path
 
 import torch
-
 from kmeans_restarts import BLOCKS, LABELLED, StageClock
+
+from torchakvf import options as O
 from torchakvf.evaluate import harness as H
 from torchakvf.evaluate import psb as P
-from torchakvf import options as O
 from torchakvf.parts import field_counts as FC
 from torchakvf.parts.merge import MergeWeights
 

@@ -10,7 +10,6 @@ without the cut.
 from __future__ import annotations
 
 import argparse
-import itertools
 import math
 import time
 from multiprocessing import Pool
@@ -24,11 +23,11 @@ from torchakvf.parts.graphcut import GraphCut, graphcut_labels
 from torchakvf.parts.merge import MergeWeights, greedy_merge
 
 try:
-    from merge_method_cv import rand_error
     import merge_terms_cv as V2
+    from merge_method_cv import rand_error
 except ImportError:
-    from experiments.merge_method_cv import rand_error
     import experiments.merge_terms_cv as V2
+    from experiments.merge_method_cv import rand_error
 
 N_FOLDS = 3
 W: MergeWeights | None = None

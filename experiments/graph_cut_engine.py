@@ -66,7 +66,9 @@ def capture(args) -> None:
     stage (graphcut_labels) timed with each engine and start on the same inputs, interleaved,
     in CPU seconds of this process (the machine is shared)."""
     import dataclasses
+
     import torch
+
     from torchakvf.parts import cut as cut_module
     torch.set_num_threads(1)             # as eval's workers run (run with OMP_NUM_THREADS=1 too)
     out = Path(args.out)

@@ -34,6 +34,7 @@ import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.mesh import MeshBatch
 from torchakvf.solvers.factor import interior_factor
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
 from timing import akvf_agreement, one_thread_on_psb, write_report  # noqa: E402
 

@@ -21,8 +21,6 @@ per mesh, compared with every human, mean), hit rate of the mode of the humans' 
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import time
 from collections import Counter
 from pathlib import Path
@@ -45,9 +43,10 @@ def build(a):
     from torchakvf.io import load_mesh
     from torchakvf.mesh import MeshBatch
     from torchakvf.mesh.clean import face_areas
+    from torchakvf.options import SEGMENT_UNTANGLE_RESTARTS as UNTANGLE_RESTARTS
+    from torchakvf.options import SPARE_FIELDS
     from torchakvf.parts import segment
     from torchakvf.parts.concavity import dual_edges
-    from torchakvf.options import SEGMENT_UNTANGLE_RESTARTS as UNTANGLE_RESTARTS, SPARE_FIELDS
     from torchakvf.parts.field_counts import cluster_safe_n, default_n_fields
     from torchakvf.parts.merge import oversegment_k, region_graph
     torch.set_num_threads(1)
@@ -91,6 +90,7 @@ def sweep(a):
     sys.path.insert(0, str(Path(__file__).parent))
     import merge_terms_cv as V2
     from merge_method_cv import rand_error
+
     from torchakvf.parts.merge import MergeWeights, greedy_merge, merge_costs
     w = MergeWeights(**{kv.split("=")[0]: float(kv.split("=")[1]) for kv in a.weights.split(",")})
     lo, hi = K_RANGE
@@ -162,7 +162,7 @@ def sweep(a):
          "| rule | τ (CV: chosen per fold on the other 10) | held-out 1-RI | held-out hit rate |", "|---|---|---:|---:|"]
     summary = {}
     for rule in taus:
-        held, hits, chosen_t = {}, {}, []
+        held, chosen_t = {}, []
         for f, test in enumerate(folds):
             train = [c for c in cats if c not in test]
             t = min(taus[rule], key=lambda t: (ov(tabs[(rule, t)], train), t))

@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
+from torchakvf.options import MergeWeights
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.merge import boundary_bends, region_graph
 from torchakvf.parts.merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
-from torchakvf.options import MergeWeights
 
 T = len(TERM_NAMES)
 PREP: dict = {}
@@ -263,6 +263,7 @@ def learned_weights(train_mids, policy_w, pool, rounds=1, cols=tuple(range(T))):
         ROWS[m] = r
     Xs, ys, ws = [ROWS[m][0] for m in train_mids], [ROWS[m][1] for m in train_mids], [ROWS[m][2] for m in train_mids]
     cols = list(cols)
+    w = policy_w  # the weights whose merges make the next round's rows
     for r in range(rounds):
         if r > 0:
             rows = pool.starmap(mesh_rows, [(m, w) for m in train_mids])

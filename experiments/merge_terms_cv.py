@@ -13,7 +13,6 @@ every grid point evaluated):
 from __future__ import annotations
 
 import argparse
-import itertools
 import math
 import time
 from multiprocessing import Pool

@@ -25,11 +25,12 @@ from torchakvf.fields.untangle import untangle
 from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch
 from torchakvf.mesh.clean import face_areas
+from torchakvf.options import SEGMENT_UNTANGLE_RESTARTS as UNTANGLE_RESTARTS
+from torchakvf.options import SPARE_FIELDS
 from torchakvf.parts import segment
 from torchakvf.parts.concavity import dual_edges
-from torchakvf.parts.merge import oversegment_k, region_graph
-from torchakvf.options import SEGMENT_UNTANGLE_RESTARTS as UNTANGLE_RESTARTS, SPARE_FIELDS
 from torchakvf.parts.field_counts import default_n_fields, field_counts
+from torchakvf.parts.merge import oversegment_k, region_graph
 
 RATIOS = (1.0, 2.0, 2.5, 3.0, 4.0)
 

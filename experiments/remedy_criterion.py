@@ -18,13 +18,10 @@ import csv
 import math
 import time
 
-import torch
-
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.errors import SolverError
 from torchakvf.evaluate.psb import category_of, default_psb_root, find_psb_meshes
-from torchakvf.mesh.batch import owner_index
 from torchakvf.operators import batch_geometry, dec, killing_operator
 from torchakvf.solvers.akvf_solver import SPURIOUS_BELOW, AKVFSolver
 

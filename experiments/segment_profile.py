@@ -48,6 +48,7 @@ PROFILE = [("full resolution, ta.segment(k=5)", 0, "5", "1,21,121,181,201,301"),
 def profile(ids: list[int], coarse: int, ks: list[int], psb: Path) -> dict:
     """{stage: CPU seconds} of the work on ``ids`` with the code imported."""
     import torch
+
     import torchakvf as ta
     from torchakvf.io import load_mesh
     from torchakvf.options import SegmentOptions

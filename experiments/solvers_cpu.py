@@ -28,6 +28,7 @@ import torch
 import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.mesh import MeshBatch
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
 from timing import akvf_agreement, one_thread_on_psb, write_report  # noqa: E402
 
@@ -81,7 +82,7 @@ def main(argv=None) -> int:
             + " / ".join(f"{chk[s][0]:.0e}" for s in SOLVERS)
             + f" | {chk['lobpcg'][1]:.0e} | {chk['lanczos'][1]:.0e} | "
             + "/".join("y" if chk[s][2] else "n" for s in SOLVERS) + " |")
-    lines.append(f"| **total** | | | | " + " | ".join(f"{totals[s]:.2f}" for s in SOLVERS)
+    lines.append("| **total** | | | | " + " | ".join(f"{totals[s]:.2f}" for s in SOLVERS)
                  + f" | **{totals['lobpcg'] / totals['krylov']:.2f}x** | **{totals['lanczos'] / totals['krylov']:.2f}x** | | | | |")
     write_report("\n".join(lines) + "\n", args.out)
     return 0

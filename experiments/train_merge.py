@@ -20,8 +20,6 @@ import json
 from multiprocessing import get_context
 from pathlib import Path
 
-import numpy as np
-
 try:
     import merge_learned_cv as cv
 except ImportError:

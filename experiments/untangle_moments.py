@@ -30,12 +30,14 @@ import torchakvf as ta
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
 from timing import best_of, write_report  # noqa: E402
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
 from torchakvf.fields.fourth_moments import FourthMoments  # noqa: E402
 from torchakvf.fields.horst import Products  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 
 

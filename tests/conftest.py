@@ -21,7 +21,6 @@ import torch
 from torchakvf.evaluate.psb import default_psb_root
 
 
-
 @pytest.fixture(scope="session")
 def psb() -> Path:
     root = default_psb_root()   # $TORCHAKVF_PSB, else ../shared/psb beside the repository

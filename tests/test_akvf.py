@@ -12,14 +12,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
 import trimesh
+from helpers.eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines, scipy_matrices
 
 import torchakvf as ta
+from torchakvf import scipy_reference as ref
 from torchakvf import shapes
 from torchakvf.solvers.factor import mesh_factor
-
-from torchakvf import scipy_reference as ref
-
-from helpers.eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines, scipy_matrices
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

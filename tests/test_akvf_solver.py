@@ -8,17 +8,16 @@ import warnings
 import numpy as np
 import pytest
 import torch
+from helpers.eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines
+from helpers.roundoff import residual_roundoff
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.errors import ConvergenceWarning, FieldCountError
 from torchakvf.fields.akvf import akvf_falling_back
-from torchakvf.solvers.remedy import killing_system
 from torchakvf.solvers import AKVFSolver, akvf_solver, group_solver, lobpcg
 from torchakvf.solvers.akvf_solver import KRYLOV_MIN_EDGES, remedy_advice, solver_for
-
-from helpers.eigen_checks import METHODS, PAPER, clusters, mesh_of, s1_principal_cosines
-from helpers.roundoff import residual_roundoff
+from torchakvf.solvers.remedy import killing_system
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
@@ -405,6 +404,7 @@ def test_unsolvable_mesh_leaves_its_batch(monkeypatch):
     ladders only, before any batch work (no block factor, no LOBPCG call): a caller can solve
     the mates again without it."""
     from helpers.eigen_checks import SolveLog, sliver_sphere
+
     from torchakvf.solvers import factor
     monkeypatch.setattr(factor, "SHIFTS", (-1.0, -8.0))
     meshes = [mesh_of(shapes.icosphere(2), "ico"), sliver_sphere(), mesh_of(shapes.open_tube(n_around=24), "tube")]

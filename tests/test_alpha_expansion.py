@@ -9,8 +9,7 @@ import itertools
 import numpy as np
 import pytest
 
-from torchakvf.parts.alpha_expansion import (expansion_step, min_cut_sink_side, potts_alpha_expansion,
-                                             potts_energy)
+from torchakvf.parts.alpha_expansion import expansion_step, min_cut_sink_side, potts_alpha_expansion, potts_energy
 
 
 def _random_problem(rng, n, k, p_edge=0.4, top=6):

@@ -1,7 +1,7 @@
 """The packed batch (torchakvf.mesh.batch): dtype moves keep index tensors, owner maps, a mesh of
 a batch is the batch of that mesh."""
-import torch
 import pytest
+import torch
 
 import torchakvf as ta
 from torchakvf import shapes

@@ -1,10 +1,11 @@
 """torchakvf.pipeline.batches: the one batch planner (corpus runs, evaluation, bench)."""
 from __future__ import annotations
 
-from torchakvf import shapes
-from torchakvf.pipeline.runner import run_corpus
 from helpers.faketask import FakeTask
 from helpers.meshfiles import write_off
+
+from torchakvf import shapes
+from torchakvf.pipeline.runner import run_corpus
 
 
 def test_batches_go_to_the_workers_heaviest_first():

@@ -5,14 +5,14 @@ import json
 
 import numpy as np
 import pytest
+from helpers.meshfiles import write_off, write_seg
 
 from torchakvf import shapes
-from torchakvf.cli import main
 from torchakvf.bench import run as bench
-from torchakvf.pipeline.batches import default_batch_faces
+from torchakvf.cli import main
 from torchakvf.mesh.coarse import DEFAULT_COARSE_FACES
+from torchakvf.pipeline.batches import default_batch_faces
 from torchakvf.pipeline.parallel import default_workers
-from helpers.meshfiles import write_off, write_seg
 
 # Tiny meshes: intra-op threads only spin (and the test machine is shared).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -12,8 +12,13 @@ from torchakvf.mesh.batch import mesh_edges
 from torchakvf.mesh.clean import face_areas
 from torchakvf.mesh.coarse import SurfacePoints
 from torchakvf.parts import cut
-from torchakvf.parts.boundaries import (RefinedMesh, barycenter_values, isoline_face_labels,
-                                        refine_along_isolines, vertex_distances)
+from torchakvf.parts.boundaries import (
+    RefinedMesh,
+    barycenter_values,
+    isoline_face_labels,
+    refine_along_isolines,
+    vertex_distances,
+)
 from torchakvf.parts.merge import merged_distances
 
 

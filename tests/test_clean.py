@@ -6,13 +6,12 @@ import re
 
 import numpy as np
 import pytest
+from helpers.meshfiles import off_text
+from helpers.refusals import write_file
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.mesh.clean import OUTLIER_DISTANCE, faces_at_outliers
-
-from helpers.refusals import write_file
-from helpers.meshfiles import off_text
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

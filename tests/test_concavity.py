@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.planar_meshes import hinge
 
 from torchakvf import shapes
 from torchakvf.parts.concavity import crease_weights, dual_edges
 from torchakvf.parts.merge import region_graph
 from torchakvf.parts.topology import face_adjacency
-from helpers.planar_meshes import hinge
 
 
 @pytest.mark.parametrize("fold,expected", [(np.pi / 2, np.pi / 2), (-np.pi / 3, -np.pi / 3), (0.0, 0.0)])

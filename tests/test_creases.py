@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from helpers.planar_meshes import hinge
 
 from torchakvf import shapes
 from torchakvf.mesh.clean import face_areas
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.creases import crease_band, crease_patches, split_by_patches, unit_face_normals
 from torchakvf.parts.topology import face_adjacency
-from helpers.planar_meshes import hinge
 
 
 def misassigned_area(s, patches) -> float:

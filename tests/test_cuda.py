@@ -35,6 +35,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from helpers.meshfiles import write_off, write_seg
 
 import torchakvf as ta
 from torchakvf import shapes
@@ -44,7 +45,6 @@ from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.fields.akvf import solver_for
 from torchakvf.mesh.batch import pad_packed
 from torchakvf.solvers.remedy import killing_system
-from helpers.meshfiles import write_off, write_seg
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

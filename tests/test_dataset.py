@@ -6,14 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from helpers.meshfiles import write_small_corpus
+from helpers.runs import small_meshes
 
 import torchakvf as ta
 from torchakvf.errors import TorchAKVFError
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.inputs import discover_inputs
 from torchakvf.pipeline.runner import run_corpus
-from helpers.meshfiles import write_small_corpus
-from helpers.runs import small_meshes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

@@ -7,13 +7,11 @@ import math
 import numpy as np
 import pytest
 import torch
+from helpers.operator_meshes import EULER, SHAPES, as_scipy, per_mesh_sum, shape_meshes
 
 import torchakvf as ta
-from torchakvf.operators import angle_defect, angle_sum, batch_geometry, d0, d1, star0, star1, star2
-
 from torchakvf import scipy_reference as ref
-
-from helpers.operator_meshes import EULER, SHAPES, as_scipy, per_mesh_sum, shape_meshes
+from torchakvf.operators import angle_defect, angle_sum, batch_geometry, d0, d1, star0, star1, star2
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

@@ -6,14 +6,21 @@ import numpy as np
 import pytest
 import torch
 
-from torchakvf import Mesh, MeshBatch, akvf, load_mesh
+from torchakvf import Mesh, MeshBatch, akvf, load_mesh, shapes
 from torchakvf.errors import ParameterError
 from torchakvf.evaluate.psb import default_psb_root
-from torchakvf.fields.descriptors import (BASE_COLUMNS, CONTRAST_RADII, DEFAULT_COUNTS, FaceDiffusion,
-                                          counts_for, descriptor_block, descriptor_names, face_descriptors,
-                                          span_coherence)
+from torchakvf.fields.descriptors import (
+    BASE_COLUMNS,
+    CONTRAST_RADII,
+    DEFAULT_COUNTS,
+    FaceDiffusion,
+    counts_for,
+    descriptor_block,
+    descriptor_names,
+    face_descriptors,
+    span_coherence,
+)
 from torchakvf.fields.untangle import untangle
-from torchakvf import shapes
 from torchakvf.shapes import dumbbell, three_blobs
 
 #: Columns that depend on the raw fields' span only (never on the untangling).

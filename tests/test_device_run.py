@@ -9,10 +9,10 @@ import json
 
 import numpy as np
 import pytest
+from helpers.meshfiles import write_off, write_seg
 
 from torchakvf import shapes
 from torchakvf.evaluate.harness import evaluate_psb
-from helpers.meshfiles import write_off, write_seg
 
 #: cheap settings for tests (one k per mesh, small fields, 1-RI only)
 FAST = dict(kmeans_restarts=2, untangle_restarts=1, n_fields=8, metrics="rand", plot=False)

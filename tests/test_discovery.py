@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.partitions import sphere_labels
 
 from torchakvf.mesh.clean import face_areas
 from torchakvf.parts import discovery
 from torchakvf.parts.discovery import CONNECTING, remove_small_parts
 from torchakvf.parts.topology import face_adjacency, labelled_pieces, piece_neighbours
-from helpers.partitions import sphere_labels
 
 
 def _remove_small_parts_loop(labels, adjacency, face_area, min_fraction, into_connecting):

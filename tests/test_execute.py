@@ -3,14 +3,14 @@ bug ends the run, a failing batch is bisected."""
 from __future__ import annotations
 
 import pytest
+from helpers.faketask import FakeTask
+from helpers.meshfiles import write_off
+from helpers.runs import by_stem, cli_run, small_meshes
 
 from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.io.manifest import read_manifest_records
 from torchakvf.pipeline.runner import run_corpus
-from helpers.faketask import FakeTask
-from helpers.meshfiles import write_off
-from helpers.runs import by_stem, cli_run, small_meshes
 
 
 def test_programming_error_surfaces_after_the_manifest_is_flushed(tmp_path):

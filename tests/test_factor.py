@@ -8,13 +8,12 @@ import logging
 import numpy as np
 import pytest
 import torch
+from helpers.eigen_checks import batch_with_a_low_mesh
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.solvers import akvf_solver, cholmod, group_solver
 from torchakvf.solvers.factor import INTERIOR_SHIFT_PER_PAIR, InteriorFactor
-
-from helpers.eigen_checks import batch_with_a_low_mesh
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

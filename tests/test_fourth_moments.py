@@ -10,7 +10,6 @@ import torch
 from helpers.forms import random_forms
 from helpers.roundoff import horst_roundoff
 
-
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
 
 

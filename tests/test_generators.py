@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.partitions import sphere_labels
 
 from torchakvf.mesh.clean import face_areas
-from helpers.partitions import sphere_labels
 
 
 def _generators_loop(labels, features, face_area, energies, n_parts, min_share=0.5):

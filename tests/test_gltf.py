@@ -9,12 +9,11 @@ import struct
 import numpy as np
 import pytest
 import trimesh
+from helpers.refusals import assert_refused, write_file
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.io.gltf import face_count, parse_gltf
-
-from helpers.refusals import assert_refused, write_file
 
 
 def _two_mesh_scene():

@@ -8,6 +8,7 @@ import itertools
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers.partitions import sphere_labels
 
 from torchakvf import shapes
 from torchakvf.errors import ParameterError
@@ -16,8 +17,6 @@ from torchakvf.parts import graphcut as gc
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.graphcut import GraphCut, allowed_labels, energy, graphcut_labels, potts_expansion
 from torchakvf.parts.topology import face_adjacency
-from helpers.partitions import sphere_labels
-
 
 
 def _brute(unary, pairs, w):
@@ -145,8 +144,8 @@ def test_a_part_the_cut_would_empty_keeps_its_faces():
 def test_segment_graphcut_switch():
     """segment(graphcut=False) cuts no graph (recorded in params), True is the default, and a
     wrong value is a ParameterError."""
-    from torchakvf.errors import ParameterError
     import torchakvf as ta
+    from torchakvf.errors import ParameterError
     from torchakvf.options import graphcut_option
 
     shape = shapes.mug(h=0.12)

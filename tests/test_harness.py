@@ -8,13 +8,12 @@ import json
 
 import numpy as np
 import pytest
+from helpers.meshfiles import write_off, write_seg
 
 from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.evaluate import metrics as M
 from torchakvf.evaluate.harness import evaluate_psb, human_mode, parse_metrics
-from helpers.meshfiles import write_off, write_seg
-
 
 #: cheap clustering for tests (the same in every call that shares an output folder)
 FAST = dict(kmeans_restarts=5, untangle_restarts=2, n_fields=16)
@@ -76,9 +75,9 @@ def test_end_to_end_files_and_rows(tiny_psb, run_by_seg):
 
 def test_gallery_shows_prediction_beside_a_human_at_the_same_k(tiny_psb, run_by_seg):
     from torchakvf.evaluate import psb as P
-    from torchakvf.evaluate.metrics import rand_index_error
-    from torchakvf.evaluate.plan import plan_meshes, find_entries
     from torchakvf.evaluate.gallery import gallery_item
+    from torchakvf.evaluate.metrics import rand_index_error
+    from torchakvf.evaluate.plan import find_entries, plan_meshes
 
     root, d = tiny_psb
     out, summary, _ = run_by_seg
@@ -100,8 +99,9 @@ def test_galleries_drawn_in_worker_processes_equal_those_drawn_here(tiny_psb, ru
     import copy
     import dataclasses
     import shutil
-    from torchakvf.evaluate.plan import find_entries, plan_meshes
+
     from torchakvf.evaluate.gallery import write_galleries
+    from torchakvf.evaluate.plan import find_entries, plan_meshes
 
     root, _ = tiny_psb
     out, summary, _ = run_by_seg

@@ -7,11 +7,10 @@ import importlib
 
 import pytest
 import torch
-
-import torchakvf as ta
 from helpers.forms import random_forms
 from helpers.roundoff import horst_roundoff
 
+import torchakvf as ta
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
 

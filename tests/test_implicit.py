@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
+from test_shapes import _face_angles_deg, check_mesh
 
 import torchakvf as ta
 from torchakvf import shapes
@@ -15,8 +16,6 @@ from torchakvf.evaluate.metrics import matched_agreement, rand_index_error
 from torchakvf.mesh import face_areas
 from torchakvf.options import SegmentOptions
 from torchakvf.parts.field_counts import akvf_count
-
-from test_shapes import _face_angles_deg, check_mesh
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

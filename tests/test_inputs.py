@@ -6,14 +6,14 @@ import logging
 from pathlib import Path
 
 import pytest
+from helpers.faketask import FakeTask
+from helpers.meshfiles import write_off, write_small_corpus
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.pipeline.inputs import SkippedFile, assign_stems, discover_inputs, scan_inputs
 from torchakvf.pipeline.runner import run_corpus
-from helpers.faketask import FakeTask
-from helpers.meshfiles import write_off, write_small_corpus
 
 
 @pytest.fixture(scope="module")

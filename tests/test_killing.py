@@ -7,15 +7,13 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import torch
+from helpers.operator_meshes import SHAPES, as_scipy, shape_meshes
 
 import torchakvf as ta
+from torchakvf import scipy_reference as ref
 from torchakvf import shapes
 from torchakvf.operators import batch_geometry, killing_operator
 from torchakvf.operators.killing import KillingAssembly
-
-from torchakvf import scipy_reference as ref
-
-from helpers.operator_meshes import SHAPES, as_scipy, shape_meshes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

@@ -7,13 +7,11 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
+from helpers.eigen_checks import PAPER, clusters, mesh_of, s1_principal_cosines, scipy_matrices
 
 import torchakvf as ta
-from torchakvf import shapes
-
 from torchakvf import scipy_reference as ref
-
-from helpers.eigen_checks import PAPER, clusters, mesh_of, s1_principal_cosines, scipy_matrices
+from torchakvf import shapes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

@@ -7,11 +7,10 @@ import gzip
 import numpy as np
 import pytest
 import trimesh
+from helpers.meshfiles import off_text
+from helpers.refusals import assert_refused, write_file
 
 import torchakvf as ta
-
-from helpers.refusals import assert_refused, write_file
-from helpers.meshfiles import off_text
 
 
 @pytest.mark.parametrize("ext,kw", [("off", {}), ("obj", {}), ("ply", {}),

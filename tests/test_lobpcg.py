@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from helpers.eigen_checks import PAPER, batch_with_a_low_mesh, clusters, mesh_of, s1_principal_cosines
 
 import torchakvf as ta
 from torchakvf import shapes
-
-from helpers.eigen_checks import PAPER, batch_with_a_low_mesh, clusters, mesh_of, s1_principal_cosines
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
@@ -116,6 +115,7 @@ def test_host_synchronizations_per_iteration_have_a_ceiling():
     nonzero, no list to the device. The factor's solve is the factor library's and is not
     counted."""
     from helpers.syncs import SyncCounter
+
     from torchakvf.solvers import lobpcg
     from torchakvf.solvers.factor import BlockDiagonalFactor
     system = batch_with_a_low_mesh()
@@ -149,6 +149,7 @@ def test_working_bytes_bound_the_arrays_allocated():
     audit saw 1-5% less), for several n, with every mesh live (tol 1e-30) past the second
     iteration (the first has no P block)."""
     from helpers.allocations import PeakBytes
+
     from torchakvf.solvers import lobpcg
     from torchakvf.solvers.factor import BlockDiagonalFactor
     system = batch_with_a_low_mesh()

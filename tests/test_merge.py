@@ -4,9 +4,12 @@ fresh ones, and the two failure-mode shapes (table, mug) part for part."""
 from __future__ import annotations
 
 import math
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from helpers.partitions import sphere_labels
+from helpers.planar_meshes import hinge
 from scipy.sparse.csgraph import connected_components
 
 import torchakvf as ta
@@ -17,12 +20,21 @@ from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
 from torchakvf.parts.concavity import crease_weights, dual_edges
 from torchakvf.parts.field_counts import akvf_count
-from torchakvf.parts.merge import (MergeWeights, RegionGraph, boundary_bends, greedy_merge, merge_costs,
-                                   merge_parts, merged_distances, next_merge_cost, oversegment_k,
-                                   partition_cost, region_graph, unit_rows)
+from torchakvf.parts.merge import (
+    MergeWeights,
+    RegionGraph,
+    boundary_bends,
+    greedy_merge,
+    merge_costs,
+    merge_parts,
+    merged_distances,
+    next_merge_cost,
+    oversegment_k,
+    partition_cost,
+    region_graph,
+    unit_rows,
+)
 from torchakvf.parts.topology import face_adjacency
-from helpers.partitions import sphere_labels
-from helpers.planar_meshes import hinge
 
 
 def test_region_graph_of_the_hinge_by_hand():

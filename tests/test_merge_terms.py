@@ -8,8 +8,7 @@ import math
 import numpy as np
 import trimesh
 
-from torchakvf.parts.merge_terms import (TERM_NAMES, MergeState, cone_directions, face_thickness, pair_terms,
-                                         part_sums)
+from torchakvf.parts.merge_terms import TERM_NAMES, MergeState, cone_directions, face_thickness, pair_terms, part_sums
 
 
 def test_cone_directions_are_unit_and_within_60_degrees_of_the_inward_normal():

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.refusals import assert_refused, write_file
 
 import torchakvf as ta
 from torchakvf.io.obj import face_count, parse_obj
-
-from helpers.refusals import assert_refused, write_file
 
 _SQUARE = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
 _RNG_BYTES = np.random.default_rng(0).bytes(600)

@@ -6,11 +6,10 @@ import gzip
 
 import numpy as np
 import pytest
+from helpers.refusals import assert_refused, write_file
 
 import torchakvf as ta
 from torchakvf import shapes
-
-from helpers.refusals import assert_refused, write_file
 
 _TRI = "0 0 0\n1 0 0\n0 1 0\n"
 _RNG_BYTES = np.random.default_rng(0).bytes(600)
@@ -63,7 +62,7 @@ def test_psb_read_off_is_load_mesh(tmp_path):
     "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 2 1 0\n",   # a line past the counts
 ])
 def test_vectorized_off_reader_equals_the_line_reader(text):
-    from torchakvf.io.off import parse_off_by_lines, parse_plain_off, parse_off
+    from torchakvf.io.off import parse_off, parse_off_by_lines, parse_plain_off
     raw = text.encode()
     fast = parse_plain_off(raw)
     assert fast is not None                                   # taken by the fast reader
@@ -116,7 +115,7 @@ def test_off_text_reader_on_random_digits_equals_python_float():
     ("# c\nOFF\n3 1 0\n0 0 0\n1 0 0\n0 x 0\n3 0 1 2\n", "3 numbers"),
 ])
 def test_off_files_the_fast_reader_declines_get_the_line_readers_error(text, problem):
-    from torchakvf.io.off import parse_plain_off, parse_off
+    from torchakvf.io.off import parse_off, parse_plain_off
     assert parse_plain_off(text.encode()) is None
     with pytest.raises(ta.MeshError, match=problem):
         parse_off(text.encode(), "x.off")
@@ -125,6 +124,7 @@ def test_off_files_the_fast_reader_declines_get_the_line_readers_error(text, pro
 def test_vectorized_off_reader_on_psb_files_equals_the_line_reader():
     import os
     from pathlib import Path
+
     from torchakvf.io.off import parse_off_by_lines, parse_plain_off
     root = Path(os.environ.get("TORCHAKVF_PSB", Path(__file__).parents[2] / "shared" / "psb"))
     if not (root / "meshes").is_dir():

@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.faketask import FakeTask, assert_one_line_error
+from helpers.runs import small_meshes
 
 import torchakvf as ta
 from torchakvf.errors import TorchAKVFError
 from torchakvf.pipeline import outdir
 from torchakvf.pipeline.runner import run_corpus
-from helpers.faketask import FakeTask, assert_one_line_error
-from helpers.runs import small_meshes
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1", PYTHONPATH=str(REPO))

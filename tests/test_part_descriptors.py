@@ -10,9 +10,17 @@ import scipy.sparse as sp
 
 from torchakvf import Mesh, MeshBatch, SegmentOptions, akvf, load_mesh, segment
 from torchakvf.errors import ParameterError
-from torchakvf.parts.part_descriptors import (DISTANCE_CAP, DISTANCE_FLOOR, NEAR_RADII, PART_KS, cut_distance,
-                                              describe_labelings, dual_graph, part_descriptor_names,
-                                              part_descriptors)
+from torchakvf.parts.part_descriptors import (
+    DISTANCE_CAP,
+    DISTANCE_FLOOR,
+    NEAR_RADII,
+    PART_KS,
+    cut_distance,
+    describe_labelings,
+    dual_graph,
+    part_descriptor_names,
+    part_descriptors,
+)
 from torchakvf.parts.topology import face_adjacency
 from torchakvf.shapes import dumbbell, three_blobs
 

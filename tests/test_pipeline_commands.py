@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from torchakvf import shapes
 from helpers.faketask import assert_one_line_error
 from helpers.meshfiles import write_off
 from helpers.runs import by_stem, cli_run
+
+from torchakvf import shapes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.meshfiles import write_off
+from helpers.runs import by_stem, cli_run, small_meshes
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.runner import run_corpus
-from helpers.meshfiles import write_off
-from helpers.runs import by_stem, cli_run, small_meshes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

@@ -7,12 +7,11 @@ import struct
 import numpy as np
 import pytest
 import trimesh
+from helpers.refusals import assert_refused, write_file
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.io.ply import face_count, parse_header
-
-from helpers.refusals import assert_refused, write_file
 
 _HEAD = ("ply\nformat ascii 1.0\nelement vertex {nv}\nproperty float x\nproperty float y\n"
          "property float z\nelement face {nf}\nproperty list uchar int vertex_indices\nend_header\n")

@@ -21,9 +21,7 @@ from torchakvf.evaluate.psb import (
     read_seg,
     write_seg,
 )
-
 from torchakvf.evaluate.psb import default_psb_root as psb_root  # noqa: E402
-
 
 #: A tetrahedron, as an OFF file's bytes.
 TETRA_OFF = (b"OFF\n4 4 6\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n"

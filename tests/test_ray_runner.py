@@ -10,13 +10,13 @@ import pytest
 ray = pytest.importorskip("ray", reason="the Ray runner is optional: pip install 'torchakvf[ray]'")
 
 import numpy as np  # noqa: E402
+from helpers.faketask import FakeTask  # noqa: E402
+from helpers.meshfiles import write_off, write_small_corpus  # noqa: E402
 
 from torchakvf import cli, shapes  # noqa: E402
 from torchakvf.pipeline.features import FeaturesTask  # noqa: E402
 from torchakvf.pipeline.ray_runner import run_corpus_ray  # noqa: E402
 from torchakvf.pipeline.runner import MANIFEST, discover_inputs, read_manifest, run_corpus  # noqa: E402
-from helpers.faketask import FakeTask  # noqa: E402
-from helpers.meshfiles import write_off, write_small_corpus  # noqa: E402
 
 N = 8
 BUDGET = 600  # faces per batch: each of the three meshes is a batch of its own

@@ -11,10 +11,10 @@ import pytest
 import torch
 
 import torchakvf as ta
-from torchakvf import shapes
 from torchakvf import scipy_reference as ref
-from torchakvf.fields.akvf import akvf_falling_back
+from torchakvf import shapes
 from torchakvf.evaluate.psb import find_psb_meshes
+from torchakvf.fields.akvf import akvf_falling_back
 from torchakvf.operators import killing_operator
 from torchakvf.operators.killing import DEFAULT_REMEDY
 from torchakvf.solvers.remedy import AUTO_REMEDY, SPURIOUS_BELOW, choose_remedies, has_spurious_modes, killing_system
@@ -186,6 +186,7 @@ def test_factor_count_per_mesh(monkeypatch, case):
     by all its factors; a mesh with spurious modes pays a definiteness test that stops early; a
     mesh that keeps the paper's operator uses its decision's factor as its definite one."""
     from helpers.eigen_checks import FactorLog
+
     from torchakvf.solvers import cholmod
     if cholmod.library() is None:
         pytest.skip("CHOLMOD is not called directly here")

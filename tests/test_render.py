@@ -7,8 +7,17 @@ import pytest
 
 from torchakvf import shapes
 from torchakvf.errors import ParameterError
-from torchakvf.io.render import (DEFAULT_PIXELS, best_view, contact_sheet, generator_streamlines,
-                                 principal_axes, projected_area, rasterize, render_png, render_view)
+from torchakvf.io.render import (
+    DEFAULT_PIXELS,
+    best_view,
+    contact_sheet,
+    generator_streamlines,
+    principal_axes,
+    projected_area,
+    rasterize,
+    render_png,
+    render_view,
+)
 from torchakvf.parts.generators import SymmetryGenerator
 
 

@@ -10,6 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.faketask import FakeTask, assert_one_line_error
+from helpers.meshfiles import write_off
+from helpers.runs import by_stem, cli_run, small_meshes
 
 import torchakvf as ta
 from torchakvf import shapes
@@ -18,9 +21,6 @@ from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest, read_
 from torchakvf.pipeline.features import FeaturesTask
 from torchakvf.pipeline.runner import run_corpus
 from torchakvf.pipeline.segment_task import SegmentTask
-from helpers.faketask import FakeTask, assert_one_line_error
-from helpers.meshfiles import write_off
-from helpers.runs import by_stem, cli_run, small_meshes
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

@@ -14,17 +14,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-import torchakvf as ta
-from torchakvf import cli, shapes
-from torchakvf.pipeline.features import FeaturesTask
-from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest
-from torchakvf.pipeline.inputs import discover_inputs
-from torchakvf.pipeline.resume import prepare
-from torchakvf.pipeline.runner import run_corpus
 from helpers.faketask import FakeTask
 from helpers.meshfiles import write_off, write_small_corpus
 from helpers.runs import by_stem
+
+import torchakvf as ta
+from torchakvf import cli, shapes
+from torchakvf.io.manifest import MANIFEST, ManifestWriter, read_manifest
+from torchakvf.pipeline.features import FeaturesTask
+from torchakvf.pipeline.inputs import discover_inputs
+from torchakvf.pipeline.resume import prepare
+from torchakvf.pipeline.runner import run_corpus
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

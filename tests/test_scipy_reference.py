@@ -9,11 +9,9 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
-
-from torchakvf import scipy_reference as ref
-
 from helpers.planar_meshes import golden_disk
 
+from torchakvf import scipy_reference as ref
 
 # ---------------------------------------------------------------------------------------------------------------
 # shapes

@@ -14,7 +14,6 @@ from torchakvf import shapes
 from torchakvf.mesh import face_areas
 from torchakvf.parts.field_counts import cluster_safe_n
 
-
 COMPOSITES = ["dumbbell", "three_blobs", "sphere_two_ellipsoids", "torus_chain"]
 
 
@@ -191,7 +190,6 @@ def test_segment_each_k_equals_segment_per_k():
     its own untangling), with numpy integers for k; rounds whose field counts agree share one
     untangling."""
     from torchakvf.parts import segment_each_k
-
     from torchakvf.parts.field_counts import akvf_count
     from torchakvf.parts.merge import MergeWeights
 

@@ -8,6 +8,7 @@ import importlib
 
 import pytest
 import torch
+from helpers.roundoff import EPS64, assert_same_clustering
 
 import torchakvf as ta
 from torchakvf.cluster import spherical_kmeans
@@ -17,8 +18,6 @@ from torchakvf.mesh.batch import pad_packed
 from torchakvf.options import SegmentOptions
 from torchakvf.parts.rounds import previous_centroids
 from torchakvf.restarts import ROUND_OFF_TIE, best_restart
-
-from helpers.roundoff import EPS64, assert_same_clustering
 
 
 def test_spherical_kmeans_hand_case():

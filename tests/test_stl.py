@@ -5,12 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from helpers.refusals import assert_refused, write_file
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.io.stl import is_binary
-
-from helpers.refusals import assert_refused, write_file
 
 _FACET = "facet normal 0 0 1\n outer loop\n  vertex 0 0 0\n  vertex 1 0 0\n  vertex 0 1 0\n endloop\nendfacet\n"
 _RNG_BYTES = np.random.default_rng(0).bytes(600)

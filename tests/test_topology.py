@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import numpy as np
+from helpers.partitions import sphere_labels
 
 from torchakvf.parts.discovery import CONNECTING
 from torchakvf.parts.topology import face_adjacency, labelled_pieces, piece_label_counts, piece_neighbours
-from helpers.partitions import sphere_labels
 
 
 def test_piece_label_counts_are_piece_neighbours():

@@ -7,15 +7,13 @@ import importlib
 
 import pytest
 import torch
+from helpers.roundoff import EPS64, horst_roundoff
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh.batch import pad_packed
 from torchakvf.restarts import best_restart
-
-from helpers.roundoff import EPS64, horst_roundoff
-
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
 

@@ -7,12 +7,11 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
+from helpers.eigen_checks import mesh_of
 
 import torchakvf as ta
 from torchakvf import shapes
 from torchakvf.operators import batch_geometry, d0, whitney_face_vectors
-
-from helpers.eigen_checks import mesh_of
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 

@@ -4,17 +4,17 @@ Pipeline (one folder a stage): io -> mesh -> operators -> solvers -> fields -> c
 parts -> io outputs. The public API is plain functions on a :class:`MeshBatch` or a
 :class:`Mesh`.
 """
+from . import data
 from .errors import ConvergenceWarning, MeshError, ParameterError, SolverError, TorchAKVFError
+from .fields import AKVFResult, UntangledFields, akvf, untangle
 from .io import load_mesh
 from .mesh import CleanMesh, Mesh, MeshBatch, clean_mesh
-from .fields import AKVFResult, UntangledFields, akvf, untangle
 from .options import SegmentOptions
-from .solvers import AKVFSolver
 from .parts import MeshSegmentation, Segmentation, segment
-from . import data
+from .solvers import AKVFSolver
 
 __version__ = "0.1.0"
 
 __all__ = ["TorchAKVFError", "MeshError", "SolverError", "ParameterError", "ConvergenceWarning", "load_mesh", "Mesh",
            "CleanMesh", "clean_mesh", "MeshBatch", "AKVFResult", "AKVFSolver", "akvf", "UntangledFields", "untangle",
-           "SegmentOptions", "Segmentation", "MeshSegmentation", "segment", "__version__"]
+           "SegmentOptions", "Segmentation", "MeshSegmentation", "segment", "data", "__version__"]

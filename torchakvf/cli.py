@@ -62,9 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_demo(sub)
-    from .pipeline.commands import add_corpus_commands
     from .bench.command import add_bench_command
     from .evaluate.commands import add_eval_command
+    from .pipeline.commands import add_corpus_commands
     add_corpus_commands(sub)
     add_eval_command(sub)
     add_bench_command(sub)

@@ -14,7 +14,8 @@ iterations, a segmentation :data:`KMEANS_RESTARTS_BY_METHOD` and :data:`KMEANS_M
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields as dataclass_fields
+from dataclasses import dataclass, field
+from dataclasses import fields as dataclass_fields
 
 import numpy as np
 

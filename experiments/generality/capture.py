@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from items import items as all_items, read_truth  # noqa: E402
+from items import items as all_items  # noqa: E402
+from items import read_truth
 
 #: over-segmentation variants: MergeWeights changes (the weights themselves do not matter here)
 OVERSEG = {
@@ -49,6 +50,7 @@ def options(variant: str, merge_changes: dict | None = None):
 def capture_item(args) -> str:
     item, out, variant, coarse_faces, rings, weights = args
     import torch
+
     from torchakvf.operators import killing
 
     if rings is not None:

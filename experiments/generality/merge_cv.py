@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
+from torchakvf.evaluate.metrics import rand_index_error as rand_error
 from torchakvf.options import MergeWeights
 from torchakvf.parts.concavity import dual_edges
-from torchakvf.evaluate.metrics import rand_index_error as rand_error
 from torchakvf.parts.merge import FIELD_OF_TERM, boundary_bends, region_graph, term_weights
 from torchakvf.parts.merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
 

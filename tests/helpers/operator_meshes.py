@@ -6,9 +6,8 @@ import scipy.sparse as sp
 import torch
 
 import torchakvf as ta
-from torchakvf import shapes
-
 from helpers.planar_meshes import golden_disk
+from torchakvf import shapes
 
 #: name -> (vertices, faces) maker
 SHAPES = {

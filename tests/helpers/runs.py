@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from helpers.meshfiles import write_off
 from torchakvf import cli, shapes
 from torchakvf.io.manifest import read_manifest
-
-from helpers.meshfiles import write_off
 
 
 def small_meshes(root: Path, names=("a", "b", "c"), level: int = 1) -> list[Path]:

@@ -7,8 +7,15 @@ from ..errors import TorchAKVFError
 from ..evaluate.commands import default_psb_arg
 from ..mesh.coarse import DEFAULT_COARSE_FACES
 from ..options import METHODS
-from ..pipeline.arguments import (add_batched_argument, add_graph_cut_argument, add_method_argument, add_solver_argument,
-                                  parse_device, parse_int, register_command)
+from ..pipeline.arguments import (
+    add_batched_argument,
+    add_graph_cut_argument,
+    add_method_argument,
+    add_solver_argument,
+    parse_device,
+    parse_int,
+    register_command,
+)
 from .run import DEFAULT_BASELINE_EVERY
 
 __all__ = ["add_bench_command", "add_bench_arguments", "run_bench_command"]

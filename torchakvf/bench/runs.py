@@ -14,15 +14,15 @@ from pathlib import Path
 import numpy as np
 
 from .. import shapes
+from ..evaluate.plan import PredictionPlan
+from ..evaluate.predict import PredictSettings, predict_in_worker
 from ..io import load_mesh
 from ..io.outputs import OutputSpaceError, write_seg
 from ..mesh import Mesh, MeshBatch, clean_mesh
 from ..parts.segment import segment_each_k
+from ..pipeline.batches import prediction_batches
 from ..pipeline.parallel import error_text, is_programming_error, map_batches
 from ..progress import progress
-from ..evaluate.plan import PredictionPlan
-from ..evaluate.predict import PredictSettings, predict_in_worker
-from ..pipeline.batches import prediction_batches
 
 log = logging.getLogger("torchakvf.bench")
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..restarts import best_restart
 from ..errors import ParameterError
+from ..restarts import best_restart
 
 _NEG = -4.0   # below any cosine: marks centers that do not exist for a mesh
 

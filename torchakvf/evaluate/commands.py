@@ -14,8 +14,15 @@ from pathlib import Path
 from ..errors import TorchAKVFError
 from ..mesh.coarse import DEFAULT_COARSE_FACES
 from ..options import METHODS
-from ..pipeline.arguments import (add_batched_argument, add_graph_cut_argument, add_method_argument, add_solver_argument,
-                                  parse_device, positive_int, register_command)
+from ..pipeline.arguments import (
+    add_batched_argument,
+    add_graph_cut_argument,
+    add_method_argument,
+    add_solver_argument,
+    parse_device,
+    positive_int,
+    register_command,
+)
 from ..pipeline.parallel import default_workers
 
 __all__ = ["add_eval_command", "add_eval_arguments", "run_eval", "default_psb_arg"]
@@ -108,8 +115,8 @@ def _segment_overrides(args) -> dict:
 
 def run_eval(args) -> int:
     from .harness import evaluate_psb
-    from .settings import EvalSettings, eval_segment_options
     from .psb import CATEGORIES
+    from .settings import EvalSettings, eval_segment_options
 
     psb_root = Path(args.psb or default_psb_arg())
     if not (psb_root / "meshes").is_dir():

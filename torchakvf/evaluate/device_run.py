@@ -42,8 +42,7 @@ from ..mesh import MeshBatch, clean_mesh
 from ..mesh.coarse import coarse_mesh
 from ..parts.rounds import cut_mesh_rounds, mesh_cut_job, segment_rounds
 from ..parts.solve import solve_akvfs, solve_quality
-from ..pipeline.parallel import (InlineExecutor, error_text, halves, host_pool, is_programming_error,
-                                 usable_cores)
+from ..pipeline.parallel import InlineExecutor, error_text, halves, host_pool, is_programming_error, usable_cores
 from .predict import PredictSettings, eval_akvf_count
 from .score import score_mesh
 

@@ -73,8 +73,10 @@ def write_gallery(path, items: Sequence[tuple], title: str | None = None,
 
     Both pictures of a mesh use the same camera (:func:`~torchakvf.io.render.best_view`).
     """
-    from ..io.render import (best_view, new_figure as _figure, render_view, save_figure as _save,
-                             view_aspect as _aspect)
+    from ..io.render import best_view, render_view
+    from ..io.render import new_figure as _figure
+    from ..io.render import save_figure as _save
+    from ..io.render import view_aspect as _aspect
 
     if not items:
         raise ValueError("write_gallery needs at least one item")

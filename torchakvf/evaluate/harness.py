@@ -65,8 +65,8 @@ from ..operators import REMEDIES
 from ..options import SegmentOptions
 from ..pipeline.batches import MemoryBudget, batch_bytes_budget, default_batch_faces, prediction_batches
 from ..pipeline.parallel import default_workers, map_batches
-from ..solvers.akvf_solver import batched_by_default
 from ..progress import progress as progress_bar
+from ..solvers.akvf_solver import batched_by_default
 from .plan import DEFAULT_K_NO_GT, PROTOCOLS, find_entries, human_mode, plan_meshes, select_entries
 from .predict import PredictSettings, eval_akvf_count, predict_in_worker
 from .report import REFERENCES, EvalSummary, write_reports

@@ -36,9 +36,9 @@ from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, as_batch
 from ..options import SPARE_FIELDS, MergeWeights, SegmentOptions, segment_options
 from ..parts.field_counts import cluster_safe_n, default_n_fields
+from ..parts.results import Segmentation
 from ..parts.rounds import segment_rounds
 from ..parts.solve import solve_akvfs
-from ..parts.results import Segmentation
 
 RULES = ("elbow", "knee", "spectrum", "merge")
 #: The rule used unless one is given: "merge", the best held-out 1-RI of the rules on the PSB

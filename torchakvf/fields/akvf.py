@@ -7,9 +7,18 @@ from ..errors import ParameterError
 from ..mesh.batch import MeshBatch
 from ..operators.killing import DEFAULT_REMEDY
 from ..solvers.akvf_result import AKVFResult
-from ..solvers.akvf_solver import (KRYLOV_MIN_EDGES, ONE_MESH_AT_A_TIME_ON, SOLVERS, SPURIOUS_BELOW,
-                                   SPURIOUS_MARGIN, SPURIOUS_SOLVES, AKVFSolver, as_batch, remedy_advice,
-                                   solver_for)
+from ..solvers.akvf_solver import (
+    KRYLOV_MIN_EDGES,
+    ONE_MESH_AT_A_TIME_ON,
+    SOLVERS,
+    SPURIOUS_BELOW,
+    SPURIOUS_MARGIN,
+    SPURIOUS_SOLVES,
+    AKVFSolver,
+    as_batch,
+    remedy_advice,
+    solver_for,
+)
 
 
 def akvf(meshes, n: int = 32, *, tol: float = 1e-6, seed: int = 0, remedy: str = DEFAULT_REMEDY,

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import torch
 
-from ..threads import single_threaded
 from ..errors import ParameterError
+from ..threads import single_threaded
 from .fourth_moments import FourthMoments, side_by_side
 
 #: Largest SQUAREM extrapolation (|α|) of the accelerated Horst iteration (:func:`horst_batched`):

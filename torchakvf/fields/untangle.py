@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..restarts import best_restart
-from ..threads import single_threaded
 from ..errors import ParameterError
 from ..mesh.batch import pad_packed
+from ..restarts import best_restart
+from ..threads import single_threaded
 from .akvf import AKVFResult
 from .fourth_moments import STEPS_PER_RESTART, fourth_moments_pay, side_by_side
 from .horst import horst

@@ -11,7 +11,6 @@ import numpy as np
 
 from ..errors import ParameterError, TorchAKVFError
 
-
 #: Suffix of every temporary file a write leaves while it runs (``.<name>.<random>.torchakvf.tmp``):
 #: a run killed by SIGKILL leaves them behind, and the next run in that folder removes them
 #: (:func:`remove_stale_temp_files`).

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from ..errors import MeshError
 from . import stl
-from .gltf import face_count as gltf_face_count, glb_json_size
+from .gltf import face_count as gltf_face_count
+from .gltf import glb_json_size
 from .load import mesh_format
 from .obj import face_count as obj_face_count
 from .off import off_face_count

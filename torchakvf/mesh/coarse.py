@@ -22,8 +22,16 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import MeshError, ParameterError
-from .clean import half_edges, undirected_edges, vertex_adjacency
-from .clean import CleanMesh, clean_mesh, face_areas, face_cross_products, unique_rows
+from .clean import (
+    CleanMesh,
+    clean_mesh,
+    face_areas,
+    face_cross_products,
+    half_edges,
+    undirected_edges,
+    unique_rows,
+    vertex_adjacency,
+)
 from .mesh import Mesh
 from .surface_map import BarycenterSearch, SurfaceIndex, SurfacePoints, locate_on_surface
 

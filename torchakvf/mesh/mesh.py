@@ -7,7 +7,6 @@ import numpy as np
 
 from ..errors import MeshError
 
-
 #: Largest vertex coordinate magnitude accepted: float32's range. The per-face outputs (.ply,
 #: .glb) hold the input's vertices in float32, where a larger coordinate becomes infinite, and
 #: the renderer's face areas (products of four coordinates) stay finite in float64 below it. A

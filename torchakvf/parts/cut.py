@@ -21,10 +21,20 @@ from .creases import crease_patches, split_by_patches
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .field_counts import cluster_count
 from .generators import part_generators
-from .pieces import limit_parts
 from .graphcut import CornerMeans, edge_weights, graphcut_labels
-from .merge import (RegionGraph, boundary_bends, merge_parts, merged_distances, mesh_sums_inputs, needs_part_sums,
-                    next_merge_cost, partition_cost, region_graph, unit_rows)
+from .merge import (
+    RegionGraph,
+    boundary_bends,
+    merge_parts,
+    merged_distances,
+    mesh_sums_inputs,
+    needs_part_sums,
+    next_merge_cost,
+    partition_cost,
+    region_graph,
+    unit_rows,
+)
+from .pieces import limit_parts
 from .results import MeshSegmentation
 from .solve import solve_quality
 from .topology import face_adjacency

@@ -12,8 +12,16 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..fields.akvf import AKVFResult
-from ..options import (CLUSTER_GAP, DEFAULT_METHOD, FIELD_COUNT_RANGE, FIELDS_PER_PART, FIELDS_STEP,
-                       SPARE_FIELDS, MergeWeights, SegmentOptions)
+from ..options import (
+    CLUSTER_GAP,
+    DEFAULT_METHOD,
+    FIELD_COUNT_RANGE,
+    FIELDS_PER_PART,
+    FIELDS_STEP,
+    SPARE_FIELDS,
+    MergeWeights,
+    SegmentOptions,
+)
 from .merge import oversegment_k
 
 

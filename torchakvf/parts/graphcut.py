@@ -29,7 +29,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import ParameterError
-from ..options import EXPANSION_CYCLES, GRAPHCUT_ENGINES as ENGINES, GraphCut
+from ..options import EXPANSION_CYCLES, GraphCut
+from ..options import GRAPHCUT_ENGINES as ENGINES
 from .alpha_expansion import potts_alpha_expansion
 from .boundaries import barycenter_values
 from .concavity import DualEdges, crease_weights

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError
-from ..restarts import first_near_min
 from ..options import MergeWeights
+from ..restarts import first_near_min
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
 from .merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums

@@ -12,8 +12,17 @@ from pathlib import Path
 
 from ..errors import TorchAKVFError
 from ..options import DEFAULT_METHOD, METHODS
-from .arguments import (add_batched_argument, add_graph_cut_argument, add_method_argument, add_solver_argument, parse_device,
-                        parse_float, parse_int, parse_remedy, parse_seed)
+from .arguments import (
+    add_batched_argument,
+    add_graph_cut_argument,
+    add_method_argument,
+    add_solver_argument,
+    parse_device,
+    parse_float,
+    parse_int,
+    parse_remedy,
+    parse_seed,
+)
 
 log = logging.getLogger("torchakvf")
 
@@ -44,9 +53,9 @@ def _ray_workers(args) -> int:
 
 
 def _run(args, task, device: str) -> int:
+    from .batches import default_batch_faces
     from .inputs import discover_inputs
     from .outdir import check_output_dir
-    from .batches import default_batch_faces
     from .runner import failure_text, run_corpus
 
     out = Path(args.out)

@@ -40,9 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError, TorchAKVFError
-from ..io import atomic_write_bytes, remove_stale_temp_files, write_npz
 from ..fields.descriptors import counts_for
 from ..fields.untangle import DEFAULT_RESTARTS
+from ..io import atomic_write_bytes, remove_stale_temp_files, write_npz
 from ..operators.killing import DEFAULT_REMEDY
 
 log = logging.getLogger("torchakvf.pipeline")

@@ -27,8 +27,7 @@ Conventions
 * The input must be a consistently oriented, edge-manifold triangle mesh without zero-area faces (checked).
   Unreferenced vertices are tolerated (they have no edges, and get ``star0^{-1} = 0``).
 """
-from .operator import (akvf_scipy, clamp_mass, killing_operator_scipy, mesh_edges, solve_akvf,
-                       whitney_face_vectors_scipy)
+from .operator import akvf_scipy, clamp_mass, killing_operator_scipy, mesh_edges, solve_akvf, whitney_face_vectors_scipy
 from .segmentation import features_scipy, segment_scipy, spherical_kmeans_numpy, untangle_numpy
 
 __all__ = ["mesh_edges", "killing_operator_scipy", "whitney_face_vectors_scipy", "akvf_scipy", "clamp_mass",

@@ -29,13 +29,13 @@ ring count is a multiple of 6, so these meshes are exactly invariant under rotat
 """
 from __future__ import annotations
 
-from .shape import Shape
-from .icosphere import ellipsoid, hemisphere, icosphere
-from .revolution import capped_cylinder, ellipsoid_of_revolution, open_tube, torus
-from .planar import flat_disk, square_patch
 from .composites import BUILTIN_SHAPES, dumbbell, sphere_with_two_ellipsoids, three_blobs, torus_chain
 from .deformations import bend
+from .icosphere import ellipsoid, hemisphere, icosphere
 from .implicit import fish, mug, quadruped, table
+from .planar import flat_disk, square_patch
+from .revolution import capped_cylinder, ellipsoid_of_revolution, open_tube, torus
+from .shape import Shape
 
 __all__ = [
     "Shape",

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shape import Shape
 from .implicit import fish, quadruped
 from .revolution import blob_profile, revolve_profile, torus
+from .shape import Shape
 
 
 def _blob_chain(name: str, blobs, neck: float, n_around: int) -> Shape:

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import Delaunay
 
-from .shape import Shape, ROW_HEIGHT
 from .revolution import ring_counts
+from .shape import ROW_HEIGHT, Shape
 
 
 def _planar_delaunay(xy: np.ndarray):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from .shape import Shape, ROW_HEIGHT, RING_SYMMETRY
+from .shape import RING_SYMMETRY, ROW_HEIGHT, Shape
 
 
 def ring_counts(r: np.ndarray, edge: float) -> np.ndarray:

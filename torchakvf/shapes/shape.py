@@ -5,7 +5,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
 #: Ring vertex counts are multiples of this: exact 6-fold symmetry about z, and the ring
 #: next to a pole is a hexagon whose fan triangles are near-equilateral.
 RING_SYMMETRY = 6

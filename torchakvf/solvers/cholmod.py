@@ -39,8 +39,22 @@ import torch
 
 from ..errors import SolverError
 from . import cholmod_subtrees as subtrees
-from .cholmod_abi import (_AMD, _DOUBLE, _INT, _METIS, _NATURAL, _NESDIS, _PATTERN, _REAL, _SYS_A, _Dense,
-                          _Sparse, _free, _start, disabled, library)
+from .cholmod_abi import (
+    _AMD,
+    _DOUBLE,
+    _INT,
+    _METIS,
+    _NATURAL,
+    _NESDIS,
+    _PATTERN,
+    _REAL,
+    _SYS_A,
+    _Dense,
+    _free,
+    _Sparse,
+    _start,
+    library,
+)
 
 #: Smallest pivot of an indefinite LDLᵀ factor, relative to the largest, that it is solved with
 #: (:meth:`CholmodFactor.factorize`). The interior shifts of the Krylov solver gave 2e-7 to 3e-3

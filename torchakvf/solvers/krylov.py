@@ -38,9 +38,9 @@ import math
 
 import torch
 
-from ..threads import single_threaded
 from ..errors import FieldCountError, ParameterError
 from ..operators.killing import KillingSystem
+from ..threads import single_threaded
 from .factor import contiguous_transpose, mesh_factor
 from .krylov_kernels import mm, orthonormal, project_out, rowdot, spmm, stiffness_matrix
 from .lobpcg import EigenResult

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import torch
 
-from ..threads import single_threaded
 from ..errors import FieldCountError, ParameterError, SolverError
 from ..mesh.batch import owner_index
 from ..operators.killing import KillingSystem
+from ..threads import single_threaded
 from .factor import BlockDiagonalFactor, mesh_factor
 
 log = logging.getLogger(__name__)
