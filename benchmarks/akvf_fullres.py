@@ -54,11 +54,11 @@ import scipy
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
-from timing import psb_parser, write_report
 
 import torchakvf as ta
 from torchakvf import scipy_reference as ref
 from torchakvf import shapes
+from torchakvf.bench.script_tools import psb_parser, write_report
 from torchakvf.fields.akvf import KRYLOV_MIN_EDGES, solver_for
 from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh

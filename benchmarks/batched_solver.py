@@ -39,7 +39,8 @@ def _worker(args) -> None:
 
     sys.path.insert(0, str(HERE.parent / "tests"))
     import torchakvf as ta
-    from torchakvf.solvers import akvf_solver, factor, group_solver
+    from torchakvf.solvers import akvf_solver, group_solver
+    from torchakvf.solvers import cholesky as chol
     from torchakvf.solvers import lobpcg as lobpcg_module
 
     # The accelerator's preconditioner (one block-diagonal factor per batch) on the CPU too,
@@ -50,7 +51,7 @@ def _worker(args) -> None:
     meshes = [ta.load_mesh(args.psb / "meshes" / f"{i}.off.gz") for i in args.ids]
     batch = ta.MeshBatch.from_meshes(meshes, coarse_faces=args.coarse_faces)
     sizes, groups = [], []
-    real_cholesky, real_lobpcg = factor._cholesky, group_solver.segmented_lobpcg
+    real_cholesky, real_lobpcg = chol.cholesky, group_solver.segmented_lobpcg
 
     def cholesky(pattern, diagonal, engine=None):
         sizes.append(int(pattern[0]))
@@ -60,12 +61,12 @@ def _worker(args) -> None:
         groups.append(len(kw.get("names") or []))
         return real_lobpcg(system, n, **kw)
 
-    factor._cholesky, group_solver.segmented_lobpcg = cholesky, lobpcg
+    chol.cholesky, group_solver.segmented_lobpcg = cholesky, lobpcg
     t, cpu = time.perf_counter(), time.process_time()
     solver = akvf_solver.AKVFSolver(batch, batched=True)
     res = solver.solve(args.n)
     wall, cpu = time.perf_counter() - t, time.process_time() - cpu
-    factor._cholesky, group_solver.segmented_lobpcg = real_cholesky, real_lobpcg
+    chol.cholesky, group_solver.segmented_lobpcg = real_cholesky, real_lobpcg
     print(json.dumps({"wall": wall, "cpu": cpu, "factorizations": len(sizes), "factored_rows": sum(sizes),
                       "lobpcg_calls": groups, "fell_back": [b for b, _ in solver.fell_back],
                       "eigenvalues": res.eigenvalues.tolist(), "shifts": res.shifts.tolist(),
@@ -158,7 +159,7 @@ def _report(args, rounds: dict) -> None:
     import numpy as np
 
     sys.path.insert(0, str(HERE))
-    from timing import write_report
+    from torchakvf.bench.script_tools import write_report
 
     trees = list(rounds)
     base = rounds[trees[0]][-1]

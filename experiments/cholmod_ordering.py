@@ -22,30 +22,27 @@ import argparse
 import math
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from torchakvf.bench.script_tools import best_of, write_report
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.fields.akvf import as_batch
 from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
 from torchakvf.operators.killing import killing_operator
 from torchakvf.solvers import cholmod
-from torchakvf.solvers.factor import _cholesky, _CpuFactor, _lower_pattern
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
-from timing import best_of, write_report  # noqa: E402
+from torchakvf.solvers.cholesky import CpuFactor, cholesky, lower_pattern
 
 
 def shifted_pattern(mesh_id: int, psb: Path, sigma: float = -1.0):
     system = killing_operator(as_batch(clean_mesh(load_mesh(psb / "meshes" / f"{mesh_id}.off.gz"))),
                               remedy="smooth")
     idx, vals = system.stiffness.indices(), system.stiffness.values()
-    pattern = _lower_pattern(idx[0], idx[1], vals, len(system.mass))
+    pattern = lower_pattern(idx[0], idx[1], vals, len(system.mass))
     return pattern, -sigma * system.mass.to(torch.float64)
 
 
@@ -73,14 +70,14 @@ def main(argv=None) -> int:
                 if side == "cholespy":
                     with cholmod.disabled():
                         t = time.perf_counter()
-                        solver, _ = _cholesky(pattern, diagonal)
+                        solver, _ = cholesky(pattern, diagonal)
                         best[side]["total"] = min(best[side].get("total", math.inf), time.perf_counter() - t)
                     out = torch.empty(n, 4, dtype=torch.float64)
                     rhs_c = rhs.T.contiguous()
                     ts, _ = best_of(lambda: solver.solve(rhs_c, out), 5)
                 else:
                     t = time.perf_counter()
-                    eng = _CpuFactor(pattern, ordering=side)
+                    eng = CpuFactor(pattern, ordering=side)
                     ta_ = time.perf_counter() - t
                     t = time.perf_counter()
                     assert eng.factorize(diagonal)

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 import torchakvf as ta
+from torchakvf.bench.script_tools import best_of
 from torchakvf.errors import SolverError
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
@@ -37,9 +38,6 @@ from torchakvf.mesh import clean_mesh
 from torchakvf.operators import killing_operator
 from torchakvf.solvers import factor as factor_module
 from torchakvf.solvers.factor import SHIFTS, ShiftedFactor
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
-from timing import best_of  # noqa: E402
 
 _IP = ctypes.POINTER(ctypes.c_int32)
 

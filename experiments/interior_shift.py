@@ -24,19 +24,16 @@ import contextlib
 import importlib
 import math
 import platform
-import sys
 import time
 from pathlib import Path
 
 import torch
 
 import torchakvf as ta
+from torchakvf.bench.script_tools import akvf_agreement, one_thread_on_psb, write_report
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.mesh import MeshBatch
 from torchakvf.solvers.factor import interior_factor
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
-from timing import akvf_agreement, one_thread_on_psb, write_report  # noqa: E402
 
 FULL = [1, 21, 121, 181, 301, 41, 81]
 DECIMATED = [1, 41, 81, 91, 101, 121, 141, 181, 301, 341]

@@ -19,18 +19,15 @@ from __future__ import annotations
 import argparse
 import math
 import platform
-import sys
 import time
 from pathlib import Path
 
 import torch
 
 import torchakvf as ta
+from torchakvf.bench.script_tools import akvf_agreement, one_thread_on_psb, write_report
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.mesh import MeshBatch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
-from timing import akvf_agreement, one_thread_on_psb, write_report  # noqa: E402
 
 SOLVERS = ("krylov", "lobpcg", "lanczos")
 

@@ -16,7 +16,8 @@ import numpy as np
 import torch
 
 import torchakvf as ta
-from torchakvf.solvers.factor import INTERIOR_SHIFT_PER_PAIR, _CpuFactor, _lower_pattern
+from torchakvf.solvers.cholesky import CpuFactor, lower_pattern
+from torchakvf.solvers.factor import INTERIOR_SHIFT_PER_PAIR
 from torchakvf.solvers.remedy import auto_operator
 
 
@@ -34,15 +35,15 @@ def main() -> None:
         batch = ta.MeshBatch.from_meshes([ta.load_mesh(a.psb / "meshes" / f"{i}.off.gz")])
         system, _ = auto_operator(batch)
         r, c, v, n = system.block(0)
-        pattern, diagonal = _lower_pattern(r, c, v, n), -INTERIOR_SHIFT_PER_PAIR * a.n * system.mass.double()
-        first = _CpuFactor(pattern)
+        pattern, diagonal = lower_pattern(r, c, v, n), -INTERIOR_SHIFT_PER_PAIR * a.n * system.mass.double()
+        first = CpuFactor(pattern)
         plan = first.symbolic.two_thread_plan()
         rhs = torch.from_numpy(np.random.default_rng(0).standard_normal((4, n)))
         best, solves = {1: np.inf, 2: np.inf}, {}
         for rep in range(a.repeat):
             for threads in ((1, 2) if rep % 2 == 0 else (2, 1)):
                 torch.set_num_threads(threads)
-                f = _CpuFactor(pattern, like=first.symbolic)
+                f = CpuFactor(pattern, like=first.symbolic)
                 t0 = time.perf_counter()
                 f.factorize(diagonal, indefinite=True)
                 best[threads] = min(best[threads], time.perf_counter() - t0)

@@ -20,19 +20,16 @@ from __future__ import annotations
 import argparse
 import importlib
 import platform
-import sys
 import time
 from pathlib import Path
 
 import torch
 
 import torchakvf as ta
+from torchakvf.bench.script_tools import best_of, write_report
 from torchakvf.evaluate.psb import default_psb_root
 from torchakvf.io import load_mesh
 from torchakvf.mesh import clean_mesh
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))  # timing.py, shared with the benchmarks
-from timing import best_of, write_report  # noqa: E402
 
 untangle_mod = importlib.import_module("torchakvf.fields.untangle")
 from torchakvf.fields.fourth_moments import FourthMoments  # noqa: E402

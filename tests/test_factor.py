@@ -201,9 +201,10 @@ def test_a_failed_device_solve_raises_naming_the_mesh(monkeypatch, fill):
     """The first solve of a new cholespy factor is checked on a known right-hand side: a solve
     that leaves zeros or NaN raises a SolverError naming the mesh (the batch's meshes for a
     block factor), for a factor of one mesh and for the block factor of a batch solved as one."""
+    from torchakvf.solvers import cholesky as chol
     from torchakvf.solvers import factor
     system = batch_with_a_low_mesh()
-    monkeypatch.setattr(factor, "_cholesky", lambda pattern, diagonal, engine=None:
+    monkeypatch.setattr(chol, "cholesky", lambda pattern, diagonal, engine=None:
                         (_PrintsInsteadOfRaising(fill), None))
     with pytest.raises(ta.SolverError, match="mesh 1: the sparse factor's solve on cpu failed its check"):
         factor.mesh_factor(system, 1, "mesh 1")
@@ -215,33 +216,33 @@ def test_a_working_cholespy_factor_passes_its_check():
     """cholespy's own CPU factor (where it is installed) passes the first-solve check, whose
     backward error is at round-off level (far below BACKWARD_ERROR_MAX) at every shift."""
     cholespy = pytest.importorskip("cholespy")
-    from torchakvf.solvers import factor
+    from torchakvf.solvers import cholesky as chol
     system = batch_with_a_low_mesh()
     idx, vals = system.stiffness.indices(), system.stiffness.values()
-    pattern = factor._lower_pattern(idx[0], idx[1], vals, len(system.mass))
+    pattern = chol.lower_pattern(idx[0], idx[1], vals, len(system.mass))
     diagonal = 8.0 * system.mass.to(torch.float64)
-    solver, err = factor._cholesky(pattern, diagonal, engine=None)
+    solver, err = chol.cholesky(pattern, diagonal, engine=None)
     assert isinstance(solver, cholespy.CholeskySolverD)
-    factor.check_first_solve(solver, torch.device("cpu"), pattern, diagonal, "batch")
+    chol.check_first_solve(solver, torch.device("cpu"), pattern, diagonal, "batch")
 
 
 @needs_cholmod
 def test_a_factor_shares_an_analysis_only_of_its_own_pattern():
-    """_CpuFactor(like=) copies another factor's analysis where the lower pattern is the same
+    """CpuFactor(like=) copies another factor's analysis where the lower pattern is the same
     (the same factor bit for bit as with its own analysis), and analyses its own otherwise."""
     from torchakvf.operators import killing_operator
-    from torchakvf.solvers.factor import _CpuFactor, _lower_pattern
+    from torchakvf.solvers.cholesky import CpuFactor, lower_pattern
 
     def pattern(mesh, remedy):
         system = killing_operator(ta.MeshBatch.from_meshes([mesh]), remedy=remedy)
         r, c, v, size = system.block(0)
-        return _lower_pattern(r, c, v, size), system.mass.double()
+        return lower_pattern(r, c, v, size), system.mass.double()
 
     ellipsoid = shapes.ellipsoid((1.0, 1.3, 1.7), level=3)
     ellipsoid = ta.Mesh(ellipsoid.vertices, ellipsoid.faces, "ellipsoid")
     (paper, _), (smooth, mass) = pattern(ellipsoid, "none"), pattern(ellipsoid, "smooth")
-    first = _CpuFactor(paper)
-    shared, own = _CpuFactor(smooth, like=first.symbolic), _CpuFactor(smooth)
+    first = CpuFactor(paper)
+    shared, own = CpuFactor(smooth, like=first.symbolic), CpuFactor(smooth)
     assert shared.symbolic is first.symbolic and own.symbolic is not first.symbolic
     assert shared.factorize(mass) and own.factorize(mass)
     rhs = torch.from_numpy(np.random.default_rng(0).standard_normal((2, len(mass))))
@@ -250,5 +251,5 @@ def test_a_factor_shares_an_analysis_only_of_its_own_pattern():
     # drops, where the remedy's floored weights do not: another pattern, its own analysis.
     (paper, _), (smooth, _) = pattern(table_mesh(), "none"), pattern(table_mesh(), "smooth")
     assert paper[1].shape != smooth[1].shape
-    table = _CpuFactor(paper)
-    assert _CpuFactor(smooth, like=table.symbolic).symbolic is not table.symbolic
+    table = CpuFactor(paper)
+    assert CpuFactor(smooth, like=table.symbolic).symbolic is not table.symbolic

@@ -79,9 +79,10 @@ class SolveLog:
     of each)."""
 
     def __init__(self, monkeypatch):
-        from torchakvf.solvers import factor, group_solver
+        from torchakvf.solvers import cholesky as chol
+        from torchakvf.solvers import group_solver
         self.sizes, self.groups = [], []
-        real_cholesky, real_lobpcg = factor._cholesky, group_solver.segmented_lobpcg
+        real_cholesky, real_lobpcg = chol.cholesky, group_solver.segmented_lobpcg
 
         def cholesky(pattern, diagonal, engine=None):
             self.sizes.append(int(pattern[0]))
@@ -91,7 +92,7 @@ class SolveLog:
             self.groups.append(list(kw.get("names") or []))
             return real_lobpcg(system, n, **kw)
 
-        monkeypatch.setattr(factor, "_cholesky", cholesky)
+        monkeypatch.setattr(chol, "cholesky", cholesky)
         monkeypatch.setattr(group_solver, "segmented_lobpcg", lobpcg)
 
 

@@ -53,6 +53,7 @@ from .cholmod_abi import (
     _free,
     _Sparse,
     _start,
+    disabled,  # noqa: F401 (cholmod.disabled() switches the direct calls off: tests, benchmarks)
     library,
 )
 

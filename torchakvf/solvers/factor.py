@@ -11,15 +11,10 @@ finds no usable CHOLMOD.
 """
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import os
-import sys
-
-import numpy as np
 import torch
 
 from ..errors import ParameterError, SolverError
+from . import cholesky as chol
 from . import cholmod
 
 #: Shifts tried in turn (λ·area units): R is only approximately PSD, so the shift must lie
@@ -46,15 +41,15 @@ class ShiftedFactor:
                  mass: torch.Tensor, name: str = "mesh", shifts=None, like=None):
         shifts = SHIFTS if shifts is None else tuple(shifts)
         self.device = check_factor_device(mass.device)
-        pattern = _lower_pattern(rows, cols, vals, len(mass))
-        engine = _engine(pattern, self.device, like)
+        pattern = chol.lower_pattern(rows, cols, vals, len(mass))
+        engine = chol.cpu_engine(pattern, self.device, like)
         last = None
         for sigma in shifts:
             diagonal = -sigma * mass.to(torch.float64)
-            self._solver, last = _cholesky(pattern, diagonal, engine)
+            self._solver, last = chol.cholesky(pattern, diagonal, engine)
             if self._solver is not None:
                 self.sigma = sigma
-                check_first_solve(self._solver, self.device, pattern, diagonal, name)
+                chol.check_first_solve(self._solver, self.device, pattern, diagonal, name)
                 return
         # No advice here: what to try next depends on what was tried (the caller adds it).
         raise SolverError(f"{name}: the Killing operator has eigenvalues below {shifts[-1]} "
@@ -65,7 +60,7 @@ class ShiftedFactor:
     below = 0
 
     @classmethod
-    def made(cls, engine: "_CpuFactor", sigma: float) -> "ShiftedFactor":
+    def made(cls, engine: "chol.CpuFactor", sigma: float) -> "ShiftedFactor":
         """The factor ``engine`` holds, positive definite at ``sigma``: where the ladder would
         stop at that shift (its first), the same factor without making it again."""
         if not engine.factor.positive_definite:
@@ -76,12 +71,12 @@ class ShiftedFactor:
 
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
         """(R - σS1)^{-1} rhs for rhs [E, k] (float64, on the factor's device)."""
-        return _solve(self._solver, self.device, rhs)
+        return chol.solve(self._solver, self.device, rhs)
 
     def solve_rows(self, rows: torch.Tensor) -> torch.Tensor:
         """(R - σS1)^{-1} applied to each row of rows [k, E]: returns [k, E] (float64).
         On the CPU with CHOLMOD called directly this is its native layout (no transposes)."""
-        return _solve_rows(self._solver, self.device, rows)
+        return chol.solve_rows(self._solver, self.device, rows)
 
 
 #: Interior shift of the block Krylov solver per wanted eigenpair (λ·area units): σ = this · n.
@@ -111,16 +106,16 @@ class InteriorFactor:
 
     floor = SHIFTS[-1]
 
-    def __init__(self, engine: "_CpuFactor", sigma: float, below: int, definite):
+    def __init__(self, engine: "chol.CpuFactor", sigma: float, below: int, definite):
         self._solver, self.sigma, self.below = engine.factor, float(sigma), int(below)
         self.device = torch.device("cpu")
         self._definite, self._made = definite, None
 
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
-        return _solve(self._solver, self.device, rhs)
+        return chol.solve(self._solver, self.device, rhs)
 
     def solve_rows(self, rows: torch.Tensor) -> torch.Tensor:
-        return _solve_rows(self._solver, self.device, rows)
+        return chol.solve_rows(self._solver, self.device, rows)
 
     def definite(self) -> ShiftedFactor:
         if self._made is None:
@@ -133,13 +128,13 @@ def interior_factor(system, b: int, need: int, definite, like=None) -> InteriorF
     it has at most ``need`` eigenvalues below it (else once more at half that σ); otherwise
     (another device, no direct CHOLMOD, a breakdown, more eigenvalues below: a mesh with many
     spurious modes) ``definite()``, the positive definite :class:`ShiftedFactor`. ``like``: a
-    symbolic analysis to share where the pattern is the same (:class:`_CpuFactor`)."""
+    symbolic analysis to share where the pattern is the same (:class:`~torchakvf.solvers.cholesky.CpuFactor`)."""
     r, c, v, size = system.block(b)
     if system.mass.device.type != "cpu" or cholmod.library() is None or need < 1:
         return definite()
     lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
     mass = system.mass[lo:hi].to(torch.float64)
-    engine = _CpuFactor(_lower_pattern(r, c, v, size), like=like)
+    engine = chol.CpuFactor(chol.lower_pattern(r, c, v, size), like=like)
     sigma = INTERIOR_SHIFT_PER_PAIR * need
     for _ in range(2):
         if engine.factorize(-sigma * mass, indefinite=True) and engine.factor.negative_pivots <= need:
@@ -180,143 +175,26 @@ class BlockDiagonalFactor:
         if len(shifts) != nb:
             raise ParameterError(f"BlockDiagonalFactor: {len(shifts)} shifts for {nb} meshes")
         idx, vals = system.stiffness.indices(), system.stiffness.values()
-        pattern = _lower_pattern(idx[0], idx[1], vals, len(system.mass))
+        pattern = chol.lower_pattern(idx[0], idx[1], vals, len(system.mass))
         sizes = (system.edge_ptr[1:] - system.edge_ptr[:-1]).to(self.device)
         self.sigma = torch.tensor(shifts, dtype=torch.float64, device=self.device)
         diagonal = -torch.repeat_interleave(self.sigma, sizes, output_size=len(system.mass)) \
             * system.mass.to(torch.float64)
-        self._solver, last = _cholesky(pattern, diagonal, _engine(pattern, self.device))
+        self._solver, last = chol.cholesky(pattern, diagonal, chol.cpu_engine(pattern, self.device))
         if self._solver is None:
             raise SolverError(f"{', '.join(names)}: R - σS1 is not positive definite at the "
                               f"shifts {shifts} ({last})")
-        check_first_solve(self._solver, self.device, pattern, diagonal, ", ".join(names))
+        chol.check_first_solve(self._solver, self.device, pattern, diagonal, ", ".join(names))
 
     def solve(self, rhs: torch.Tensor) -> torch.Tensor:
         """The block-diagonal system's solution for packed rhs [ΣE, k] (float64)."""
-        return _solve(self._solver, self.device, rhs)
-
-
-def _lower_pattern(rows: torch.Tensor, cols: torch.Tensor, vals: torch.Tensor, n: int):
-    """(n, rows, cols, values) of the lower triangle of R (CHOLMOD reads only that one) with
-    the n diagonal entries appended (for the shift), as cholespy takes them."""
-    lower = rows >= cols
-    diag = torch.arange(n, device=rows.device)
-    r = torch.cat([rows[lower], diag]).to(torch.int32).contiguous()
-    c = torch.cat([cols[lower], diag]).to(torch.int32).contiguous()
-    return n, r, c, vals[lower].to(torch.float64)
-
-
-class _CpuFactor:
-    """R + diag(d) for changing d, factored by CHOLMOD directly: the lower CSC pattern and the
-    symbolic analysis are built once, each :meth:`factorize` only refills the diagonal.
-
-    like : a :class:`~torchakvf.solvers.cholmod.Symbolic` analysis of another matrix (the
-    paper's operator of the same mesh), used where its pattern is this one's (else a new one)."""
-
-    def __init__(self, pattern, ordering: str | None = None, like=None):
-        import scipy.sparse as sp
-
-        n, r, c, base = pattern
-        slots = torch.cat([base.cpu(), base.new_zeros(n).cpu()])     # the diagonal slots: 0 here
-        lower = sp.csc_matrix((slots.numpy(), (r.cpu().numpy(), c.cpu().numpy())), shape=(n, n))
-        lower.sum_duplicates()          # R's own diagonal and the appended slots merge
-        lower.sort_indices()
-        self._base = lower.data.copy()
-        # In a sorted lower-triangular column the diagonal comes first (always stored: the
-        # pattern appends every diagonal slot, kept even where R's entry is 0).
-        self._diag = lower.indptr[:-1].copy()
-        if not np.array_equal(lower.indices[self._diag], np.arange(n)):
-            raise SolverError("internal: a diagonal slot is missing from R's lower pattern")
-        shared = like if like is not None and like.matches(lower.indptr, lower.indices) else None
-        self.factor = cholmod.CholmodFactor(n, lower.indptr, lower.indices, self._base,
-                                             ordering=ordering, symbolic=shared)
-
-    @property
-    def symbolic(self):
-        """The symbolic analysis of this pattern (shareable: ``like=`` of another factor)."""
-        return self.factor.symbolic
-
-    def _values(self, diagonal: torch.Tensor) -> np.ndarray:
-        values = self._base.copy()
-        values[self._diag] += diagonal.detach().cpu().numpy()
-        return values
-
-    def factorize(self, diagonal: torch.Tensor, indefinite: bool = False):
-        return self.factor.factorize(self._values(diagonal), indefinite=indefinite)
-
-    def positive_definite_at(self, diagonal: torch.Tensor) -> bool:
-        """Whether R + diag(diagonal) is positive definite (what :meth:`factorize` says, stopped
-        at the first non-positive pivot; where it is, the factor is complete)."""
-        return self.factor.positive_definite_at(self._values(diagonal))
-
-
-def _engine(pattern, device: torch.device, like=None):
-    """A :class:`_CpuFactor` on the CPU where CHOLMOD can be called directly (sharing ``like``'s
-    analysis where the pattern is the same), else None (cholespy then factors each trial shift
-    from scratch)."""
-    if device.type != "cpu" or cholmod.library() is None:
-        return None
-    return _CpuFactor(pattern, like=like)
-
-
-def _cholesky(pattern, diagonal: torch.Tensor, engine=None):
-    """(solver of R + diag(diagonal), None) or (None, the error) where it is not positive
-    definite. The solver is ``engine``'s CHOLMOD factor if given, else a cholespy solver."""
-    if engine is not None:
-        if engine.factorize(diagonal):
-            return engine.factor, None
-        return None, "CHOLMOD: not positive definite"
-    import cholespy
-
-    n, r, c, base = pattern
-    x = torch.cat([base, diagonal.to(base.device)]).contiguous()
-    # CHOLMOD's "not positive definite" of a trial shift is muted on the CPU only: on a GPU the
-    # same channel carries CUDA errors, which must be seen.
-    quiet = _quiet_stderr() if x.device.type == "cpu" else contextlib.nullcontext()
-    try:
-        with quiet:
-            return cholespy.CholeskySolverD(n, r, c, x, cholespy.MatrixType.COO), None
-    except ValueError as exc:               # "Matrix is not positive definite!"
-        return None, exc
-
-
-def _solve(solver, device: torch.device, rhs: torch.Tensor) -> torch.Tensor:
-    if isinstance(solver, cholmod.CholmodFactor):
-        if rhs.ndim == 1:
-            return solver.solve_rows(rhs.to(torch.float64)[None])[0]
-        return contiguous_transpose(solver.solve_rows(contiguous_transpose(rhs.to(torch.float64))))
-    rhs = rhs.to(torch.float64).contiguous()
-    out = torch.empty_like(rhs)
-    if device.type == "cuda" and rhs.ndim == 2 and rhs.shape[1] > 128:
-        # cholespy's CUDA solve takes at most 128 right-hand sides at a time.
-        for s in range(0, rhs.shape[1], 128):
-            chunk = rhs[:, s:s + 128].contiguous()
-            res = torch.empty_like(chunk)
-            solver.solve(chunk, res)
-            out[:, s:s + 128] = res
-        return out
-    solver.solve(rhs, out)
-    return out
-
-
-def _solve_rows(solver, device: torch.device, rows: torch.Tensor) -> torch.Tensor:
-    if isinstance(solver, cholmod.CholmodFactor):
-        return solver.solve_rows(rows.to(torch.float64))
-    return contiguous_transpose(_solve(solver, device, contiguous_transpose(rows)))
-
-
-def contiguous_transpose(x: torch.Tensor) -> torch.Tensor:
-    """x.T as a contiguous array (on the CPU numpy's transposing copy: 5x torch's for
-    [6, 45594])."""
-    if x.device.type == "cpu":
-        return torch.from_numpy(np.ascontiguousarray(x.numpy().T))
-    return x.T.contiguous()
+        return chol.solve(self._solver, self.device, rhs)
 
 
 def mesh_factor(system, b: int, name: str, device=None, like=None) -> ShiftedFactor:
     """The :class:`ShiftedFactor` of mesh b of a :class:`~torchakvf.operators.killing.KillingSystem`
     (its block of R and its S1), on ``device`` (default: the system's); ``like``: a symbolic
-    analysis to share where the pattern is the same (:class:`_CpuFactor`)."""
+    analysis to share where the pattern is the same (:class:`~torchakvf.solvers.cholesky.CpuFactor`)."""
     r, c, v, _ = system.block(b)
     lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
     mass = system.mass[lo:hi]
@@ -347,72 +225,3 @@ def check_factor_device(device) -> torch.device:
                              f"visible GPU only; run with CUDA_VISIBLE_DEVICES={index} and device "
                              "'cuda' (or 'cuda:0')")
     return device
-
-
-#: Largest normwise backward error ||A x - b|| / (||A|| ||x|| + ||b||) (max norms) of the known
-#: right-hand side's solve (:func:`check_first_solve`). A Cholesky solve is backward stable: its
-#: backward error is a small multiple of eps (1e-16) whatever the conditioning, so this is met
-#: with room by any working factor, while a failed device call leaves zeros, garbage or NaN
-#: (backward error of order 1).
-BACKWARD_ERROR_MAX = 1e-10
-
-
-def check_first_solve(solver, device: torch.device, pattern, diagonal: torch.Tensor, name: str) -> None:
-    """Solve A x = b for a known b (A = R + diag(diagonal), b = A·1) with a new cholespy factor
-    and raise a :class:`SolverError` naming ``name`` where the result is not finite or its
-    backward error exceeds :data:`BACKWARD_ERROR_MAX`. cholespy prints CUDA errors instead of
-    raising them (a failed allocation or launch leaves the output unwritten): this is where they
-    surface. CHOLMOD called directly raises its own errors and is not checked."""
-    if isinstance(solver, cholmod.CholmodFactor):
-        return
-    n, r, c, base = pattern
-    vals = torch.cat([base.to(device), diagonal.to(device, torch.float64)])
-    r, c = r.to(device).long(), c.to(device).long()
-
-    def times(x: torch.Tensor) -> torch.Tensor:          # A x from A's lower triangle
-        off = r != c
-        y = torch.zeros_like(x).index_add_(0, r, vals * x[c])
-        return y.index_add_(0, c[off], vals[off] * x[r[off]])
-
-    b = times(torch.ones(n, dtype=torch.float64, device=device))
-    x = _solve(solver, device, b[:, None])[:, 0]
-    norm_a = torch.zeros(n, dtype=torch.float64, device=device).index_add_(0, r, vals.abs())
-    norm_a = norm_a.index_add_(0, c[r != c], vals[r != c].abs()).max()
-    err = (times(x) - b).abs().max() / (norm_a * x.abs().max() + b.abs().max())
-    if not bool(torch.isfinite(x).all()) or not float(err) <= BACKWARD_ERROR_MAX:
-        raise SolverError(f"{name}: the sparse factor's solve on {device} failed its check (backward "
-                          f"error {float(err):.1e} > {BACKWARD_ERROR_MAX:.0e}, or not finite): a "
-                          "device error (out of memory?) was printed above; free memory or make the "
-                          "batch smaller")
-
-
-@contextlib.contextmanager
-def _quiet_stderr():
-    """Silence CHOLMOD's C-level "not positive definite" warning during a trial factorization
-    (the failure is handled: the next shift is tried). CHOLMOD prints through C stdio to
-    stdout, buffered, so both descriptors are redirected and C buffers flushed before restoring."""
-    try:
-        fds = [sys.stdout.fileno(), sys.stderr.fileno()]
-    except (AttributeError, OSError, ValueError):
-        yield
-        return
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(fd) for fd in fds]
-    try:
-        with open(os.devnull, "w") as null:
-            for fd in fds:
-                os.dup2(null.fileno(), fd)
-            yield
-            _libc_flush()
-    finally:
-        for fd, old in zip(fds, saved):
-            os.dup2(old, fd)
-            os.close(old)
-
-
-def _libc_flush() -> None:
-    try:
-        ctypes.CDLL(None).fflush(None)
-    except (OSError, AttributeError):
-        pass

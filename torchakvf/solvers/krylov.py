@@ -41,7 +41,8 @@ import torch
 from ..errors import FieldCountError, ParameterError
 from ..operators.killing import KillingSystem
 from ..threads import single_threaded
-from .factor import contiguous_transpose, mesh_factor
+from .cholesky import contiguous_transpose
+from .factor import mesh_factor
 from .krylov_kernels import mm, orthonormal, project_out, rowdot, spmm, stiffness_matrix
 from .lobpcg import EigenResult
 

@@ -29,7 +29,8 @@ from ..errors import SolverError
 from ..mesh.batch import MeshBatch
 from ..operators.killing import DEFAULT_REMEDY, KillingAssembly, KillingSystem, killing_operator
 from . import cholmod
-from .factor import SHIFTS, ShiftedFactor, _CpuFactor, _lower_pattern
+from .cholesky import CpuFactor, lower_pattern
+from .factor import SHIFTS, ShiftedFactor
 
 #: Under a mesh-quality remedy, eigenpairs below this (λ·area) are spurious: a Killing energy is
 #: >= 0, and good meshes give at worst small negatives (-0.06 on a hemisphere); badly shaped
@@ -71,7 +72,7 @@ def check_paper_operator(system: KillingSystem, b: int) -> PaperCheck:
         except SolverError:
             return PaperCheck(True)
         return PaperCheck(False)
-    engine = _CpuFactor(_lower_pattern(rows, cols, vals, size))
+    engine = CpuFactor(lower_pattern(rows, cols, vals, size))
     if not engine.positive_definite_at(-SPURIOUS_BELOW * mass):
         return PaperCheck(True, engine.symbolic)
     # The ladder's first shift is this σ: the factor is the one the solver would make.

@@ -1,9 +1,6 @@
-"""What the benchmark and experiment scripts share: the fastest of repeated calls, writing a
-report, the PSB check of a one-thread AKVF benchmark, and comparing two AKVF results.
-
-Run as ``python benchmarks/<script>.py``, a script finds this module beside it (``benchmarks/``
-is the script's own folder, first on ``sys.path``); the scripts in ``experiments/`` put
-``benchmarks/`` on ``sys.path`` themselves."""
+"""What the scripts in ``benchmarks/`` and ``experiments/`` share: the fastest of repeated
+calls, writing a report, the PSB check of a one-thread AKVF benchmark, and comparing two AKVF
+results. A package module, so a script imports it wherever it lives (no ``sys.path`` edits)."""
 from __future__ import annotations
 
 import time
