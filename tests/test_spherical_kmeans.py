@@ -12,6 +12,7 @@ from helpers.roundoff import EPS64, assert_same_clustering
 
 import torchakvf as ta
 from torchakvf.cluster import spherical_kmeans
+from torchakvf.cluster.kmeanspp import kmeanspp
 from torchakvf.cluster.spherical_kmeans import lloyd
 from torchakvf.errors import ParameterError
 from torchakvf.mesh.batch import pad_packed
@@ -145,7 +146,7 @@ def test_kmeans_of_a_mesh_does_not_depend_on_its_batch(fields):
     draws = torch.zeros(2, 6, 7, dtype=torch.float64)
     for b, k in enumerate((3, 7)):
         draws[b, :, :k] = torch.rand(6, k, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
-    seeds = km.kmeanspp(xn, w, draws, ok)
+    seeds = kmeanspp(xn, w, draws, ok)
     labels, cost, _, _ = km.lloyd(xn, w, seeds, 100, torch.float32, ok)
     # (padded centers and rows change the float32 GEMM's rounding, not the fixed points reached)
     torch.testing.assert_close(cost, both.restart_costs, rtol=1e-9, atol=0)
@@ -224,32 +225,6 @@ def test_bad_init_is_a_parameter_error():
         spherical_kmeans(x, mask, 3, restarts=2, init=[None, None])
     with pytest.raises(ParameterError):
         SegmentOptions(kmeans_seeded_restarts=-1)
-
-
-def test_kmeans_seeding_per_mesh_equals_the_batched_seeding():
-    """On CPU each mesh of a batch seeds its own k centers; the centers, and so the clustering,
-    are those of the batched seeding (which the other devices keep)."""
-    from torchakvf.cluster.spherical_kmeans import kmeanspp
-    g = torch.Generator().manual_seed(3)
-    x = torch.nn.functional.normalize(torch.randn(3, 50, 4, generator=g, dtype=torch.float64), dim=-1)
-    w = torch.ones(3, 50, dtype=torch.float64)
-    w[1, 40:] = 0                                                     # a shorter mesh
-    x = x * (w > 0)[..., None]
-    ks = [5, 2, 9]
-    u = torch.rand(3, 4, 9, generator=g, dtype=torch.float64)
-    ok = torch.arange(9)[None, :] < torch.tensor(ks)[:, None]
-    batched = kmeanspp(x, w, u, ok)
-    for b, k in enumerate(ks):
-        own = kmeanspp(x[b:b + 1], w[b:b + 1], u[b:b + 1, :, :k], ok[b:b + 1, :k])
-        # Centers are rows of x picked by comparing a uniform draw with cumulative weights: other
-        # products' round-off (1e-16 relative) moves a pick only for a draw that close to a step
-        # of them, so the picks, and the rows copied, are compared exactly.
-        assert torch.equal(own[0], batched[b, :, :k])
-    mask = w > 0
-    km = spherical_kmeans(x, mask, ks, restarts=4, seed=0)
-    for b, k in enumerate(ks):
-        one = spherical_kmeans(x[b:b + 1], mask[b:b + 1], [k], restarts=4, seed=0)
-        assert torch.equal(km.labels[b], one.labels[0]) and torch.equal(km.cost[b], one.cost[0])
 
 
 def _is_lloyd_fixed_point(x, mask, res, k) -> bool:

@@ -56,6 +56,11 @@ def limb(start, direction, lengths, radii, bends, bend_axis, blend: float = 0.0)
     return Union(tuple(cones), blend)
 
 
+def uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    """One draw from U(lo, hi) as a Python float (a design parameter)."""
+    return float(rng.uniform(lo, hi))
+
+
 def unit(v) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
     return v / np.linalg.norm(v)
