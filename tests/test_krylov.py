@@ -81,7 +81,7 @@ def test_krylov_makes_room_for_spurious_modes():
     its caller to solve again) and grow=True returns the 6 and the ``need`` after them,
     converged and equal to scipy's."""
     from torchakvf.operators.killing import killing_operator
-    from torchakvf.solvers.krylov import block_krylov
+    from torchakvf.solvers.krylov import KrylovBasis, block_krylov
     mesh = mesh_of(shapes.icosphere(3))
     system = killing_operator(ta.MeshBatch.from_meshes([mesh]), remedy=PAPER)
     R, S1 = scipy_matrices(system)
@@ -91,7 +91,7 @@ def test_krylov_makes_room_for_spurious_modes():
     assert lam_all[6] - lam_all[5] > 1.0
     short = block_krylov(system, 12, need=10, skip_below=below)
     assert torch.isinf(short.residuals).all() and not bool(short.converged[0])
-    grown = block_krylov(system, 12, need=10, skip_below=below, grow=True)
+    grown = block_krylov(system, 12, need=10, skip_below=below, basis=KrylovBasis(grow=True))
     lam = grown.eigenvalues[0].numpy()
     assert len(lam) == 6 + 10 + 2 and bool(grown.converged[0])
     assert float(grown.residuals[0, :16].max()) <= 1e-6

@@ -143,13 +143,13 @@ def test_sphere_fills_its_picture(tmp_path):
     assert img[100, 100] > img[200, 200] + 0.2
 
 
-def test_render_png_default_size_inches_and_views(tmp_path):
+def test_render_png_default_size_pixels_and_views(tmp_path):
     s = shapes.dumbbell(n_around=32)
     labels = s.part_labels
     render_png(tmp_path / "a.png", s.vertices, s.faces, labels, title="dumbbell")
     img = _read_png(tmp_path / "a.png")
     assert img.shape[1] >= 800 and img.shape[1] == DEFAULT_PIXELS
-    render_png(tmp_path / "b.png", s.vertices, s.faces, labels, size=3.0, views=2)
+    render_png(tmp_path / "b.png", s.vertices, s.faces, labels, pixels=300, views=2)
     assert _read_png(tmp_path / "b.png").shape[1] == 600
     with pytest.raises(ParameterError, match="views must be 1 or 2"):
         render_png(tmp_path / "c.png", s.vertices, s.faces, labels, views=3)

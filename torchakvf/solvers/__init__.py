@@ -5,10 +5,10 @@ factors, solver choice and fallbacks."""
 from .akvf_result import AKVFResult
 from .akvf_solver import AKVFSolver
 from .factor import BlockDiagonalFactor, ShiftedFactor
-from .krylov import block_krylov
+from .krylov import KrylovBasis, block_krylov
 from .lanczos import shift_invert_lanczos
 from .lobpcg import EigenResult, relative_residuals, segmented_lobpcg
 from .remedy import killing_system
 
 __all__ = ["AKVFResult", "AKVFSolver", "BlockDiagonalFactor", "ShiftedFactor", "EigenResult", "block_krylov",
-           "killing_system", "relative_residuals", "segmented_lobpcg", "shift_invert_lanczos"]
+           "KrylovBasis", "killing_system", "relative_residuals", "segmented_lobpcg", "shift_invert_lanczos"]

@@ -19,7 +19,7 @@ from ..operators.killing import KillingSystem
 from ..operators.whitney import whitney_face_vectors
 from .akvf_result import AKVFResult
 from .factor import BlockDiagonalFactor, ShiftedFactor, interior_factor, mesh_factor, mesh_shift
-from .krylov import block_krylov
+from .krylov import KrylovBasis, block_krylov
 from .lanczos import shift_invert_lanczos
 from .lobpcg import EigenResult, segmented_lobpcg
 from .remedy import SPURIOUS_BELOW, PaperCheck
@@ -220,8 +220,8 @@ class GroupSolver:
         n = settings.n
         eig = block_krylov(self.system, count, tol=settings.tol, seed=settings.seed, names=self._names(group),
                            need=n, skip_below=SPURIOUS_BELOW if self._drops(group[0]) else None,
-                           factors=[self._interior_factor(b, n) for b in group], grow=len(group) == 1,
-                           meshes=group)
+                           factors=[self._interior_factor(b, n) for b in group],
+                           basis=KrylovBasis(grow=len(group) == 1), meshes=group)
         if len(group) == 1 and not bool(eig.converged[0]) and self.system.mass.device.type == "cpu":
             k = min(eig.eigenvalues.shape[1], self.edges[group[0]] - 1)
             eig = shift_invert_lanczos(self._subsystem(group), k, tol=settings.tol, seed=settings.seed,

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import NamedTuple
 
 import torch
 
@@ -68,11 +69,23 @@ _SAFETY = 0.9
 _REORTH = 0.5
 
 
+class KrylovBasis(NamedTuple):
+    """How :func:`block_krylov` sizes its basis.
+
+    block : right-hand sides per solve; max_dim : largest basis before giving up on a mesh
+        (None: ``max(10 count, 240)``), capped at the mesh's edge count; grow : return more than
+        ``count`` pairs where the needed ones reach beyond it (the room past them stays
+        ``count - need``); one mesh only, since meshes then differ in the number of pairs
+    """
+    block: int = BLOCK
+    max_dim: int | None = None
+    grow: bool = False
+
+
 def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int = 0,
                  names: list[str] | None = None, need: int | None = None,
-                 skip_below: float | None = None, block: int = BLOCK,
-                 max_dim: int | None = None, factors: list | None = None,
-                 grow: bool = False, meshes: list[int] | None = None) -> EigenResult:
+                 skip_below: float | None = None, basis: KrylovBasis = KrylovBasis(),
+                 factors: list | None = None, meshes: list[int] | None = None) -> EigenResult:
     """The ``count`` smallest eigenpairs of every mesh of ``system``, one mesh at a time.
 
     meshes : solve only these meshes of the system (indices, in that order; default all), so
@@ -83,20 +96,18 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         ``count``). With ``skip_below``, pairs whose value is below it (spurious modes) do not
         count towards ``need`` (the first ``need`` pairs at or above it, and every pair below
         them, must converge); the others are returned as they are, residuals included.
-    block : right-hand sides per solve; max_dim : largest basis before giving up on a mesh
-        (default ``max(10 count, 240)``, capped at the mesh's edge count); a mesh that does not
-        converge within it is returned with ``converged`` False and a warning. A mesh with more
-        pairs below ``skip_below`` than ``count - need`` is returned as soon as that shows
-        (residuals inf, without a warning): its caller must solve it again with a larger count
-    grow : instead, return more than ``count`` pairs where the needed ones reach beyond it (the
-        room past them stays ``count - need``); one mesh only, since meshes then differ in
-        the number of pairs
+    basis : a :class:`KrylovBasis` (block width, largest basis, grow). A mesh that does not
+        converge within the largest basis is returned with ``converged`` False and a warning. A
+        mesh with more pairs below ``skip_below`` than ``count - need`` is returned as soon as
+        that shows (residuals inf, without a warning): its caller must solve it again with a
+        larger count, unless ``basis.grow``
     seed : the start block of each mesh is ``torch.Generator().manual_seed(seed)`` alone, so a
         mesh gets the same result in any batch
     factors : optional precomputed :class:`ShiftedFactor` per mesh
 
     Returns an :class:`EigenResult`; ``iterations`` counts shift-invert right-hand sides.
     """
+    block, max_dim, grow = basis
     meshes = list(range(system.n_meshes)) if meshes is None else [int(b) for b in meshes]
     nb = len(meshes)
     names = names or [f"mesh {b}" for b in meshes]
@@ -107,7 +118,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
             raise FieldCountError(f"{names[j]}: {count} fields asked for but the mesh has only "
                               f"{sizes[b]} edges; ask for fewer fields")
     if grow and nb != 1:
-        raise ParameterError(f"block_krylov(grow=True) solves one mesh at a time, got {nb}")
+        raise ParameterError(f"block_krylov(basis=KrylovBasis(grow=True)) solves one mesh at a time, got {nb}")
     values, vectors, residuals, solves, shifts = [], [], [], [], []
     for j, b in enumerate(meshes):
         r, c, v, size = system.block(b)

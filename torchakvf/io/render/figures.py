@@ -90,9 +90,8 @@ def save_figure(fig, path, tight: bool = True) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def render_png(path, vertices, faces, labels, title: str | None = None, arrows=None,
-               size: float | None = None, *, flow=None, streamlines=None, views: int = 1,
-               pixels: int = DEFAULT_PIXELS) -> None:
+def render_png(path, vertices, faces, labels, title: str | None = None, arrows=None, *,
+               flow=None, streamlines=None, views: int = 1, pixels: int = DEFAULT_PIXELS) -> None:
     """One mesh coloured by part (grey = connecting region) as a PNG ``pixels`` wide per view
     (height from the mesh's shape in that view, 0.3-1 x the width).
 
@@ -101,12 +100,10 @@ def render_png(path, vertices, faces, labels, title: str | None = None, arrows=N
     streamlines : optional precomputed output of :func:`generator_streamlines` instead;
     arrows : optional (bases [N, 3], vectors [N, 3]) from :func:`generator_arrows`;
     views : 1 (the view showing most area) or 2 (that view and the opposite side);
-    size : figure width in inches at 100 px each (matplotlib's unit); overrides ``pixels``.
+    pixels : width of each view in pixels.
     """
     if views not in (1, 2):
         raise ParameterError(f"views must be 1 or 2, got {views!r}")
-    if size is not None:
-        pixels = max(int(size * 100), 200)
     vs = _views(vertices, faces, views)
     w = int(pixels)
     h = max(int(round(w * view_aspect(vertices, vs[0]))), 1)
