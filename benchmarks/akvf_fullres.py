@@ -118,7 +118,8 @@ import sys, time, torch
 import torchakvf as ta
 from torchakvf.io import load_mesh
 torch.set_num_threads(1)
-psb, mode, n, repeat, clock, device = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5], sys.argv[6]
+psb, mode, n, repeat = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+clock, device = sys.argv[5], sys.argv[6]
 ids = [int(v) for v in sys.argv[7].split(",")]
 meshes = [load_mesh(f"{psb}/meshes/{i}.off.gz") for i in ids]
 dev = torch.device(device)
@@ -279,12 +280,14 @@ def main(argv=None) -> int:
     fresh = fresh_process_sides(args.psb, args.ids, n, args.repeat, args.clock, args.device, args.fresh)
 
     tot = {k: sum(best[i][k] for i in args.ids) for k in ("ta", "cholespy", "ref", "eigsh")}
+    clock_note = ("process CPU time, one thread: robust to the other jobs on this shared machine" if args.clock == "cpu"
+                  else "wall clock")
     lines = [
         "# Full-resolution AKVFs: `ta.akvf` defaults vs scipy eigsh (SuperLU)",
         "",
         f"- PSB meshes {', '.join(map(str, args.ids))} at full resolution (cleaned, not decimated); "
         f"n = {n}; best of {args.repeat} interleaved rounds; seconds are **{args.clock} time** "
-        f"({'process CPU time, one thread: robust to the other jobs on this shared machine' if args.clock == 'cpu' else 'wall clock'}); torch threads "
+        f"({clock_note}); torch threads "
         f"{torch.get_num_threads()}, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', '-')}",
         f"- torch {torch.__version__}, scipy {scipy.__version__}, numpy {np.__version__}, "
         f"python {platform.python_version()}, {os.cpu_count()} CPUs (shared with other jobs: "

@@ -179,8 +179,8 @@ def _report(args, rounds: dict) -> None:
     for t in trees:
         r, best = rounds[t][-1], min(x["wall"] for x in rounds[t])
         cpu = min(x["cpu"] for x in rounds[t])
-        lines.append(f"| {t} | {best:.2f} | {best0 / best:.2f}x | {cpu:.2f} | {cpu0 / cpu:.2f}x | {r['factorizations']} | "
-                     f"{r['factored_rows']} | {len(r['lobpcg_calls'])} ({r['lobpcg_calls']}) | "
+        lines.append(f"| {t} | {best:.2f} | {best0 / best:.2f}x | {cpu:.2f} | {cpu0 / cpu:.2f}x | "
+                     f"{r['factorizations']} | {r['factored_rows']} | {len(r['lobpcg_calls'])} ({r['lobpcg_calls']}) | "
                      f"{r['fell_back']} | {r['syncs_lobpcg']:.2f} | {r['syncs_horst']:.2f} |")
     for t in trees[1:]:
         a, b = np.array(base["eigenvalues"]), np.array(rounds[t][-1]["eigenvalues"])

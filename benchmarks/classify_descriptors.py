@@ -15,8 +15,9 @@ unit area). Label = category, known from the mesh id (no segmentation is read). 
   (lumped mass), log;
 * **AKVF pooled + spectrum + ShapeDNA**;
 * **AKVF histograms** (spectrum + area-weighted histograms of the untangled φ at 32 fields,
-  the earlier AKVF histogram descriptor (Killing spectrum + histograms of the untangled features), recomputed from the same cache) and a **trivial** descriptor
-  (log face/vertex counts, extent ratios, components).
+  the earlier AKVF histogram descriptor (Killing spectrum + histograms of the untangled features),
+  recomputed from the same cache) and a **trivial** descriptor (log face/vertex counts, extent
+  ratios, components).
 
 Model: multinomial logistic regression (L2 1e-2, full-batch L-BFGS in torch) on standardized
 descriptors (training-fold statistics); stratified 5-fold cross-validation, seed 0; accuracy

@@ -39,7 +39,7 @@ sys.path.insert(0, str(REPO))
 
 import torchakvf as ta  # noqa: E402
 from torchakvf import scipy_reference as ref  # noqa: E402
-from torchakvf.bench.script_tools import psb_parser
+from torchakvf.bench.script_tools import psb_parser  # noqa: E402
 from torchakvf.interop import face_features  # noqa: E402
 from torchakvf.mesh.clean import clean_mesh  # noqa: E402
 

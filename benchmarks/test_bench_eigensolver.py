@@ -1,7 +1,8 @@
 """pytest-benchmark cases: operator assembly and eigensolve, torchakvf vs scipy ``eigsh``.
 
 Cases: icosphere(4) (one mesh, 5,120 faces), a batch of the 4 built-in composite shapes
-(:data:`torchakvf.shapes.BUILTIN_SHAPES`, 48 vertices around, ~14,000 faces in all), and the first PSB mesh (skipped when the PSB is absent).
+(:data:`torchakvf.shapes.BUILTIN_SHAPES`, 48 vertices around, ~14,000 faces in all), and the first
+PSB mesh (skipped when the PSB is absent).
 scipy solves the *same* operator torchakvf assembled (``system.stiffness`` / ``system.mass``, block
 by block) with ``eigsh(R, k=n, M=diags(S1), sigma=σ, which='LM')`` (default SuperLU), σ being the
 shift torchakvf's factor used. Every solve is checked (residual <= 1e-6, eigenvalues agree).
@@ -15,8 +16,8 @@ Not collected by CI (``pytest tests``). The project's pytest options pass ``--be
 Each case runs ``rounds=3`` (about 2-3 minutes in all on an idle 2-core machine; much longer when
 other processes load the CPUs: with 2 OpenMP/OpenBLAS threads on oversubscribed cores, small dense
 LAPACK/BLAS calls can spin-wait for ~100x their time, for torch (MKL) and scipy (OpenBLAS) alike;
-``OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` gives stable comparisons there). The full 19-mesh PSB comparison is
-``python benchmarks/eigensolver_psb.py``.
+``OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` gives stable comparisons there). The
+full 19-mesh PSB comparison is ``python benchmarks/eigensolver_psb.py``.
 """
 from __future__ import annotations
 

@@ -31,7 +31,8 @@ import torch
 
 def dissect(indptr, indices, coords, leaf=64):
     n = len(coords)
-    rows = np.repeat(np.arange(n), np.diff(indptr)); cols = indices
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    cols = indices
     off = rows != cols
     rows, cols = rows[off], cols[off]
     region = np.zeros(n, np.int64)          # -1: assigned
@@ -51,8 +52,10 @@ def dissect(indptr, indices, coords, leaf=64):
         r_idx = region[idx]
         leafmask = small[r_idx]
         if leafmask.any():
-            li = idx[leafmask]; lr = region[li]
-            order = np.argsort(lr, kind="stable"); li, lr = li[order], lr[order]
+            li = idx[leafmask]
+            lr = region[li]
+            order = np.argsort(lr, kind="stable")
+            li, lr = li[order], lr[order]
             ur, starts = np.unique(lr, return_index=True)
             base = len(parents)
             for t, rr in enumerate(ur):
@@ -65,8 +68,10 @@ def dissect(indptr, indices, coords, leaf=64):
             break
         r_idx = region[idx]
         # axis of largest extent per region
-        lo = np.full((nreg, 3), np.inf); hi = np.full((nreg, 3), -np.inf)
-        np.minimum.at(lo, r_idx, coords[idx]); np.maximum.at(hi, r_idx, coords[idx])
+        lo = np.full((nreg, 3), np.inf)
+        hi = np.full((nreg, 3), -np.inf)
+        np.minimum.at(lo, r_idx, coords[idx])
+        np.maximum.at(hi, r_idx, coords[idx])
         axis = np.argmax(hi - lo, axis=1)
         key = coords[idx, axis[r_idx]]
         order = np.lexsort((key, r_idx))
@@ -78,7 +83,8 @@ def dissect(indptr, indices, coords, leaf=64):
         # boundary of each side
         same = (region[rows] == region[cols]) & (region[rows] >= 0)
         cross = same & (side[rows] != side[cols])
-        bnd = np.zeros(n, bool); bnd[rows[cross]] = True
+        bnd = np.zeros(n, bool)
+        bnd[rows[cross]] = True
         nb0 = np.bincount(region[bnd & (side == 0)], minlength=nreg)
         nb1 = np.bincount(region[bnd & (side == 1)], minlength=nreg)
         sepside = (nb1 < nb0).astype(np.int8)
@@ -87,12 +93,16 @@ def dissect(indptr, indices, coords, leaf=64):
         # new separator nodes (one per split region, even if empty)
         split = np.unique(r_idx)
         base = len(parents)
-        sep_node = np.full(nreg, -1, np.int64); sep_node[split] = base + np.arange(len(split))
-        si = np.nonzero(in_sep)[0]; sr = region[si]
-        order = np.argsort(sr, kind="stable"); si, sr = si[order], sr[order]
+        sep_node = np.full(nreg, -1, np.int64)
+        sep_node[split] = base + np.arange(len(split))
+        si = np.nonzero(in_sep)[0]
+        sr = region[si]
+        order = np.argsort(sr, kind="stable")
+        si, sr = si[order], sr[order]
         bounds = np.searchsorted(sr, split), np.searchsorted(sr, split, side="right")
         for t, rr in enumerate(split):
-            owns.append(si[bounds[0][t]:bounds[1][t]]); parents.append(reg_parent[rr])
+            owns.append(si[bounds[0][t]:bounds[1][t]])
+            parents.append(reg_parent[rr])
         node_of[si] = sep_node[sr]
         region[si] = -1
         # children regions: (old region, side) -> new id
@@ -106,17 +116,20 @@ def dissect(indptr, indices, coords, leaf=64):
 class Multifrontal:
     def __init__(self, indptr, indices, coords, leaf=64):
         t0 = time.perf_counter()
-        n = len(coords); self.n = n
+        n = len(coords)
+        self.n = n
         node_of, parent, owns = dissect(indptr, indices, coords, leaf)
         t1 = time.perf_counter()
         nn = len(parent)
         children = [[] for _ in range(nn)]
         for c in range(nn):
-            if parent[c] >= 0: children[parent[c]].append(c)
+            if parent[c] >= 0:
+                children[parent[c]].append(c)
         # heights (nodes created top-down: children have larger ids)
         height = np.zeros(nn, np.int64)
         for c in range(nn - 1, -1, -1):
-            if parent[c] >= 0: height[parent[c]] = max(height[parent[c]], height[c] + 1)
+            if parent[c] >= 0:
+                height[parent[c]] = max(height[parent[c]], height[c] + 1)
         self.t_order = t1 - t0
         # symbolic: struct per node, in increasing-height processing
         nh = height[node_of]     # height of each var's node
@@ -124,7 +137,8 @@ class Multifrontal:
         for h in range(height.max() + 1):
             for N in np.nonzero(height == h)[0]:
                 own = owns[N]
-                adj = indices[np.concatenate([np.arange(indptr[i], indptr[i + 1]) for i in own])] if len(own) else np.zeros(0, np.int64)
+                adj = (indices[np.concatenate([np.arange(indptr[i], indptr[i + 1]) for i in own])] if len(own)
+                       else np.zeros(0, np.int64))
                 cand = [adj] + [structs[c] for c in children[N]]
                 cand = np.unique(np.concatenate(cand))
                 structs[N] = cand[(nh[cand] > h)]
@@ -140,36 +154,46 @@ class Multifrontal:
         slot_of = {}  # node -> (level, slot)
         for h in range(self.height.max() + 1):
             nodes = np.nonzero(self.height == h)[0]
-            K = max(1, max(len(self.owns[N]) for N in nodes)); S = max(len(self.structs[N]) for N in nodes)
-            m = len(nodes); F = K + S
-            own_idx = np.full((m, K), n, np.int64); st_idx = np.full((m, S), n, np.int64)
+            K = max(1, max(len(self.owns[N]) for N in nodes))
+            S = max(len(self.structs[N]) for N in nodes)
+            m = len(nodes)
+            F = K + S
+            own_idx = np.full((m, K), n, np.int64)
+            st_idx = np.full((m, S), n, np.int64)
             for t, N in enumerate(nodes):
-                own_idx[t, :len(self.owns[N])] = self.owns[N]; st_idx[t, :len(self.structs[N])] = self.structs[N]
+                own_idx[t, :len(self.owns[N])] = self.owns[N]
+                st_idx[t, :len(self.structs[N])] = self.structs[N]
                 slot_of[N] = (h, t)
             # entry map: rows in own; local position of col
             ent_src, ent_dst = [], []
             for t, N in enumerate(nodes):
                 own, st = self.owns[N], self.structs[N]
                 loc = {}
-                for a, j in enumerate(own): loc[j] = a
-                for a, j in enumerate(st): loc[j] = K + a
+                for a, j in enumerate(own):
+                    loc[j] = a
+                for a, j in enumerate(st):
+                    loc[j] = K + a
                 for a, i in enumerate(own):
                     for p in range(indptr[i], indptr[i + 1]):
                         j = indices[p]
                         if j in loc:
                             lj = loc[j]
                             if lj < K:
-                                ent_src.append(p); ent_dst.append(t * F * F + a * F + lj)
+                                ent_src.append(p)
+                                ent_dst.append(t * F * F + a * F + lj)
                             else:
-                                ent_src.append(p); ent_dst.append(t * F * F + lj * F + a)
+                                ent_src.append(p)
+                                ent_dst.append(t * F * F + lj * F + a)
             pad_diag = []
             for t, N in enumerate(nodes):
-                for a in range(len(self.owns[N]), K): pad_diag.append(t * F * F + a * F + a)
+                for a in range(len(self.owns[N]), K):
+                    pad_diag.append(t * F * F + a * F + a)
             # extend-add from children: child's U (S_c x S_c in its level) -> this front
             ea = []
             for t, N in enumerate(nodes):
                 own, st = self.owns[N], self.structs[N]
-                loc = {j: a for a, j in enumerate(own)}; loc.update({j: K + a for a, j in enumerate(st)})
+                loc = {j: a for a, j in enumerate(own)}
+                loc.update({j: K + a for a, j in enumerate(st)})
                 for c in self.children[N]:
                     hc, tc = slot_of[c]
                     sc = self.structs[c]
@@ -185,8 +209,10 @@ class Multifrontal:
                 Sc = levels[hc]["S"]
                 src = tc * Sc * Sc + np.arange(sc)[:, None] * Sc + np.arange(sc)[None, :]
                 by.setdefault(hc, ([], []))
-                by[hc][0].append(src.ravel()); by[hc][1].append(dst.ravel())
-            L["ea"] = {hc: (torch.from_numpy(np.concatenate(a)), torch.from_numpy(np.concatenate(b))) for hc, (a, b) in by.items()}
+                by[hc][0].append(src.ravel())
+                by[hc][1].append(dst.ravel())
+            L["ea"] = {hc: (torch.from_numpy(np.concatenate(a)), torch.from_numpy(np.concatenate(b)))
+                       for hc, (a, b) in by.items()}
         self.levels = levels
 
     def factor(self, values):
@@ -195,7 +221,8 @@ class Multifrontal:
         us = []
         self.L = []
         for h, L in enumerate(self.levels):
-            m, K, S = L["m"], L["K"], L["S"]; F = K + S
+            m, K, S = L["m"], L["K"], L["S"]
+            F = K + S
             front = torch.zeros(m * F * F, dtype=torch.float64)
             front[L["dst"]] = vals[L["src"]]
             front[L["pad"]] = 1.0
@@ -209,7 +236,8 @@ class Multifrontal:
                 l21 = torch.linalg.solve_triangular(l11, front[:, K:, :K].transpose(1, 2), upper=False).transpose(1, 2)
                 u = front[:, K:, K:] - l21 @ l21.transpose(1, 2)
             else:
-                l21 = front.new_zeros(m, 0, K); u = front.new_zeros(m, 0, 0)
+                l21 = front.new_zeros(m, 0, K)
+                u = front.new_zeros(m, 0, 0)
             us.append(u.contiguous())
             self.L.append((l11, l21.contiguous()))
         return True
@@ -219,15 +247,18 @@ class Multifrontal:
         y = torch.cat([b.to(torch.float64), b.new_zeros(1, r, dtype=torch.float64)])
         for L, (l11, l21) in zip(self.levels, self.L):
             yo = torch.linalg.solve_triangular(l11, y[L["own"]], upper=False)
-            y[L["own"]] = yo; y[-1] = 0
+            y[L["own"]] = yo
+            y[-1] = 0
             if L["S"]:
-                y.index_add_(0, L["st"].reshape(-1), -(l21 @ yo).reshape(-1, r)); y[-1] = 0
+                y.index_add_(0, L["st"].reshape(-1), -(l21 @ yo).reshape(-1, r))
+                y[-1] = 0
         x = y
         for L, (l11, l21) in zip(reversed(self.levels), reversed(self.L)):
             rhs = x[L["own"]]
             if L["S"]:
                 rhs = rhs - l21.transpose(1, 2) @ x[L["st"]]
-            x[L["own"]] = torch.linalg.solve_triangular(l11.transpose(1, 2), rhs, upper=True); x[-1] = 0
+            x[L["own"]] = torch.linalg.solve_triangular(l11.transpose(1, 2), rhs, upper=True)
+            x[-1] = 0
         return x[:-1]
 
 
@@ -256,7 +287,9 @@ def main(argv=None) -> int:
         a.sort_indices()
         pts, e = batch.verts.numpy(), batch.edges.numpy()
         coords = 0.5 * (pts[e[:, 0]] + pts[e[:, 1]])
-        t = time.perf_counter(); chol = ShiftedFactor(r, c, v, system.mass); t_chol = time.perf_counter() - t
+        t = time.perf_counter()
+        chol = ShiftedFactor(r, c, v, system.mass)
+        t_chol = time.perf_counter() - t
         rhs = torch.randn(n, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
         ref = chol.solve(rhs)
         t = time.perf_counter()
@@ -264,12 +297,17 @@ def main(argv=None) -> int:
             chol.solve(rhs)
         t_cs = (time.perf_counter() - t) / 10
         for leaf in args.leaf:
-            t = time.perf_counter(); mf = Multifrontal(a.indptr, a.indices, coords, leaf); t_an = time.perf_counter() - t
-            ks = np.array([len(o) for o in mf.owns]); ss = np.array([len(x) for x in mf.structs])
+            t = time.perf_counter()
+            mf = Multifrontal(a.indptr, a.indices, coords, leaf)
+            t_an = time.perf_counter() - t
+            ks = np.array([len(o) for o in mf.owns])
+            ss = np.array([len(x) for x in mf.structs])
             nnz_l = int((ks * (ks + 1) / 2 + ks * ss).sum())
             flops = float((ks ** 3 / 3 + ks ** 2 * ss + ks * ss ** 2).sum())
             mf.factor(a.data)
-            t = time.perf_counter(); ok = mf.factor(a.data); t_num = time.perf_counter() - t
+            t = time.perf_counter()
+            ok = mf.factor(a.data)
+            t_num = time.perf_counter() - t
             x = mf.solve(rhs)
             t = time.perf_counter()
             for _ in range(10):

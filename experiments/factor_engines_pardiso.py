@@ -130,11 +130,16 @@ def main(argv=None) -> int:
             for _ in range(5):
                 pf.call(-1, None, None, 1)
                 pf.pt[:] = 0
-                s = time.perf_counter(); pf.call(11, None, None, 1); t11 = min(t11, time.perf_counter() - s)
-                s = time.perf_counter(); pf.call(22, None, None, 1); t22 = min(t22, time.perf_counter() - s)
+                s = time.perf_counter()
+                pf.call(11, None, None, 1)
+                t11 = min(t11, time.perf_counter() - s)
+                s = time.perf_counter()
+                pf.call(22, None, None, 1)
+                t22 = min(t22, time.perf_counter() - s)
             t_ps, x = best_of(lambda: pf.solve(rhs), 10)
             diff = max(diff, float((x - ref).abs().max() / ref.abs().max()))
-            row += [f"{t11 * 1e3:.0f} + {t22 * 1e3:.0f}", f"{t_ps * 1e3:.1f}", f"{int(pf.iparm[17]):,}", str(int(pf.iparm[18]))]
+            row += [f"{t11 * 1e3:.0f} + {t22 * 1e3:.0f}", f"{t_ps * 1e3:.1f}",
+                    f"{int(pf.iparm[17]):,}", str(int(pf.iparm[18]))]
         lines.append("| " + " | ".join(row + [f"{diff:.0e}"]) + " |")
         print(lines[-1], flush=True)
 

@@ -94,7 +94,8 @@ def main():
         print(v, json.dumps(res[v]), flush=True)
         Path(a.json).write_text(json.dumps({"ids": ids, "results": res}, indent=1))
     names = list(res)
-    print("| variant | 1-RI | " + " | ".join(f"fold {f}" for f in range(3)) + " | segment CPU s | untanglings | k-means runs |")
+    print("| variant | 1-RI | " + " | ".join(f"fold {f}" for f in range(3))
+          + " | segment CPU s | untanglings | k-means runs |")
     for v in names:
         pc = res[v]["per_category"]
         folds = [sum(pc[c] for i, c in enumerate(LABELLED) if i % 3 == f) / 5 for f in range(3)]

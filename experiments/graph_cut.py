@@ -105,7 +105,8 @@ def main():
          "| setting | overall | " + " | ".join(cats) + " |", "|---|---:|" + "---:|" * len(cats)]
     for n, t in zip(names, tab):
         L.append(f"| {n} | {ov(t, cats):.4f} | " + " | ".join(f"{t[c]:.3f}" for c in cats) + " |")
-    L += ["", "| fold | chosen on the other 10 (index 0 = no cut) | held-out no cut | held-out chosen |", "|---|---|---:|---:|"]
+    L += ["", "| fold | chosen on the other 10 (index 0 = no cut) | held-out no cut | held-out chosen |",
+          "|---|---|---:|---:|"]
     held = {}
     for f, test in enumerate(folds):
         train = [c for c in cats if c not in test]

@@ -126,7 +126,8 @@ def _load(folder: Path):
         z = np.load(p, allow_pickle=True)
         allowed = z["allowed"]
         initial = z["initial"] if "initial" in z.files and z["initial"].ndim else None
-        yield p.name, z["unary"], z["pairs"], z["weights"], int(z["cycles"]), (None if allowed.ndim == 0 else allowed), initial
+        yield (p.name, z["unary"], z["pairs"], z["weights"], int(z["cycles"]),
+               (None if allowed.ndim == 0 else allowed), initial)
 
 
 def _start(how: str, unary, allowed, initial):
@@ -214,7 +215,8 @@ def compare(args) -> None:
             return {r["id"]: r for r in csv.DictReader(fh) if r["status"] == "ok" and r["rand_index_error"]}
     base, new = read(args.base), read(args.new)
     ids = sorted(set(base) & set(new), key=int)
-    cats = sorted({base[i]["category"] for i in ids}, key=lambda c: min(int(i) for i in ids if base[i]["category"] == c))
+    cats = sorted({base[i]["category"] for i in ids},
+                  key=lambda c: min(int(i) for i in ids if base[i]["category"] == c))
     print(f"| category | meshes | {args.base_name} | {args.new_name} | change | meshes better / worse |")
     print("|---|---:|---:|---:|---:|---:|")
     helps = hurts = 0
@@ -228,7 +230,8 @@ def compare(args) -> None:
         d = n.mean() - b.mean()
         helps += d < -5e-5
         hurts += d > 5e-5
-        print(f"| {c} | {len(sel)} | {b.mean():.4f} | {n.mean():.4f} | {d:+.4f} | {(n < b - 1e-6).sum()} / {(n > b + 1e-6).sum()} |")
+        print(f"| {c} | {len(sel)} | {b.mean():.4f} | {n.mean():.4f} | {d:+.4f} | "
+              f"{(n < b - 1e-6).sum()} / {(n > b + 1e-6).sum()} |")
     print(f"| all | {len(ids)} | {np.mean(allb):.4f} | {np.mean(alln):.4f} | {np.mean(alln) - np.mean(allb):+.4f} | |")
     print(f"\ncategories better: {helps}, worse: {hurts}, unchanged (|change| < 5e-5): {len(cats) - helps - hurts}")
 

@@ -159,7 +159,8 @@ def sweep(a):
          f"- cache {a.cache}: {len(ids)} meshes, k in {K_RANGE}, one field count per mesh (k auto's), "
          f"merge weights {V2.fmt(w)}; one prediction per mesh, 1-RI against every human (mean); "
          "hit = chosen k equals the mode of the humans' k's (smallest on ties)", "",
-         "| rule | τ (CV: chosen per fold on the other 10) | held-out 1-RI | held-out hit rate |", "|---|---|---:|---:|"]
+         "| rule | τ (CV: chosen per fold on the other 10) | held-out 1-RI | held-out hit rate |",
+         "|---|---|---:|---:|"]
     summary = {}
     for rule in taus:
         held, chosen_t = {}, []

@@ -72,7 +72,8 @@ class StageClock:
 def folds_view(per_cat: dict, configs: list, base) -> list[str]:
     """Per fold (category index mod 3): mean 1-RI of each config; the config chosen on the
     other two folds (lowest mean) and whether it is no worse than ``base`` on this fold."""
-    lines = ["| fold | categories | " + " | ".join(f"R={r}" for r in configs) + " | chosen on the other folds | held-out delta vs R=" + str(base) + " |",
+    lines = ["| fold | categories | " + " | ".join(f"R={r}" for r in configs)
+             + " | chosen on the other folds | held-out delta vs R=" + str(base) + " |",
              "|---|---|" + "---:|" * len(configs) + "---|---:|"]
     for f in range(3):
         cats = [c for i, c in enumerate(LABELLED) if i % 3 == f]

@@ -267,7 +267,9 @@ def learned_weights(train_mids, policy_w, pool, rounds=1, cols=tuple(range(T))):
     for r in range(rounds):
         if r > 0:
             rows = pool.starmap(mesh_rows, [(m, w) for m in train_mids])
-            Xs += [x[0] for x in rows]; ys += [x[1] for x in rows]; ws += [x[2] for x in rows]
+            Xs += [x[0] for x in rows]
+            ys += [x[1] for x in rows]
+            ws += [x[2] for x in rows]
         beta_c, b0 = fit_logistic(np.concatenate(Xs)[:, cols], np.concatenate(ys), np.concatenate(ws))
         beta = np.zeros(T)
         beta[cols] = beta_c
@@ -360,7 +362,8 @@ def gamma_cv(cats, pool, base, fitted):
         gi = int(np.argmin(sc))
         choice[c], on[c] = GAMMAS[gi], sc[gi]
         test = [m for m, d in PREP.items() if d["category"] == c]
-        held[c] = float(np.mean([np.mean(e) for e in pool.starmap(mesh_errors, [(m, ("rand", -w, b0, GAMMAS[gi])) for m in test])]))
+        test_errs = pool.starmap(mesh_errors, [(m, ("rand", -w, b0, GAMMAS[gi])) for m in test])
+        held[c] = float(np.mean([np.mean(e) for e in test_errs]))
         fitted[("rand-gamma", c)] = (np.r_[w, GAMMAS[gi]], b0)
         print("rand-gamma", c, f"other 14 by γ {dict(zip(GAMMAS, np.round(sc, 4)))} chose {GAMMAS[gi]}:"
               f" held-out default {base[c]:.4f} -> {held[c]:.4f}", flush=True)
@@ -412,7 +415,8 @@ def report(results, cats, fitted, chosen_on, base, out):
     head = "| setting | overall | " + " | ".join(cats) + " |"
     lines = [head, "|---|---:|" + "---:|" * len(cats)]
     for name, sc in results.items():
-        lines.append(f"| {name} | {np.mean([sc[c] for c in cats]):.4f} | " + " | ".join(f"{sc[c]:.3f}" for c in cats) + " |")
+        lines.append(f"| {name} | {np.mean([sc[c] for c in cats]):.4f} | "
+                     + " | ".join(f"{sc[c]:.3f}" for c in cats) + " |")
     for v, on in chosen_on.items():
         lines += ["", f"Chosen-on figures of {v}: each fold's choice scored on the 14 categories it was chosen on"
                   " (mean over categories), against the default merge on the same 14:", "",

@@ -114,7 +114,8 @@ def main():
         return f"ratio {w.ratio:g}, w_sym {w.symmetry:g}, w_cav {w.concavity:g}, w_size {w.size:g}"
 
     lines = ["# Part merging (issue 12): parameters by cross-validation across categories", "",
-             f"- cache: {a.cache}, {len(meshes)} meshes ({', '.join(f'{c} {sum(category_of(i) == c for i in meshes)}' for c in cats)})",
+             f"- cache: {a.cache}, {len(meshes)} meshes "
+             f"({', '.join(f'{c} {sum(category_of(i) == c for i in meshes)}' for c in cats)})",
              "- protocol: by-segmentation, 1-RI faces counted; mesh = mean over humans, category = mean "
              "over its meshes, overall = mean over categories",
              f"- grid: ratio {ratios}, w_sym {SYMMETRY}, w_cav {CONCAVITY}, w_size {SIZE} ({len(grid)} settings)",
@@ -137,12 +138,18 @@ def main():
     # Ablation: each term off at the chosen setting (the others kept), and the ratio.
     lines += ["", "## Ablation (at the setting chosen on all; one change at a time)", "",
               "| setting | overall | " + " | ".join(cats) + " |", "|---|---:|" + "---:|" * len(cats)]
-    variants = [("chosen", chosen), ("w_sym = 0", MergeWeights.hand_set(symmetry=0.0, concavity=chosen.concavity, size=chosen.size, ratio=chosen.ratio)),
-                ("w_cav = 0", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=0.0, size=chosen.size, ratio=chosen.ratio)),
-                ("w_size = 0", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity, size=0.0, ratio=chosen.ratio))]
-    variants += [(f"ratio {r:g}", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity, size=chosen.size, ratio=r))
+    variants = [("chosen", chosen),
+                ("w_sym = 0", MergeWeights.hand_set(symmetry=0.0, concavity=chosen.concavity, size=chosen.size,
+                                                    ratio=chosen.ratio)),
+                ("w_cav = 0", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=0.0, size=chosen.size,
+                                                    ratio=chosen.ratio)),
+                ("w_size = 0", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity, size=0.0,
+                                                     ratio=chosen.ratio))]
+    variants += [(f"ratio {r:g}", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity,
+                                                        size=chosen.size, ratio=r))
                  for r in RATIOS if r != chosen.ratio]   # all cached ratios, also those not allowed
-    lines.append(f"| paper (no merging) | {overall(paper, cats):.4f} | " + " | ".join(f"{paper[c]:.3f}" for c in cats) + " |")
+    lines.append(f"| paper (no merging) | {overall(paper, cats):.4f} | "
+                 + " | ".join(f"{paper[c]:.3f}" for c in cats) + " |")
     for name, w in variants:
         t = tables.get(w) or category_table(meshes, w)
         lines.append(f"| {name} | {overall(t, cats):.4f} | " + " | ".join(f"{t[c]:.3f}" for c in cats) + " |")

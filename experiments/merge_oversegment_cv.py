@@ -133,13 +133,16 @@ def report(out: Path) -> str:
     lines = [f"{len(recs)} meshes ({', '.join(f'{c} {count[c]}' for c in LABELLED)})", "",
              "| category | half | " + " | ".join(names) + " |", "|---|---|" + "---:|" * len(names)]
     for c in present:
-        lines.append(f"| {c} | {'A' if c in HALF_A else 'B'} | " + " | ".join(f"{scores[n][c]:.4f}" for n in names) + " |")
+        lines.append(f"| {c} | {'A' if c in HALF_A else 'B'} | "
+                     + " | ".join(f"{scores[n][c]:.4f}" for n in names) + " |")
     for label, half in (("half A", half_a), ("half B", half_b), ("all", present)):
         lines.append(f"| **{label}** | | " + " | ".join(f"{half_mean(scores[n], half):.4f}" for n in names) + " |")
     # the first mesh of a run carries the process's warm-up in its first variant: left out
     secs = {n: sum(r[n + " s"] for r in recs[1:]) for n in names}
-    lines.append("| segmentation CPU s (all meshes but the first) | | " + " | ".join(f"{secs[n]:.0f}" for n in names) + " |")
-    lines += ["", "| variant | half A: change vs default | categories better | half B: change vs default | categories better |",
+    lines.append("| segmentation CPU s (all meshes but the first) | | "
+                 + " | ".join(f"{secs[n]:.0f}" for n in names) + " |")
+    lines += ["", "| variant | half A: change vs default | categories better "
+                  "| half B: change vs default | categories better |",
               "|---|---:|---:|---:|---:|"]
     for n in names:
         cells = []

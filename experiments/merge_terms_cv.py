@@ -134,7 +134,9 @@ def main():
                        part_size=0.0, convexity=0.0, cut=0.0, crease_angle=math.pi)
 
     def with_(w, **kw):
-        d = dict(vars(w)); d.update(kw); return MergeWeights(**d)
+        d = dict(vars(w))
+        d.update(kw)
+        return MergeWeights(**d)
     base = old
     # stage 1: ratio x concavity weight (the former terms)
     best = run([with_(old, concavity=c, ratio=r) for r in ratios for c in (4.0, 8.0, 16.0, 32.0)] + [base])
@@ -163,7 +165,8 @@ def main():
             held[c] = tables[w][c]
     chosen = min(grid, key=lambda w: (overall(tables[w], cats), repr(w)))
     L = ["# Part merging v2 (issue 12): more ratios and cost terms, cross-validated across categories", "",
-         f"- cache: {a.cache}, {len(ids)} meshes ({', '.join(f'{c} {sum(category_of(i) == c for i in ids)}' for c in cats)})",
+         f"- cache: {a.cache}, {len(ids)} meshes "
+         f"({', '.join(f'{c} {sum(category_of(i) == c for i in ids)}' for c in cats)})",
          "- protocol: by-segmentation 1-RI (faces counted), mesh = mean over its humans, category = mean over "
          "its meshes, overall = mean over categories; labels before the boundary refinement (isoline faces)",
          f"- {len(grid)} settings (coordinate search in 4 stages, see the script); folds: " +
@@ -197,7 +200,8 @@ def main():
         t = tables.get(w) or table(w)
         L.append(f"| {n} | {overall(t, cats):.4f} | " + " | ".join(f"{t[c]:.3f}" for c in cats) + " |")
     L += ["", "## Best 12 on all", "", "| setting | overall |", "|---|---:|"]
-    L += [f"| {fmt(w)} | {overall(tables[w], cats):.4f} |" for w in sorted(grid, key=lambda w: overall(tables[w], cats))[:12]]
+    L += [f"| {fmt(w)} | {overall(tables[w], cats):.4f} |"
+          for w in sorted(grid, key=lambda w: overall(tables[w], cats))[:12]]
     Path(a.out).write_text("\n".join(L) + "\n")
     print("\n".join(L))
     print(f"total {time.perf_counter() - t0:.0f} s")

@@ -50,8 +50,8 @@ def cache_mesh(entry, out: Path, coarse_faces: int, seed: int = 0, ratios=RATIOS
     timing = {"akvf": time.perf_counter() - t0, "untangle": 0.0, "segment": {}}
     dual = dual_edges(mesh.vertices, mesh.faces)
     area = face_areas(mesh.vertices, mesh.faces)
-    data = {"faces": mesh.faces.astype(np.int32), "vertices": mesh.vertices, "pairs": dual.pairs.astype(np.int32), "length": dual.length, "dihedral": dual.dihedral,
-            "area": area, "ks": np.array(ks)}
+    data = {"faces": mesh.faces.astype(np.int32), "vertices": mesh.vertices, "pairs": dual.pairs.astype(np.int32),
+            "length": dual.length, "dihedral": dual.dihedral, "area": area, "ks": np.array(ks)}
     unts = {}
     for k in ks:
         ns = field_counts(fields, [k])

@@ -35,14 +35,16 @@ def separation(rows: list[dict]) -> list[str]:
     for key in ("negative_fraction", "below_floor_fraction", "min_angle_deg", "max_angle_defect"):
         for_none = [float(r[key]) for r in rows if r["auto"] == "none"]
         for_smooth = [float(r[key]) for r in rows if r["auto"] == "smooth"]
-        out.append(f"| {key} | {min(for_none):.4g} .. {max(for_none):.4g} | {min(for_smooth):.4g} .. {max(for_smooth):.4g} |")
+        out.append(f"| {key} | {min(for_none):.4g} .. {max(for_none):.4g} "
+                   f"| {min(for_smooth):.4g} .. {max(for_smooth):.4g} |")
     return out + [""]
 
 
 def cost(rows: list[dict]) -> list[str]:
     psb = [r for r in rows if r["category"] != "builtin"]
     tot = {k: sum(float(r[k]) for r in psb) for k in ("seconds_none", "seconds_auto", "seconds_smooth")}
-    return [f"Operator assembly summed over the {len(psb)} PSB meshes, one process: \"none\" {tot['seconds_none']:.1f} s, "
+    return [f"Operator assembly summed over the {len(psb)} PSB meshes, one process: "
+            f"\"none\" {tot['seconds_none']:.1f} s, "
             f"\"smooth\" {tot['seconds_smooth']:.1f} s, \"auto\" {tot['seconds_auto']:.1f} s "
             f"(auto / smooth = {tot['seconds_auto'] / tot['seconds_smooth']:.2f}).", ""]
 

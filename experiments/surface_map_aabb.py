@@ -72,7 +72,8 @@ def main():
         tot[0] += best["samples"]
         tot[1] += best["aabb"]
         rows.append(f"| {mid} | {len(fine.faces):,} | {len(pts):,} | {best['samples'] * 1e3:.0f} | "
-                    f"{best['aabb'] * 1e3:.0f} | {best['samples'] / best['aabb']:.2f}x | {int(diff.sum())} | {gap:.1e} |")
+                    f"{best['aabb'] * 1e3:.0f} | {best['samples'] / best['aabb']:.2f}x | {int(diff.sum())} | "
+                    f"{gap:.1e} |")
         print(rows[-1], flush=True)
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     text = "\n".join([

@@ -3,7 +3,8 @@
 ``--repeat`` interleaved calls, the plan's own estimate, and that the two factors are the same
 bit for bit (their solves of the same right-hand sides compared).
 
-    PYTHONPATH=$PWD nice python3 experiments/two_thread_factor.py --repeat 7 --out experiments/results/two_thread_factor.md
+    PYTHONPATH=$PWD nice python3 experiments/two_thread_factor.py --repeat 7 \\
+        --out experiments/results/two_thread_factor.md
 """
 from __future__ import annotations
 
@@ -57,7 +58,8 @@ def main() -> None:
                     f"{best[1] / best[2]:.2f} | {same} |")
         print(rows[-1], flush=True)
     lines = ["# The interior-shift factor on one and two threads", "",
-             f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; torch {torch.__version__}, {os.cpu_count()} CPUs "
+             f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; torch {torch.__version__}, "
+             f"{os.cpu_count()} CPUs "
              f"(shared with other jobs: wall times are best of {a.repeat} interleaved calls); σ = "
              f"{INTERIOR_SHIFT_PER_PAIR:g} x {a.n}; `experiments/two_thread_factor.py`",
              "- plan: the subtrees' estimated speed-up (Σ column count² per thread, the rows above after both); "

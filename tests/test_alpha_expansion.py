@@ -31,7 +31,8 @@ def test_min_cut_sink_side_is_the_smallest_sink_side_of_the_minimum_cuts(seed):
     rng = np.random.default_rng(seed)
     m = 6
     src, sink = rng.integers(0, 4, m), rng.integers(0, 4, m)
-    i, j = np.array([(a, b) for a in range(m) for b in range(a + 1, m) if rng.random() < 0.5], dtype=np.int64).reshape(-1, 2).T
+    pairs = [(a, b) for a in range(m) for b in range(a + 1, m) if rng.random() < 0.5]
+    i, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
     cap = rng.integers(0, 4, len(i))
     cuts = {}
     for bits in itertools.product([False, True], repeat=m):       # True: on the sink side

@@ -50,9 +50,11 @@ def test_batches_of_several_workers_balance_the_work_under_the_budget():
     # the lightest) 500, 0 -> C (400) 500
     assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=2)) == [[5], [4], [0, 3], [1, 2]]
     # never more batches than meshes
-    assert sorted(ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=4))) == [[i] for i in range(6)]
+    assert (sorted(ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=4)))
+            == [[i] for i in range(6)])
     # None: one mesh per batch, whatever the budget; heaviest first (each into an empty batch)
-    assert ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=None)) == [[i] for i in (5, 4, 3, 2, 1, 0)]
+    assert (ids(make_batches(p, faces, 10 ** 6, workers=2, work_of=work, per_worker=None))
+            == [[i] for i in (5, 4, 3, 2, 1, 0)])
     # ... but one worker keeps the budget's consecutive batches (nothing to share)
     assert ids(make_batches(p, faces, 10 ** 6, workers=1, work_of=work, per_worker=None)) == [list(range(6))]
 

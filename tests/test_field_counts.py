@@ -25,7 +25,8 @@ def test_field_counts_follow_the_floor(monkeypatch):
     assert field_counts.default_n_fields(2, "merge", 7) == 24 == field_counts.default_n_fields(7, "merge", 1)
     assert field_counts.default_n_fields(12, "merge", 7) == 32
     # min_k None: the default MergeWeights' (8) with method merge, 1 with the paper's 2k
-    assert field_counts.default_n_fields(2, "merge") == 24 and field_counts.akvf_count([[2]]) == 24 + options.SPARE_FIELDS
+    assert (field_counts.default_n_fields(2, "merge") == 24
+            and field_counts.akvf_count([[2]]) == 24 + options.SPARE_FIELDS)
     assert [field_counts.default_n_fields(k, "paper") for k in (2, 8, 9, 11, 17)] == [16, 16, 18, 22, 32]
     assert field_counts.akvf_count([[2, 3]], None, "merge", 1) == 16 + options.SPARE_FIELDS
     monkeypatch.setitem(options.FIELDS_STEP, "merge", 1)
@@ -46,7 +47,8 @@ def test_default_field_counts_by_method(fields):
     lam = fields.eigenvalues.detach().cpu()
     for method in ("paper", "merge"):
         n = field_counts.default_n_fields(7, method)
-        want = [field_counts.cluster_safe_n(lam[b], n, floor=max(8 if method == "merge" else 7, n // 2)) for b in range(2)]
+        floor = max(8 if method == "merge" else 7, n // 2)
+        want = [field_counts.cluster_safe_n(lam[b], n, floor=floor) for b in range(2)]
         assert field_counts.field_counts(fields, 7, method=method) == want
     rnd = next(rounds.segment_rounds(fields, 7, options.SegmentOptions(refine=False, kmeans_restarts=1)))
     assert [int(n) for n in rnd.untangled.n_fields] == field_counts.field_counts(fields, 7)

@@ -88,7 +88,8 @@ def _mutate_text(data: bytes, rng) -> bytes:
         j = int(rng.integers(len(lines)))
         lines[i], lines[j] = lines[j], lines[i]
     elif kind == 4:                                # a count off by one
-        return re.sub(rb"\d+", lambda m: str(int(m.group()) + int(rng.choice([-1, 1]))).encode(), data, count=1 + int(rng.integers(3)))
+        return re.sub(rb"\d+", lambda m: str(int(m.group()) + int(rng.choice([-1, 1]))).encode(), data,
+                      count=1 + int(rng.integers(3)))
     elif kind == 5:                                # truncated
         return data[:int(rng.integers(len(data)))]
     elif kind == 6:                                # lines cut out of the middle (a face subset)
@@ -139,7 +140,8 @@ def test_mutated_files_are_read_whole_or_refused_in_one_line(tmp_path, fmt, seed
     ext = fmt.split(".")[-1]
     read = refused = 0
     for n in range(PER_FORMAT):
-        data = _mutate_text(source, rng) if _text_part(fmt, source) or rng.random() < 0.2 else _mutate_binary(source, rng)
+        data = (_mutate_text(source, rng) if _text_part(fmt, source) or rng.random() < 0.2
+                else _mutate_binary(source, rng))
         if fmt.startswith("bin.") and rng.random() < 0.3:       # a mutated header line
             end = source.find(b"end_header")
             data = _mutate_text(data[:end], rng) + data[end:] if end > 0 else data

@@ -105,7 +105,8 @@ BAD = {
     "draco": (b'{"asset": {"version": "2.0"}, "extensionsRequired": ["KHR_draco_mesh_compression"]}',
               r"needs extension KHR_draco_mesh_compression"),
     "no_triangles": (b'{"asset": {"version": "2.0"}, "nodes": []}', r"no triangles found"),
-    "missing_mesh": (b'{"asset": {"version": "2.0"}, "nodes": [{"mesh": 3}]}', r"node 0 refers to mesh 3, the file has 0 meshes"),
+    "missing_mesh": (b'{"asset": {"version": "2.0"}, "nodes": [{"mesh": 3}]}',
+                     r"node 0 refers to mesh 3, the file has 0 meshes"),
 }
 
 

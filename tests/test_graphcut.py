@@ -353,9 +353,9 @@ def test_engines_give_the_same_labels(seed, k):
     allowed = allowed_labels(labels, dual.pairs, k, 3)
     unary = np.where(allowed, dist, 10.0)
     for cycles in (1, 2):
-        np.testing.assert_array_equal(potts_expansion(unary, dual.pairs, 0.5 * np.ones(len(dual.pairs)), cycles, allowed),
-                                      potts_expansion(unary, dual.pairs, 0.5 * np.ones(len(dual.pairs)), cycles, allowed,
-                                                      engine="gco"))
+        np.testing.assert_array_equal(
+            potts_expansion(unary, dual.pairs, 0.5 * np.ones(len(dual.pairs)), cycles, allowed),
+            potts_expansion(unary, dual.pairs, 0.5 * np.ones(len(dual.pairs)), cycles, allowed, engine="gco"))
 
 
 @pytest.mark.parametrize("seed", range(3))

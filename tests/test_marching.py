@@ -22,7 +22,8 @@ def _topology(v, f):
     directed = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     tri = v[f]
     volume = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6
-    return bool(np.all(count == 2)), len(np.unique(directed, axis=0)) == len(directed), volume, len(v) - len(count) + len(f)
+    return (bool(np.all(count == 2)), len(np.unique(directed, axis=0)) == len(directed), volume,
+            len(v) - len(count) + len(f))
 
 
 def _quality(v, f):

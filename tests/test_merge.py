@@ -120,9 +120,13 @@ def _adjacent_label_pairs(labels, faces):
     return {(int(x), int(y)) for x, y in zip(a, b) if x != y}
 
 
-@pytest.mark.parametrize("k,weights", [(1, MergeWeights.hand_set(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
-                                       (2, MergeWeights.hand_set(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
-                                       (4, MergeWeights.hand_set(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)),
+# the symmetry, concavity and size terms alone
+_THREE_TERMS = dict(symmetry=1.0, concavity=1.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)
+
+
+@pytest.mark.parametrize("k,weights", [(1, MergeWeights.hand_set(**_THREE_TERMS)),
+                                       (2, MergeWeights.hand_set(**_THREE_TERMS)),
+                                       (4, MergeWeights.hand_set(**_THREE_TERMS)),
                                        (3, MergeWeights.hand_set(convexity=2.0, cut=1.0, part_size=0.3,
                                                         crease_angle=0.5)),
                                        (3, MergeWeights()), (2, MergeWeights(crease_angle=0.5))])

@@ -90,12 +90,15 @@ def test_shifted_and_truncated_ascii_ply_refused(tmp_path, sphere):
 
 
 BAD_FILES = {
-    "out_of_range_ply": ("oor.ply", _ascii(3, 1, _TRI + "3 0 1 5\n"), r"face 0 \(line 13\) has vertex index 5 outside 0\.\.2"),
+    "out_of_range_ply": ("oor.ply", _ascii(3, 1, _TRI + "3 0 1 5\n"),
+                         r"face 0 \(line 13\) has vertex index 5 outside 0\.\.2"),
     "negative_index": ("neg.ply", _ascii(3, 1, _TRI + "3 0 -1 2\n"), r"index -1 outside 0\.\.2"),
-    "quad": ("quad.ply", _ascii(4, 1, _TRI + "1 1 0\n4 0 1 2 3\n"), r"face 0 \(line 14\) has 4 vertices; only triangle"),
+    "quad": ("quad.ply", _ascii(4, 1, _TRI + "1 1 0\n4 0 1 2 3\n"),
+             r"face 0 \(line 14\) has 4 vertices; only triangle"),
     "short_face": ("short.ply", _ascii(3, 1, _TRI + "3 0 1\n"), r"line 13 \(face 0\) ends before"),
     "long_face": ("long.ply", _ascii(3, 1, _TRI + "3 0 1 2 2\n"), r"line 13 \(face 0\) holds 5 numbers"),
-    "word": ("word.ply", _ascii(3, 1, "0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n"), r"line 11 \(vertex 1\): 'zero' is not a number"),
+    "word": ("word.ply", _ascii(3, 1, "0 0 0\n1 zero 0\n0 1 0\n3 0 1 2\n"),
+             r"line 11 \(vertex 1\): 'zero' is not a number"),
     "float_index": ("fi.ply", _ascii(3, 1, _TRI + "3 0 1 2.5\n"), r"'2.5' \(vertex_indices\) is not an integer"),
     "nan": ("nan.ply", _ascii(3, 1, "0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n"), r"NaN or infinite"),
     "garbage_ply": ("garbage.ply", _RNG_BYTES, r"missing the 'ply' header"),
@@ -155,7 +158,8 @@ def test_a_wild_list_length_is_truncation_not_a_huge_read(tmp_path):
             b"property list uchar int vertex_indices\nend_header\n")
     body = struct.pack("<fffI", 0, 0, 0, 0xFFFFFFFF) + b"\0" * 40
     assert_refused(write_file(tmp_path / "w.ply", head + body),
-                   r"truncated: header declares 1 vertex elements, the data ends inside vertex 0 .*\(its list 'foo' says 4294967295 items\)")
+                   r"truncated: header declares 1 vertex elements, the data ends inside vertex 0 "
+                   r".*\(its list 'foo' says 4294967295 items\)")
 
 
 def test_faces_with_lists_of_varying_length_are_walked(tmp_path, sphere):

@@ -50,7 +50,8 @@ def test_pyg_transform_round_trip():
     assert fields_only.akvf_descriptors.shape == (len(s.faces), 11)
     # the face order of the Data is the order of the features
     perm = np.random.default_rng(0).permutation(len(s.faces))
-    shuffled = AKVFFeatures(n=N, raw_norms=True, remedy="smooth")(Data(pos=pos.clone(), face=face[:, perm].clone(), y=torch.tensor([1])))
+    shuffled = AKVFFeatures(n=N, raw_norms=True, remedy="smooth")(
+        Data(pos=pos.clone(), face=face[:, perm].clone(), y=torch.tensor([1])))
     np.testing.assert_allclose(shuffled.akvf_face_features.numpy(),
                                out.akvf_face_features.numpy()[perm], rtol=1e-4, atol=1e-5)
     # batching: per-face rows concatenate, graph-level eigenvalues stack

@@ -37,7 +37,9 @@ def fake_pytorch3d(monkeypatch):
 
 
 def _two_meshes():
-    a, b = shapes.icosphere(level=1), shapes.torus(n_major=12, n_minor=8) if "n_minor" in shapes.torus.__code__.co_varnames else shapes.torus(n_major=12)
+    a = shapes.icosphere(level=1)
+    b = (shapes.torus(n_major=12, n_minor=8) if "n_minor" in shapes.torus.__code__.co_varnames
+         else shapes.torus(n_major=12))
     return [a, b]
 
 

@@ -90,8 +90,10 @@ def _rasterize_by_sorting(xy, depth, faces, width, height):
     for fi, (a, b, c) in enumerate(faces):
         (x0, y0), (x1, y1), (x2, y2) = xy[a], xy[b], xy[c]
         det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-        lo = np.clip(np.floor(np.minimum(np.minimum(xy[a], xy[b]), xy[c]) - 0.5).astype(int) + 1, 0, [width - 1, height - 1])
-        hi = np.clip(np.floor(np.maximum(np.maximum(xy[a], xy[b]), xy[c]) - 0.5).astype(int), -1, [width - 1, height - 1])
+        lo = np.clip(np.floor(np.minimum(np.minimum(xy[a], xy[b]), xy[c]) - 0.5).astype(int) + 1,
+                     0, [width - 1, height - 1])
+        hi = np.clip(np.floor(np.maximum(np.maximum(xy[a], xy[b]), xy[c]) - 0.5).astype(int),
+                     -1, [width - 1, height - 1])
         if abs(det) <= 1e-12:
             continue
         for py in range(lo[1], hi[1] + 1):

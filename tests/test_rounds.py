@@ -136,7 +136,8 @@ def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
 
 def test_reused_clustering_is_the_recomputed_one(blobs):
     """A round served from the kept clustering equals k-means run again on its features."""
-    opts = options.SegmentOptions(merge=MergeWeights(min_k=4), **{k: v for k, v in FAST.items() if k != "untangle_restarts"})
+    opts = options.SegmentOptions(merge=MergeWeights(min_k=4),
+                                  **{k: v for k, v in FAST.items() if k != "untangle_restarts"})
     made = list(rounds.segment_rounds(blobs, [[3, 2]], opts))
     unt = made[1].untangled
     from torchakvf.mesh.batch import pad_packed

@@ -185,7 +185,8 @@ def test_peek_face_count(tmp_path):
     got = {p.name: ta.io.peek_face_count(p) for p in sorted(tmp_path.iterdir())}
     assert got == {"a.off": 2, "b.off": 7, "c.off.gz": 1, "d.ply": 5, "e.obj": 2, "f.stl": 3, "g.off.gz": 9}
     # An unparsable header is an error naming the file, never a guess ("1 face").
-    for name, data, problem in [("bad.off", b"\xff\x00", "not a text OFF"), ("noff.off", b"4 2 0\n", "missing the 'OFF' header"),
+    for name, data, problem in [("bad.off", b"\xff\x00", "not a text OFF"),
+                                ("noff.off", b"4 2 0\n", "missing the 'OFF' header"),
                                 ("counts.off", b"OFF\nfour two zero\n", "bad counts line"),
                                 ("short.off", b"OFF\n", "missing the 'n_vertices"),
                                 ("bin.off", b"OFF\n\xff\xfe 3\n", "not a text OFF"),

@@ -113,7 +113,8 @@ def test_frames_move_solids_rigidly():
     sdf.Frustum((0, 0, 0), (0, 1, 1), 0.5, 0.2),
     sdf.Torus(center=(0, 0, 1), rotation=sdf.rotation((1, 0, 0), 0.5), major=1.0, minor=0.2),
     sdf.Extrusion(rotation=sdf.rotation((0, 1, 0), 0.4), polygon=((0, 0), (1, 0), (0, 1)), half_height=0.1),
-    sdf.Revolved(center=(0, 0, -1), rotation=sdf.rotation((1, 1, 0), 0.9), profile=((0, 0), (0.5, 0), (0.2, 1), (0, 1))),
+    sdf.Revolved(center=(0, 0, -1), rotation=sdf.rotation((1, 1, 0), 0.9),
+                 profile=((0, 0), (0.5, 0), (0.2, 1), (0, 1))),
 ])
 def test_bounds_hold_the_solid(solid):
     lo, hi = solid.bounds()

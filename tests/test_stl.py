@@ -52,7 +52,8 @@ def _ascii(body):
 BAD_FILES = {
     "truncated_binary": ("tb.stl", None, r"truncated: header says 80 triangles, file has room for 79"),
     "binary_tail": ("bt.stl", None, r"7 bytes past the 80 triangles the header says"),
-    "short_binary": ("sb.stl", b"\x01\x02" * 20, r"truncated: a binary STL starts with an 84-byte header, the file has 40 bytes"),
+    "short_binary": ("sb.stl", b"\x01\x02" * 20,
+                     r"truncated: a binary STL starts with an 84-byte header, the file has 40 bytes"),
     "garbage_stl": ("garbage.stl", _RNG_BYTES, r"truncated: header says \d+ triangles, file has room for 10"),
     "quad_facet": ("q.stl", _ascii(_FACET.replace("endloop", "  vertex 1 1 0\n endloop")),
                    r"facet 0 \(line 2\) has 4 vertices; only triangles"),
@@ -63,7 +64,8 @@ BAD_FILES = {
     "word": ("w.stl", _ascii(_FACET.replace("vertex 1 0 0", "vertex 1 x 0")), r"facet 0: 'x' is not a number"),
     "stray_line": ("s.stl", _ascii(_FACET.replace(" endloop", " color 1\n endloop")),
                    r"line 7: 'color 1' where the STL grammar expects 'endloop' or 'vertex' \(facet 0\)"),
-    "short_vertex": ("sv.stl", _ascii(_FACET.replace("vertex 1 0 0", "vertex 1 0")), r"line 5: vertex of facet 0 does not hold 3"),
+    "short_vertex": ("sv.stl", _ascii(_FACET.replace("vertex 1 0 0", "vertex 1 0")),
+                     r"line 5: vertex of facet 0 does not hold 3"),
     "no_facets": ("e.stl", "solid t\nendsolid t\n", r"no triangles found"),
     "zero_binary": ("z.stl", b"\0" * 84, r"empty mesh"),
 }

@@ -13,7 +13,8 @@ from torchakvf.errors import ParameterError
 from torchakvf.mesh.surface_map import SurfaceIndex, closest_barycentric, libigl_available, locate_on_surface
 
 #: The closest-point searches of SurfaceIndex; "aabb" needs libigl.
-SEARCHES = ["samples", pytest.param("aabb", marks=pytest.mark.skipif(not libigl_available(), reason="libigl is not installed"))]
+SEARCHES = ["samples", pytest.param("aabb", marks=pytest.mark.skipif(not libigl_available(),
+                                                                    reason="libigl is not installed"))]
 
 
 def _brute_force_closest(vertices, faces, points):

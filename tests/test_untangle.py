@@ -32,7 +32,8 @@ def test_rotations_of_a_subset_are_the_batch_untangling_bits(fields):
         assert torch.equal(rots[b].rotation, whole.rotation[b, :ns[b], :ns[b]].double())
         assert rots[b].score == float(whole.score[b])
         assert rots[b].restart_scores.shape == (4,)
-        assert rots[b].score == float(rots[b].restart_scores[best_restart(rots[b].restart_scores[None], largest=True)[0]])
+        best = best_restart(rots[b].restart_scores[None], largest=True)[0]
+        assert rots[b].score == float(rots[b].restart_scores[best])
         # the mesh's own edges alone (no padding rows of the batch): the same bits
         e0, e1 = int(fields.batch.edge_ptr[b]), int(fields.batch.edge_ptr[b + 1])
         y = fields.forms[e0:e1, :ns[b]].double() * fields.system.mass[e0:e1].double().sqrt()[:, None]

@@ -149,8 +149,8 @@ def collate_packed(items: list[dict]) -> dict:
 
     ``vertices`` [ΣV, 3], ``faces`` [ΣF, 3] with *global* vertex indices (mesh b's shifted by
     ``vert_ptr[b]``), ``features``/``akvf_norms`` [ΣF, n] (``descriptors`` [ΣF, d] and
-    ``face_vectors`` [ΣF, n, 3] when every item has them), ``vert_ptr``/``face_ptr`` [B+1] int64 offsets, ``face_to_mesh`` [ΣF],
-    ``eigenvalues``/``residuals`` [B, n], ``names`` list of B.
+    ``face_vectors`` [ΣF, n, 3] when every item has them), ``vert_ptr``/``face_ptr`` [B+1] int64
+    offsets, ``face_to_mesh`` [ΣF], ``eigenvalues``/``residuals`` [B, n], ``names`` list of B.
     """
     if not items:
         raise ValueError("collate_packed needs at least one item")

@@ -178,8 +178,8 @@ class MeshRotation:
     restart_scores: torch.Tensor
 
 
-def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = DEFAULT_RESTARTS, seed: int = 0, tol: float = 1e-6,
-                       max_iter: int = 500, iteration_dtype: torch.dtype = torch.float32) -> dict:
+def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = DEFAULT_RESTARTS, seed: int = 0,
+                       tol: float = 1e-6, max_iter: int = 500, iteration_dtype: torch.dtype = torch.float32) -> dict:
     """Algorithm 1 for some meshes of the batch: ns {mesh index b: n_b} -> {b: :class:`MeshRotation`}.
 
     A mesh's rotation depends on its own fields, n_b and the seed alone, so a caller can keep

@@ -234,7 +234,8 @@ def _expand(unary: np.ndarray, e: np.ndarray, w: np.ndarray, cycles: int,
     try:
         g.set_data_cost(np.ascontiguousarray(unary, dtype=np.intc))
         if len(e):
-            g.set_all_neighbors(np.ascontiguousarray(e[:, 0], dtype=np.intc), np.ascontiguousarray(e[:, 1], dtype=np.intc),
+            g.set_all_neighbors(np.ascontiguousarray(e[:, 0], dtype=np.intc),
+                                np.ascontiguousarray(e[:, 1], dtype=np.intc),
                                 np.ascontiguousarray(w, dtype=np.intc))
         g.set_smooth_cost(np.ascontiguousarray(1 - np.eye(k), dtype=np.intc))
         if initial is not None:
@@ -350,4 +351,5 @@ def _restore_parts(own: np.ndarray, new: np.ndarray, area: np.ndarray, k: int, m
     return new
 
 
-__all__ = ["GraphCut", "CornerMeans", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights", "allowed_labels"]
+__all__ = ["GraphCut", "CornerMeans", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights",
+           "allowed_labels"]

@@ -378,4 +378,5 @@ def cut_mesh_rounds(job: MeshCutJob, opts: SegmentOptions):
         yield k, cut_parts(job.batch, job.fields, unt, km, 0, k, opts, cache)
 
 
-__all__ = ["mesh_cut_job", "cut_mesh_rounds", "MeshCutJob", "segment_rounds", "round_plan", "RoundPlan", "KRound", "MeshClustering", "previous_centroids", "PAD_K"]
+__all__ = ["mesh_cut_job", "cut_mesh_rounds", "MeshCutJob", "segment_rounds", "round_plan", "RoundPlan", "KRound",
+           "MeshClustering", "previous_centroids", "PAD_K"]

@@ -55,7 +55,8 @@ def table(h: float = 0.05) -> Shape:
     Closed genus-0 mesh (about 4,000 faces); ``part_labels`` 0 = slab, 1..4 = legs;
     ``n_parts`` 5. The slab's flat faces are what k-means cuts into stripes.
     """
-    nx, ny, nz_leg, nz_top, w = round(1.6 / h), round(1.0 / h), round(0.7 / h), max(round(0.1 / h), 1), max(round(0.15 / h), 1)
+    nx, ny, nz_leg = round(1.6 / h), round(1.0 / h), round(0.7 / h)
+    nz_top, w = max(round(0.1 / h), 1), max(round(0.15 / h), 1)
     occ = np.zeros((nx, ny, nz_leg + nz_top), dtype=bool)
     part = np.zeros(occ.shape, dtype=np.int64)
     occ[:, :, nz_leg:] = True

@@ -49,7 +49,8 @@ def marching_tetrahedra(sdf, lo, hi, h: float, clamp: float = 0.0,
     tets = corner[:, _TETS].reshape(-1, 4)
     inside = val[tets] < 0
     count = inside.sum(1)
-    tets, inside, count = tets[(count > 0) & (count < 4)], inside[(count > 0) & (count < 4)], count[(count > 0) & (count < 4)]
+    crossed = (count > 0) & (count < 4)
+    tets, inside, count = tets[crossed], inside[crossed], count[crossed]
     tris, outward = [], []
     # One corner apart (1 or 3 inside): a triangle on its three edges.
     one = (count == 1) | (count == 3)

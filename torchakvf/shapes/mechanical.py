@@ -226,7 +226,8 @@ def chair(rng) -> Design:
         return Design(parts, min(st, 2 * lw), 0.0, params={"style": "stool", "legs": n, "seat_height": sh})
     sw, sd, st, sh = uniform(rng, 0.4, 0.6), uniform(rng, 0.4, 0.6), uniform(rng, 0.04, 0.1), uniform(rng, 0.4, 0.55)
     lw, inset = uniform(rng, 0.018, 0.045), uniform(rng, 0.0, 0.05)
-    parts = [("seat", Box(center=(0, 0, sh - st / 2), half=(sw / 2, sd / 2, st / 2), rounding=uniform(rng, 0, 0.4) * st))]
+    parts = [("seat", Box(center=(0, 0, sh - st / 2), half=(sw / 2, sd / 2, st / 2),
+                          rounding=uniform(rng, 0, 0.4) * st))]
     bh, bt, tilt = uniform(rng, 0.3, 0.6), uniform(rng, 0.03, 0.07), np.radians(uniform(rng, 0, 15))
     bw = sw - uniform(rng, 0, 0.12)
     tilt_rot = rotation((1, 0, 0), tilt)

@@ -90,9 +90,9 @@ def quadruped(rng) -> Design:
     thin = 2 * 0.7 * lr
     if rng.random() < 0.65:
         tr = uniform(rng, 0.045, 0.08)
-        tail = _posed(rng, lambda r: limb((-0.85 * a, 0, 0.2 * c), (-1, 0, uniform(r, -0.8, 0.8)), [uniform(r, 0.15, 0.3)] * 3,
-                                          [tr, 0.8 * tr, 0.65 * tr, 0.5 * tr], [0, uniform(r, -0.5, 0.5), uniform(r, -0.5, 0.5)],
-                                          (0, 1, 0)),
+        tail = _posed(rng, lambda r: limb((-0.85 * a, 0, 0.2 * c), (-1, 0, uniform(r, -0.8, 0.8)),
+                                          [uniform(r, 0.15, 0.3)] * 3, [tr, 0.8 * tr, 0.65 * tr, 0.5 * tr],
+                                          [0, uniform(r, -0.5, 0.5), uniform(r, -0.5, 0.5)], (0, 1, 0)),
                       lambda t: apart([t] + legs, max(0.5 * tr, blend)) and clear_of(body, t, max(0.3 * tr, blend)))
         parts.append(("tail", tail))
         thin = min(thin, 2 * 0.65 * tr)        # the last cone's start; its tip may thin out
