@@ -89,7 +89,7 @@ class MergeWeights:
     The default is a learned merge decision: the weights of the pair terms
     (:func:`~torchakvf.parts.merge_terms.pair_terms`) and ``intercept`` are a logistic regression
     of "the two adjacent parts lie in one part people cut" on the 15 labelled PSB categories
-    (experiments/train_merge.py), and the cost is the expected change of the Rand disagreement
+    (experiments/segmentation/train_merge.py), and the cost is the expected change of the Rand disagreement
     with the size exponent ``rand_gamma`` chosen by leave-one-category-out (see
     docs/design.md). ``MergeWeights.hand_set()`` gives the hand-set cost (symmetry 1,
     concavity 16, convexity 4, boundary share 0.25, no size terms, the weighted sum as cost)."""

@@ -1,7 +1,7 @@
 """Summarise remedy_criterion.py's CSVs (decimated as eval solves, and full resolution) as the
 markdown tables of experiments/results/remedy_choice.md.
 
-    python3 experiments/remedy_criterion_report.py /tmp/remedy_auto.csv /tmp/remedy_auto_full.csv
+    python3 experiments/solver/remedy_criterion_report.py /tmp/remedy_auto.csv /tmp/remedy_auto_full.csv
 """
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ k-means, cutting the parts (``cut_parts``), and the total. ``--report`` interlea
 script for each ``--code`` directory in turn (``--rounds`` times, alternating which goes first),
 keeps each stage's best round and writes a table.
 
-    python3 experiments/segment_profile.py --code /path/to/old /path/to/new --rounds 2 \\
+    python3 experiments/pipeline/segment_profile.py --code /path/to/old /path/to/new --rounds 2 \\
         --report experiments/results/segment_profile.md
 """
 from __future__ import annotations
@@ -104,7 +104,7 @@ def report(codes: list[Path], rounds: int, psb: Path, out: Path) -> None:
     lines = ["# Where a segmentation's time goes, by stage: two versions side by side", "",
              f"- versions: {', '.join(f'`{c}`' for c in codes)}; {rounds} rounds, alternating which goes first, "
              "each stage's best round; process CPU seconds (cProfile on process time, one thread), summed over "
-             "the meshes (`experiments/segment_profile.py`)",
+             "the meshes (`experiments/pipeline/segment_profile.py`)",
              "- a stage is the cumulative time of the functions doing it; 'operator' includes the remedy "
              "decision, 'AKVFs in all' the operator, factors and solve, and the stages nest, so they do not add up", ""]
     for label, coarse, ks, ids in PROFILE:

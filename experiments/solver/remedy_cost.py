@@ -2,7 +2,7 @@
 k = 6) with remedy "smooth" and with "auto" (the default), alternating in one process; the
 summed wall time of each and their ratio.
 
-    PYTHONPATH=$PWD nice python3 experiments/remedy_cost.py --ids 3,23,63,83,123,163,183,223 --repeats 2
+    PYTHONPATH=$PWD nice python3 experiments/solver/remedy_cost.py --ids 3,23,63,83,123,163,183,223 --repeats 2
 """
 from __future__ import annotations
 

@@ -17,12 +17,12 @@ alternation (:data:`HALF_A`, :data:`HALF_B`, written before any result was seen)
 least mean 1-RI on half A is reported on half B and the other way round; a variant replaces the
 default only if both halves choose it and both held-out halves improve. The held-back categories
 (Table, Bird, Bearing, FourLeg) are never run. The merge weights themselves were fitted on all 15
-categories (experiments/train_merge.py) and are not refitted per variant, so absolute scores are
+categories (experiments/segmentation/train_merge.py) and are not refitted per variant, so absolute scores are
 in-sample for the weights; the held-out comparison is of the variants' differences.
 
-    PYTHONPATH=$PWD nice -n 10 python3 experiments/merge_oversegment_cv.py run --out /tmp/q37/h6 \
+    PYTHONPATH=$PWD nice -n 10 python3 experiments/segmentation/merge_oversegment_cv.py run --out /tmp/q37/h6 \
         --per-category 3
-    PYTHONPATH=$PWD python3 experiments/merge_oversegment_cv.py report --out /tmp/q37/h6
+    PYTHONPATH=$PWD python3 experiments/segmentation/merge_oversegment_cv.py report --out /tmp/q37/h6
 
 (see experiments/results/merge_oversegment_cv.md for the meshes and variants of each pass).
 """
@@ -163,7 +163,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("action", choices=("run", "report"))
     ap.add_argument("--out", type=Path, required=True, help="one JSON of scores per mesh goes here")
-    ap.add_argument("--psb", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "psb")
+    ap.add_argument("--psb", type=Path, default=Path(__file__).resolve().parents[3] / "shared" / "psb")
     ap.add_argument("--per-category", type=int, default=None, help="first N meshes of each category")
     ap.add_argument("--ids", default=None, help="mesh ids, e.g. 7-9,27-29 (of the labelled categories)")
     ap.add_argument("--variants", default=",".join(VARIANTS))

@@ -1,5 +1,5 @@
 """Sweep the part-merging parameters on the cached PSB subset and cross-validate them across
-categories (issue 12). Reads experiments/quality_cache.py's files; writes a markdown report.
+categories (issue 12). Reads experiments/segmentation/quality_cache.py's files; writes a markdown report.
 
 Protocol: by-segmentation (each human segmentation is compared with the prediction at its own
 segment count); a mesh's score is the mean over its humans, a category's the mean over its
@@ -8,7 +8,7 @@ categories in 3 folds of 5 (category c in fold c mod 3, in PSB order); for each 
 parameters are chosen on the other 10 categories (held-in) and scored on the fold's 5
 (held-out). Every category is held out once; the held-out table is the CV estimate.
 
-    PYTHONPATH=$PWD python experiments/merge_method_cv.py --cache /tmp/quality_cache \
+    PYTHONPATH=$PWD python experiments/segmentation/merge_method_cv.py --cache /tmp/quality_cache \
         --out experiments/results/merge_method_cv.md
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Train the merge decision's weights on the 15 labelled PSB categories (the package's defaults).
 
-The logistic regression of experiments/merge_learned_cv.py ("the two adjacent parts lie in one
+The logistic regression of experiments/segmentation/merge_learned_cv.py ("the two adjacent parts lie in one
 human segment", soft target per human, on the states the default merge passes through, rows
 weighted by their Rand-index stake), fitted on every labelled mesh, and printed as the
 :class:`~torchakvf.options.MergeWeights` fields it sets (the cost weights are -beta; the
@@ -9,8 +9,8 @@ exponent chosen by leave-one-category-out, see experiments/results/merge_learned
 Its reported figures come from merge_learned_cv.py, which fits the same model once per held-out
 category on the other 14.
 
-    PYTHONPATH=$PWD nice python3 experiments/merge_capture.py --out /tmp/merge_capture --workers 2
-    PYTHONPATH=$PWD nice python3 experiments/train_merge.py --capture /tmp/merge_capture \
+    PYTHONPATH=$PWD nice python3 experiments/segmentation/merge_capture.py --out /tmp/merge_capture --workers 2
+    PYTHONPATH=$PWD nice python3 experiments/segmentation/train_merge.py --capture /tmp/merge_capture \
         --prep /tmp/merge_prep --gamma 0.5 --out experiments/results/merge_weights.json
 """
 from __future__ import annotations

@@ -2,7 +2,7 @@
 runs them (coarse 4000 faces, every human k): per mesh the AKVF solve once, then all its k's
 segmented with each weight set (alternating which goes first), one thread.
 
-    PYTHONPATH=$PWD nice python3 experiments/merge_time.py --ids 1,2,21,22,...
+    PYTHONPATH=$PWD nice python3 experiments/segmentation/merge_time.py --ids 1,2,21,22,...
 """
 from __future__ import annotations
 

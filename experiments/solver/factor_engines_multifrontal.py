@@ -18,7 +18,7 @@ a level, workspaces reused between factors.
 
 Usage::
 
-    python experiments/factor_engines_multifrontal.py [--leaf 16 32 64]
+    python experiments/solver/factor_engines_multifrontal.py [--leaf 16 32 64]
 """
 from __future__ import annotations
 

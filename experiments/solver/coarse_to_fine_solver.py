@@ -24,7 +24,7 @@ Per PSB mesh (cleaned, full resolution), one thread, process CPU time:
 
 Usage::
 
-    OMP_NUM_THREADS=1 python experiments/coarse_to_fine_solver.py --ids 1 21 121 181 301 \\
+    OMP_NUM_THREADS=1 python experiments/solver/coarse_to_fine_solver.py --ids 1 21 121 181 301 \\
         --out experiments/results/coarse_to_fine_solver.md
 """
 from __future__ import annotations
@@ -228,7 +228,7 @@ def report(rows: list[dict], args) -> str:
                f"coarse mesh {args.coarse} faces (n + 16 fields solved there); process CPU time, "
                f"torch threads {torch.get_num_threads()}, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', '-')}")
     out.append(f"- torch {torch.__version__}, python {platform.python_version()}, {platform.machine()}; "
-               f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; `experiments/coarse_to_fine_solver.py`")
+               f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; `experiments/solver/coarse_to_fine_solver.py`")
     out.append("")
     out.append("## What the coarse stage costs and how close its fields are")
     out.append("")

@@ -4,7 +4,7 @@ merge sweep: for each mesh and human k, the merged parts (given MergeWeights), t
 the over-segments' normalized mean features, as k-means'), then graphcut_labels; 1-RI with and
 without the cut.
 
-    PYTHONPATH=$PWD python experiments/graph_cut.py --cache /tmp/qcache \
+    PYTHONPATH=$PWD python experiments/segmentation/graph_cut.py --cache /tmp/qcache \
         --weights "ratio=3,concavity=16" --out experiments/results/graph_cut.md
 """
 from __future__ import annotations

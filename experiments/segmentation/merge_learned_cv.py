@@ -1,6 +1,6 @@
 """The merge decision, cross-validated by leave-one-category-out on the 15 labelled PSB categories.
 
-Reads experiments/merge_capture.py's files (the over-segmentation the default merges, per mesh
+Reads experiments/segmentation/merge_capture.py's files (the over-segmentation the default merges, per mesh
 and k, on the fine cleaned mesh; the default's final labels; the human segmentations) and redoes
 only the merge. Every cost compared is linear in the pair terms of
 :func:`torchakvf.parts.merge_terms.pair_terms` (the default's too: its symmetry, concavity,
@@ -19,7 +19,7 @@ Scores are 1-RI by segmentation (each human's k, compared with that human), merg
 before the graph cut (the captured over-segmentation's labels, merged, on the input faces),
 category = mean over its meshes, overall = mean over categories.
 
-    PYTHONPATH=$PWD nice python3 experiments/merge_learned_cv.py --capture /tmp/merge_capture \
+    PYTHONPATH=$PWD nice python3 experiments/segmentation/merge_learned_cv.py --capture /tmp/merge_capture \
         --prep /tmp/merge_prep --out experiments/results/merge_learned_cv.md
 """
 from __future__ import annotations

@@ -22,7 +22,7 @@ per category / per cross-validation fold (category index mod 3), the segment-sta
 untanglings and k-means runs the rules imply over the 300 labelled PSB meshes' protocol k's.
 
     TORCHAKVF_PSB=/work/shared/psb OMP_NUM_THREADS=1 PYTHONPATH=$PWD nice -n 5 python \
-        experiments/field_counts.py --variants base,floor6,floor8+u8 --json /tmp/fc.json
+        experiments/segmentation/field_counts.py --variants base,floor6,floor8+u8 --json /tmp/fc.json
 """
 from __future__ import annotations
 

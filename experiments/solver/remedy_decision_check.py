@@ -2,9 +2,9 @@
 built-in shape and every PSB mesh, decimated to 4000 faces as eval solves them and at full
 resolution. Run it once per version (each writes a CSV with the code it imported), then compare:
 
-    PYTHONPATH=/path/to/old/checkout nice python3 experiments/remedy_decision_check.py --out /tmp/before.csv
-    PYTHONPATH=$PWD nice python3 experiments/remedy_decision_check.py --out /tmp/after.csv
-    python3 experiments/remedy_decision_check.py --compare /tmp/before.csv /tmp/after.csv \\
+    PYTHONPATH=/path/to/old/checkout nice python3 experiments/solver/remedy_decision_check.py --out /tmp/before.csv
+    PYTHONPATH=$PWD nice python3 experiments/solver/remedy_decision_check.py --out /tmp/after.csv
+    python3 experiments/solver/remedy_decision_check.py --compare /tmp/before.csv /tmp/after.csv \\
         --report experiments/results/remedy_decision_check.md    # and .csv: every mesh
 
 Each row: the mesh, its resolution, its edges, the remedy "auto" gave it and the process CPU

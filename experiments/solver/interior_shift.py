@@ -15,7 +15,7 @@ tol·max(|λ|, 1) at worst, r²/gap in practice), with the dropped spurious coun
 
 Usage::
 
-    OMP_NUM_THREADS=1 python experiments/interior_shift.py --out experiments/results/interior_shift.md
+    OMP_NUM_THREADS=1 python experiments/solver/interior_shift.py --out experiments/results/interior_shift.md
 """
 from __future__ import annotations
 
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         "",
         f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; torch {torch.__version__}, python "
         f"{platform.python_version()}, one thread; process CPU time, best of {args.repeat} rounds, sides "
-        "alternating (experiments/interior_shift.py)",
+        "alternating (experiments/solver/interior_shift.py)",
         "- `ta.akvf(mesh, n)` defaults (solver auto: Krylov on these sizes), whole call (cleaning + "
         "operator + factor + solve + Whitney); 'decimated' = `MeshBatch.from_meshes(coarse_faces=4000)`, "
         "as eval and bench solve",

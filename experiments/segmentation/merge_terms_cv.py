@@ -1,13 +1,13 @@
 """Second sweep of the part merging (issue 12): more ratios and more cost terms, cross-validated
-across categories as experiments/merge_method_cv.py (3 folds of 5 categories, c mod 3).
+across categories as experiments/segmentation/merge_method_cv.py (3 folds of 5 categories, c mod 3).
 
-Reads experiments/quality_cache.py's files (labels of the over-segmentation per (k, ratio), the
+Reads experiments/segmentation/quality_cache.py's files (labels of the over-segmentation per (k, ratio), the
 parts' areas and mean features, the dual graph's lengths and signed dihedrals) and recomputes the
 region graph's crease sums for each crease angle. Stages (coordinate search, each stage's grid
 around the previous stage's best on ALL categories; the CV choice is made over the union of
 every grid point evaluated):
 
-    PYTHONPATH=$PWD python experiments/merge_terms_cv.py --cache /tmp/qcache \
+    PYTHONPATH=$PWD python experiments/segmentation/merge_terms_cv.py --cache /tmp/qcache \
         --out /tmp/merge_terms_cv.md
 """
 from __future__ import annotations

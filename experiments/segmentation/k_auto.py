@@ -15,8 +15,8 @@ categories (as merge_method_cv.py):
 and the existing "elbow" rule on the plain k-means costs. Scored: by-model style (one prediction
 per mesh, compared with every human, mean), hit rate of the mode of the humans' k's.
 
-    PYTHONPATH=$PWD python experiments/k_auto.py build --out /tmp/qkauto --ids 1,2,...
-    PYTHONPATH=$PWD python experiments/k_auto.py sweep --cache /tmp/qkauto --weights ratio=3
+    PYTHONPATH=$PWD python experiments/segmentation/k_auto.py build --out /tmp/qkauto --ids 1,2,...
+    PYTHONPATH=$PWD python experiments/segmentation/k_auto.py sweep --cache /tmp/qkauto --weights ratio=3
 """
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ index, interleaved, best of ``--repeat``, process CPU time with IGL_NUM_THREADS=
 per mesh: both times, their ratio and whether the answers (face, barycentric coordinates,
 distance) are bitwise equal; where they are not, how many points differ and by how much.
 
-    IGL_NUM_THREADS=1 OMP_NUM_THREADS=1 python experiments/surface_map_aabb.py --all \\
+    IGL_NUM_THREADS=1 OMP_NUM_THREADS=1 python experiments/pipeline/surface_map_aabb.py --all \\
         --out experiments/results/surface_map_aabb.md
 """
 from __future__ import annotations
@@ -26,7 +26,7 @@ from torchakvf.io import load_mesh
 from torchakvf.mesh.clean import clean_mesh
 from torchakvf.mesh.coarse import DECIMATE_ABOVE, SurfaceIndex, decimate
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: 2 meshes of every PSB category (ids 261-280 are not in the benchmark).
 DEFAULT_IDS = [c + i for c in (1, 21, 41, 61, 81, 101, 121, 141, 161, 181, 201, 221, 241, 281, 301,
                                 321, 341, 361, 381) for i in (0, 1)]
@@ -81,7 +81,7 @@ def main():
         "",
         f"- {stamp}; process CPU time, best of {args.repeat} interleaved, each search timed from "
         f"building its index; IGL_NUM_THREADS={os.environ.get('IGL_NUM_THREADS', 'unset')}, "
-        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')} (experiments/surface_map_aabb.py)",
+        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')} (experiments/pipeline/surface_map_aabb.py)",
         f"- points: the fine vertices and face barycenters of each cleaned PSB mesh, located on it "
         f"decimated to {args.coarse} faces (what `coarse_mesh` does)",
         "",

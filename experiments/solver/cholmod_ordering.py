@@ -14,7 +14,7 @@ cholespy's constructor does ordering, analysis and numeric factor in one call (c
 
 Usage::
 
-    OMP_NUM_THREADS=1 python experiments/cholmod_ordering.py --out experiments/results/cholmod_ordering.md
+    OMP_NUM_THREADS=1 python experiments/solver/cholmod_ordering.py --out experiments/results/cholmod_ordering.md
 """
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
         "",
         f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; torch {torch.__version__}, numpy "
         f"{np.__version__}, python {platform.python_version()}, {os.cpu_count()} CPUs, one thread; "
-        f"best of {args.repeat} interleaved rounds, wall ms (experiments/cholmod_ordering.py)",
+        f"best of {args.repeat} interleaved rounds, wall ms (experiments/solver/cholmod_ordering.py)",
         "- matrix: R - σS1 at σ = -1 of the full-resolution mesh (remedy smooth); solve4 = one solve "
         "of 4 right-hand sides (best of 5)",
         "- 'default' is CHOLMOD's own choice (nmethods = 0), what `ta.akvf` uses on the CPU now",

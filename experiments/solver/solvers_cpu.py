@@ -12,7 +12,7 @@ the Krylov solver's.
 
 Usage::
 
-    OMP_NUM_THREADS=1 python experiments/solvers_cpu.py --out experiments/results/solvers_cpu.md
+    OMP_NUM_THREADS=1 python experiments/solver/solvers_cpu.py --out experiments/results/solvers_cpu.md
 """
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
         "",
         f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; torch {torch.__version__}, python "
         f"{platform.python_version()}, one thread, process CPU time, best of {args.repeat} rounds, solvers "
-        "in rotating order (experiments/solvers_cpu.py)",
+        "in rotating order (experiments/solver/solvers_cpu.py)",
         "- whole `ta.akvf(batch, n, solver=...)` calls; krylov at its interior shift where the mesh "
         "allows it, lobpcg and lanczos on the definite shift's factor; res = largest residual; "
         "Δλ = largest |λ − λ_krylov| / max(|λ_krylov|, 1)",

@@ -3,7 +3,7 @@
 ``--repeat`` interleaved calls, the plan's own estimate, and that the two factors are the same
 bit for bit (their solves of the same right-hand sides compared).
 
-    PYTHONPATH=$PWD nice python3 experiments/two_thread_factor.py --repeat 7 \\
+    PYTHONPATH=$PWD nice python3 experiments/solver/two_thread_factor.py --repeat 7 \\
         --out experiments/results/two_thread_factor.md
 """
 from __future__ import annotations
@@ -61,7 +61,7 @@ def main() -> None:
              f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; torch {torch.__version__}, "
              f"{os.cpu_count()} CPUs "
              f"(shared with other jobs: wall times are best of {a.repeat} interleaved calls); σ = "
-             f"{INTERIOR_SHIFT_PER_PAIR:g} x {a.n}; `experiments/two_thread_factor.py`",
+             f"{INTERIOR_SHIFT_PER_PAIR:g} x {a.n}; `experiments/solver/two_thread_factor.py`",
              "- plan: the subtrees' estimated speed-up (Σ column count² per thread, the rows above after both); "
              "'-': below the size where the factor is split (one thread either way)", "",
              "| PSB | edges | MFLOP | plan | 1 thread ms | 2 threads ms | 1 / 2 | same bits |",

@@ -13,7 +13,7 @@ edges (issue 13, features at full resolution), one thread, process CPU time.
 
 Usage::
 
-    OMP_NUM_THREADS=1 python experiments/untangle_moments.py --out experiments/results/untangle_moments.md
+    OMP_NUM_THREADS=1 python experiments/untangling/untangle_moments.py --out experiments/results/untangle_moments.md
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ untangle_mod = importlib.import_module("torchakvf.fields.untangle")
 from torchakvf.fields.fourth_moments import FourthMoments  # noqa: E402
 from torchakvf.fields.horst import Products  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def best_ms(fn, repeat: int = 5):
@@ -123,7 +123,7 @@ def main(argv=None) -> int:
     lines = ["# The untangling's float64 steps: fourth moments against the products", "",
              f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; torch {torch.__version__}, "
              f"python {platform.python_version()}; one thread, process CPU time "
-             "(experiments/untangle_moments.py)", "",
+             "(experiments/untangling/untangle_moments.py)", "",
              "## Per step (random forms; ms, best of 5)", "",
              "| E | n | moments once | moments step q=9 | products step q=9 | moments q=1 | products q=1 | "
              "rel. diff of G | rule picks |", "|---:|---:|---:|---:|---:|---:|---:|---:|---|"]

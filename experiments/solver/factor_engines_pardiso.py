@@ -16,7 +16,7 @@ Per PSB mesh (cleaned, full resolution, remedy "smooth", shift -1), in one proce
 Usage::
 
     pip install mkl
-    python experiments/factor_engines_pardiso.py --threading seq --out /tmp/factor_engines_pardiso.md
+    python experiments/solver/factor_engines_pardiso.py --threading seq --out /tmp/factor_engines_pardiso.md
 """
 from __future__ import annotations
 

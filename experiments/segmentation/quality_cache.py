@@ -5,9 +5,9 @@ once (as ``torchakvf eval`` computes them: n = 36, coarse 4000 faces), then for 
 distinct human segment count k the untangled fields at k's field count and the paper-mode
 labels at k' = ceil(r k) for r in RATIOS (r = 1 is today's output). Per (k, k') it stores the
 labels on the input faces and the region graph the merge needs, so a parameter sweep
-(experiments/merge_method_cv.py) runs in seconds. Timings of each stage are stored too.
+(experiments/segmentation/merge_method_cv.py) runs in seconds. Timings of each stage are stored too.
 
-    PYTHONPATH=$PWD nice -n 5 python experiments/quality_cache.py --out /tmp/quality_cache
+    PYTHONPATH=$PWD nice -n 5 python experiments/segmentation/quality_cache.py --out /tmp/quality_cache
 """
 from __future__ import annotations
 

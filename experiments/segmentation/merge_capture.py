@@ -5,10 +5,10 @@ For each mesh with human segmentations: the AKVFs as eval solves them (default o
 with the merge step recorded: the over-segmentation it merges (labels on the fine cleaned mesh
 after the clean-up of small pieces, the unit feature rows, the face areas), the default's
 final labels (after the graph cut, on the input faces) and the cleaned mesh (to map labels to
-the input faces). A sweep of the merge decision (experiments/merge_learned_cv.py) then only
+the input faces). A sweep of the merge decision (experiments/segmentation/merge_learned_cv.py) then only
 redoes the merge, on exactly the over-segmentation the default merges.
 
-    PYTHONPATH=$PWD nice python3 experiments/merge_capture.py --out /tmp/merge_capture --workers 2
+    PYTHONPATH=$PWD nice python3 experiments/segmentation/merge_capture.py --out /tmp/merge_capture --workers 2
 """
 from __future__ import annotations
 

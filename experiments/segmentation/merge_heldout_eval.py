@@ -8,7 +8,7 @@ The per-fold weights are those of ``experiments/results/merge_learned_cv.md`` (a
 ``results/merge_weights_folds.json``); γ = 0.5 was chosen in every fold there. Run::
 
     PYTHONPATH=$PWD python3 -m torchakvf.cli eval --out /tmp/eval_default --quiet
-    PYTHONPATH=$PWD nice python3 experiments/merge_heldout_eval.py --out /tmp/heldout \
+    PYTHONPATH=$PWD nice python3 experiments/segmentation/merge_heldout_eval.py --out /tmp/heldout \
         --default /tmp/eval_default/scores.csv --workers 2
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ import csv
 import json
 from pathlib import Path
 
-FOLDS = Path(__file__).resolve().parent / "results" / "merge_weights_folds.json"
+FOLDS = Path(__file__).resolve().parents[1] / "results" / "merge_weights_folds.json"
 
 
 def main() -> None:
