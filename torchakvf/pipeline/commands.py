@@ -133,7 +133,7 @@ def run_segment(args) -> int:
     auto = is_auto(args.k)
     k = "auto" if auto else parse_int(args.k, "-k", 1)
     try:
-        k_range = tuple(int(v) for v in args.k_range.split(","))
+        lo, hi = (int(v) for v in args.k_range.split(","))
     except ValueError:
         raise TorchAKVFError(f"--k-range must be LO,HI, got {args.k_range!r}") from None
     n_fields = parse_int(args.n_fields, "--n-fields", 1) if args.n_fields is not None else None
@@ -145,7 +145,7 @@ def run_segment(args) -> int:
                              method=args.method, graphcut=args.graph_cut == "on", batched=args.batched,
                              **({"merge": scan_merge_weights(None)} if auto else {}))
     task = SegmentTask(k, options, n_fields=n_fields, coarse_faces=coarse or None,
-                       formats=parse_formats(args.formats), subdivide=args.subdivide, k_range=k_range)
+                       formats=parse_formats(args.formats), subdivide=args.subdivide, k_range=(lo, hi))
     return _run(args, task, parse_device(args.device, check_available=not _ray_workers(args)))
 
 
