@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from numbers import Integral
 
 from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, as_batch
@@ -218,7 +219,7 @@ class Segmenter:
         the k ``k_rule`` picks (:func:`~torchakvf.parts.k_auto.scan_k` on the kept AKVFs)."""
         lo, hi = check_k_range(k_range)
         n_fields = self.n_fields
-        if n_fields is not None and not isinstance(n_fields, int):
+        if n_fields is not None and (not isinstance(n_fields, Integral) or isinstance(n_fields, bool)):
             raise ParameterError(f"k='auto' untangles one field count for every mesh; n_fields {n_fields!r} "
                                  f"is not one integer")
         if self._solver is not None or self.fields is None:
