@@ -102,18 +102,18 @@ class SegmentTask:
     def validate(self, item) -> None:
         n_faces = len(item.clean.faces)
         if self.k_max > n_faces:
-            raise ParameterError(f"{item.path}: -k {self.k} is larger than the mesh's {n_faces} faces"
-                                 if not self.auto else f"{item.path}: the largest k tried, {self.k_max}, is "
-                                 f"larger than the mesh's {n_faces} faces")
+            what = f"-k auto tries k up to {self.k_max}, which" if self.auto else f"-k {self.k}"
+            raise ParameterError(f"{item.path}: {what} is larger than the mesh's {n_faces} faces")
         if self.subdivide:
             # the eigensolvers need more edges than fields
             levels = levels_to_fit(item.clean, self.n_akvf + 1)
             if levels:
                 item.clean = subdivide(item.clean, levels)
         opts = self.options
+        fields_for_k = ((lambda j: scan_akvf_count(j, self.n_fields)) if self.auto
+                        else lambda j: akvf_count([[j]], self.n_fields, opts.method, opts.merge_min_k))
         check_fields_fit(str(item.path), item.clean.faces, self.n_akvf, k=self.k_max,
-                         subdivide_hint="subdivide it (--subdivide)",
-                         fields_for_k=lambda j: akvf_count([[j]], self.n_fields, opts.method, opts.merge_min_k))
+                         subdivide_hint="subdivide it (--subdivide)", fields_for_k=fields_for_k)
 
     def process(self, items, device):
         t0 = time.perf_counter()
@@ -135,7 +135,8 @@ class SegmentTask:
     @staticmethod
     def manifest_fields(out) -> dict:
         """Per mesh, what the manifest records beside the runner's own fields: whether its
-        eigensolve converged and its largest eigenpair residual (``out``: from :meth:`process`)."""
+        eigensolve converged and its largest eigenpair residual, and with -k auto the k it got
+        (``out``: from :meth:`process`)."""
         ms, _ = out
         chosen = {"k": ms.k} if "k_auto" in ms.params else {}      # the k a mesh got with -k auto
         return {"converged": bool(ms.converged), "max_residual": float(ms.max_residual), "remedy": ms.params["remedy"],
