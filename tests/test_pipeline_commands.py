@@ -43,10 +43,33 @@ def test_segment_end_to_end(tmp_path, capsys):
     assert rc == 0 and "1 skipped" in stdout
 
 
+
+def test_segment_k_auto_records_the_k_each_mesh_got(tmp_path, capsys):
+    s = shapes.dumbbell(n_around=18)
+    src = write_off(tmp_path / "in" / "dumb.off", s.vertices, s.faces)
+    out = tmp_path / "auto"
+    rc, stdout, err = cli_run(["segment", str(src), "-k", "auto", "--k-range", "1,3", "--out", str(out),
+                               "--formats", "seg"], capsys)
+    assert rc == 0, err
+    rec = by_stem(out)["dumb"]
+    assert rec["k"] == 2 and rec["params"]["k"] == "auto" and rec["params"]["k_range"] == [1, 3]
+    assert rec["params"]["merge"]["min_k"] == 1             # the scan's merge weights, as eval -k auto
+    labels = np.loadtxt(out / "dumb.seg", dtype=int)
+    from torchakvf.evaluate.metrics import matched_agreement
+    assert set(labels.tolist()) == {0, 1} and matched_agreement(labels, s.part_labels) >= 0.95
+    # the k given: no k recorded beside the parameters (manifests of earlier runs still resume)
+    rc, _, err = cli_run(["segment", str(src), "-k", "2", "--out", str(tmp_path / "two"), "--formats", "seg"], capsys)
+    assert rc == 0, err
+    assert "k" not in by_stem(tmp_path / "two")["dumb"]
+    assert "k_range" not in by_stem(tmp_path / "two")["dumb"]["params"]
+
+
 @pytest.mark.parametrize("argv, message", [
     (["segment", "{tmp}/nope.off", "-k", "2", "--out", "{tmp}/o"], "nope.off: file not found"),
     (["segment", "{src}", "-k", "0", "--out", "{tmp}/o"], "-k must be an integer >= 1"),
     (["segment", "{src}", "-k", "two", "--out", "{tmp}/o"], "-k must be an integer"),
+    (["segment", "{src}", "-k", "auto", "--k-range", "3", "--out", "{tmp}/o"], "--k-range must be LO,HI"),
+    (["segment", "{src}", "-k", "auto", "--k-range", "2,3", "--out", "{tmp}/o"], "k_max >= k_min + 2"),
     (["segment", "{src}", "-k", "2", "--out", "{src}/sub"], "cannot create or write the output folder"),
     (["segment", "{src}", "-k", "2", "--formats", "seg,gif", "--out", "{tmp}/o"], "unknown format 'gif'"),
     (["features", "{src}", "--n", "-3", "--out", "{tmp}/o"], "--n must be an integer >= 1"),

@@ -6,9 +6,11 @@ solve) are the entry points (:mod:`torchakvf.parts.segment`); their options are 
 from ..options import DEFAULT_REMEDY, GraphCut, MergeWeights, SegmentOptions
 from .boundaries import RefinedMesh
 from .field_counts import default_n_fields
+from .k_auto import AutoSegmentation, KChoice
 from .results import MeshSegmentation, Segmentation
 from .segment import SegmentEachK, SymmetryGenerator, segment, segment_each_k
+from .segmenter import Segmenter
 
 __all__ = ["DEFAULT_REMEDY", "MeshSegmentation", "Segmentation", "SegmentEachK", "SymmetryGenerator",
            "SegmentOptions", "MergeWeights", "GraphCut", "default_n_fields", "segment", "segment_each_k",
-           "RefinedMesh"]
+           "RefinedMesh", "Segmenter", "AutoSegmentation", "KChoice"]

@@ -103,7 +103,9 @@ def _add_segment(sub) -> None:
                        description="Segment every mesh into k parts; one .seg (PSB format: a label "
                                    "per input face) and optional .npz/.ply/.png per mesh.")
     _common(p)
-    p.add_argument("-k", required=True, help="parts per mesh (integer >= 1)")
+    p.add_argument("-k", required=True, help="parts per mesh (integer >= 1), or 'auto': chosen per mesh from "
+                                             "--k-range by the merge costs (the manifest records each mesh's k)")
+    p.add_argument("--k-range", default="2,10", metavar="LO,HI", help="k's tried with -k auto (default 2,10)")
     p.add_argument("--eps", default="0", help="connecting-region width (0 = plain k-segmentation)")
     p.add_argument("--n-fields", default=None, help="AKVFs untangled per mesh (default 2k clamped to [16, 32])")
     p.add_argument("--formats", default=",".join(OUTPUT_FORMATS),
@@ -125,18 +127,25 @@ def _add_segment(sub) -> None:
 def run_segment(args) -> int:
     from ..mesh.coarse import DEFAULT_COARSE_FACES
     from ..options import DEFAULT_REMEDY, SegmentOptions
+    from ..parts.k_auto import is_auto, scan_merge_weights
     from .segment_task import SegmentTask, parse_formats
 
-    k = parse_int(args.k, "-k", 1)
+    auto = is_auto(args.k)
+    k = "auto" if auto else parse_int(args.k, "-k", 1)
+    try:
+        lo, hi = (int(v) for v in args.k_range.split(","))
+    except ValueError:
+        raise TorchAKVFError(f"--k-range must be LO,HI, got {args.k_range!r}") from None
     n_fields = parse_int(args.n_fields, "--n-fields", 1) if args.n_fields is not None else None
     coarse = (DEFAULT_COARSE_FACES if args.coarse_faces is None
               else parse_int(args.coarse_faces, "--coarse-faces", 0))
     eps = parse_float(args.eps, "--eps", 0.0, 2.0, " (a cosine distance never exceeds 2)")
     options = SegmentOptions(eps=eps, seed=parse_seed(args.seed),
                              remedy=parse_remedy(args.remedy or DEFAULT_REMEDY), solver=args.solver,
-                             method=args.method, graphcut=args.graph_cut == "on", batched=args.batched)
+                             method=args.method, graphcut=args.graph_cut == "on", batched=args.batched,
+                             **({"merge": scan_merge_weights(None)} if auto else {}))
     task = SegmentTask(k, options, n_fields=n_fields, coarse_faces=coarse or None,
-                       formats=parse_formats(args.formats), subdivide=args.subdivide)
+                       formats=parse_formats(args.formats), subdivide=args.subdivide, k_range=(lo, hi))
     return _run(args, task, parse_device(args.device, check_available=not _ray_workers(args)))
 
 

@@ -18,7 +18,9 @@ from ..mesh.size_check import check_fields_fit
 from ..mesh.subdivide import levels_to_fit, subdivide
 from ..options import SegmentOptions, segment_options
 from ..parts.field_counts import akvf_count
+from ..parts.k_auto import DEFAULT_K_RANGE, DEFAULT_RULE, check_k_range, is_auto, scan_akvf_count, scan_options
 from ..parts.segment import segment_each_k
+from ..parts.segmenter import Segmenter
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -35,7 +37,8 @@ def parse_formats(text: str) -> tuple[str, ...]:
 class SegmentTask:
     """k parts per mesh (see the module notes).
 
-    k : parts per mesh
+    k : parts per mesh, or "auto": chosen per mesh from ``k_range`` by ``k_rule``
+        (:mod:`torchakvf.parts.k_auto`; the manifest records the k each mesh got)
     options : the :class:`~torchakvf.options.SegmentOptions` (None: the defaults); ``refine``
         is off whatever it says, since the task writes labels only
     n_fields : fields untangled per mesh (None: segment's own choice, moved off degenerate
@@ -52,16 +55,23 @@ class SegmentTask:
     name = "segment"
     stages = ("akvf", "untangle", "cluster")
 
-    def __init__(self, k: int, options: SegmentOptions | None = None, *, n_fields: int | None = None,
+    def __init__(self, k, options: SegmentOptions | None = None, *, n_fields: int | None = None,
                  coarse_faces: int | None = None, formats=OUTPUT_FORMATS, subdivide: bool = False,
-                 **overrides):
-        self.k = int(k)
-        # one-line errors before any work
-        self.options = segment_options(options, **overrides).replace(refine=False)
+                 k_range=DEFAULT_K_RANGE, k_rule: str = DEFAULT_RULE, **overrides):
+        self.auto = is_auto(k)
+        self.k = "auto" if self.auto else int(k)
+        self.k_range, self.k_rule = check_k_range(k_range), k_rule
+        self.k_max = self.k_range[1] if self.auto else self.k       # the largest k a mesh may get
+        # one-line errors before any work; k auto without options: the scan's merge weights
+        opts = scan_options(options, overrides) if self.auto else segment_options(options, **overrides)
+        self.options = opts.replace(refine=False)
         self.n_fields = int(n_fields) if n_fields is not None else None
         o = self.options
-        self.n_akvf = (self.n_fields if n_fields is not None
-                       else akvf_count([[self.k]], None, o.method, o.merge_min_k))
+        if self.auto:
+            self.n_akvf = scan_akvf_count(self.k_max, self.n_fields)
+        else:
+            self.n_akvf = (self.n_fields if n_fields is not None
+                           else akvf_count([[self.k]], None, o.method, o.merge_min_k))
         self.formats = tuple(formats)
         self.coarse_faces = int(coarse_faces) if coarse_faces else None
         self.subdivide = bool(subdivide)
@@ -77,7 +87,8 @@ class SegmentTask:
         o = self.options
         n_fields = self.n_fields if self.n_fields is not None else "auto"
         batched = {} if o.batched is None else {"batched": o.batched}   # earlier manifests resume
-        return {**batched, "k": self.k, "eps": float(o.eps), "seed": int(o.seed), "n_fields": n_fields,
+        auto = {"k_range": list(self.k_range), "k_rule": self.k_rule} if self.auto else {}
+        return {**batched, "k": self.k, **auto, "eps": float(o.eps), "seed": int(o.seed), "n_fields": n_fields,
                 "remedy": o.remedy, "formats": list(self.formats),
                 "untangle_restarts": int(o.untangle_restarts), "kmeans_restarts": o.kmeans_restarts,
                 "coarse_faces": self.coarse_faces, "subdivide": self.subdivide, "solver": o.solver,
@@ -90,25 +101,31 @@ class SegmentTask:
 
     def validate(self, item) -> None:
         n_faces = len(item.clean.faces)
-        if self.k > n_faces:
-            raise ParameterError(f"{item.path}: -k {self.k} is larger than the mesh's {n_faces} faces")
+        if self.k_max > n_faces:
+            what = f"-k auto tries k up to {self.k_max}, which" if self.auto else f"-k {self.k}"
+            raise ParameterError(f"{item.path}: {what} is larger than the mesh's {n_faces} faces")
         if self.subdivide:
             # the eigensolvers need more edges than fields
             levels = levels_to_fit(item.clean, self.n_akvf + 1)
             if levels:
                 item.clean = subdivide(item.clean, levels)
         opts = self.options
-        check_fields_fit(str(item.path), item.clean.faces, self.n_akvf, k=self.k,
-                         subdivide_hint="subdivide it (--subdivide)",
-                         fields_for_k=lambda j: akvf_count([[j]], self.n_fields, opts.method, opts.merge_min_k))
+        fields_for_k = ((lambda j: scan_akvf_count(j, self.n_fields)) if self.auto
+                        else lambda j: akvf_count([[j]], self.n_fields, opts.method, opts.merge_min_k))
+        check_fields_fit(str(item.path), item.clean.faces, self.n_akvf, k=self.k_max,
+                         subdivide_hint="subdivide it (--subdivide)", fields_for_k=fields_for_k)
 
     def process(self, items, device):
         t0 = time.perf_counter()
         batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
                                       coarse_faces=self.coarse_faces)
         t_pack = time.perf_counter() - t0
-        res = segment_each_k(batch, self.k, self.options, n_fields=self.n_fields, n_akvf=self.n_akvf)
-        seg = res.segmentation(self.k)
+        if self.auto:
+            sg = Segmenter(batch, self.options, n=self.n_akvf, n_fields=self.n_fields)
+            seg, res = sg.segment("auto", k_range=self.k_range, k_rule=self.k_rule), sg
+        else:
+            res = segment_each_k(batch, self.k, self.options, n_fields=self.n_fields, n=self.n_akvf)
+            seg = res.segmentation(self.k)
         # The untangled fields draw the PNG's generator arrows.
         vectors = [seg.face_vectors(b) if "png" in self.formats else None for b in range(len(items))]
         seconds = dict(res.seconds)
@@ -118,9 +135,12 @@ class SegmentTask:
     @staticmethod
     def manifest_fields(out) -> dict:
         """Per mesh, what the manifest records beside the runner's own fields: whether its
-        eigensolve converged and its largest eigenpair residual (``out``: from :meth:`process`)."""
+        eigensolve converged and its largest eigenpair residual, and with -k auto the k it got
+        (``out``: from :meth:`process`)."""
         ms, _ = out
-        return {"converged": bool(ms.converged), "max_residual": float(ms.max_residual), "remedy": ms.params["remedy"]}
+        chosen = {"k": ms.k} if "k_auto" in ms.params else {}      # the k a mesh got with -k auto
+        return {"converged": bool(ms.converged), "max_residual": float(ms.max_residual), "remedy": ms.params["remedy"],
+                **chosen}
 
     def write(self, item, out, out_dir) -> list[Path]:
         ms, vectors = out
