@@ -6,9 +6,11 @@ scipy.sparse.csgraph.maximum_flow (BSD), on the cuts the default segmentation ma
     # 2. per-cut times of each engine (same process, interleaved, best of --repeat) and labels compared
     PYTHONPATH=$PWD python experiments/segmentation/graph_cut_engine.py time --cuts /tmp/gc_cuts
     # 3. whole-eval CPU seconds of two code trees, interleaved
-    PYTHONPATH=$PWD python experiments/segmentation/graph_cut_engine.py ab --a /work/main --b $PWD --ids 1,21 --out /tmp/gc_ab
+    PYTHONPATH=$PWD python experiments/segmentation/graph_cut_engine.py ab --a /work/main --b $PWD \\
+        --ids 1,21 --out /tmp/gc_ab
     # 4. the scores of two eval runs per category (e.g. main's against this branch's)
-    PYTHONPATH=$PWD python experiments/segmentation/graph_cut_engine.py compare --base /work/eval_base --new /tmp/gc_eval
+    PYTHONPATH=$PWD python experiments/segmentation/graph_cut_engine.py compare --base /work/eval_base \\
+        --new /tmp/gc_eval
 """
 from __future__ import annotations
 

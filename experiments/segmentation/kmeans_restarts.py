@@ -12,7 +12,8 @@ The AKVFs do not depend on the restart count: with ``--share-akvf`` (default) th
 solves are kept and handed to the later runs (the same objects, so the same fields), which
 then cost only their segment stage; the AKVF CPU seconds are those of the first run.
 
-    TORCHAKVF_PSB=/work/shared/psb OMP_NUM_THREADS=1 PYTHONPATH=$PWD nice -n 5 python experiments/segmentation/kmeans_restarts.py \
+    TORCHAKVF_PSB=/work/shared/psb OMP_NUM_THREADS=1 PYTHONPATH=$PWD nice -n 5 \
+        python experiments/segmentation/kmeans_restarts.py \
         --out /tmp/restarts --restarts 5,3,2 --json /tmp/kmeans_restarts.json
 """
 from __future__ import annotations

@@ -9,7 +9,8 @@ operator (remedy="none"): whether it solves, its smallest eigenvalue, how many o
 eigenvalues lie below SPURIOUS_BELOW. Writes a CSV; summarise with remedy_criterion_report.py.
 
     PYTHONPATH=$PWD nice python3 experiments/solver/remedy_criterion.py --ids 1-400 --out /tmp/remedy_auto.csv
-    PYTHONPATH=$PWD nice python3 experiments/solver/remedy_criterion.py --ids 1-400:4 --solve --out /tmp/remedy_solve.csv
+    PYTHONPATH=$PWD nice python3 experiments/solver/remedy_criterion.py --ids 1-400:4 --solve \\
+        --out /tmp/remedy_solve.csv
 """
 from __future__ import annotations
 
