@@ -26,8 +26,9 @@ from items import corpus_items, read_truth  # noqa: E402
 
 def setting_options(name: str):
     """SegmentOptions overrides of a named setting: "default", "hand-set" (the hand-set merge
-    weights), "paper" (the paper's method), or a JSON object of MergeWeights changes."""
-    from torchakvf.options import MergeWeights
+    weights), "paper" (the paper's method), or a JSON object of MergeWeights and
+    OverSegmentation changes (each field to its own class)."""
+    from torchakvf.options import OVERSEG_FIELDS, MergeWeights, OverSegmentation
 
     if name == "default":
         return {}
@@ -35,7 +36,10 @@ def setting_options(name: str):
         return dict(merge=MergeWeights.hand_set())
     if name == "paper":
         return dict(method="paper")
-    return dict(merge=MergeWeights(**json.loads(name)))
+    changes = json.loads(name)
+    over = {k: v for k, v in changes.items() if k in OVERSEG_FIELDS}
+    weights = {k: v for k, v in changes.items() if k not in OVERSEG_FIELDS}
+    return dict(merge=MergeWeights(**weights), **({"overseg": OverSegmentation(**over)} if over else {}))
 
 
 def score_item(args):
