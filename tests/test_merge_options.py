@@ -100,7 +100,8 @@ def test_over_segmentation_settings_name_their_new_spelling():
         MergeWeights.hand_set(extra_max=4)
     with pytest.raises(ParameterError, match=r"read SegmentOptions.overseg.crease_rings"):
         MergeWeights().crease_rings
-    assert not hasattr(MergeWeights(), "nope")
+    assert not hasattr(MergeWeights(), "nope") and not hasattr(MergeWeights(), "ratio")
+    assert getattr(MergeWeights(), "min_k", None) is None
     assert set(OVERSEG_FIELDS) == {"ratio", "extra_max", "min_k", "crease_split", "crease_rings", "crease_concave"}
     assert not set(OVERSEG_FIELDS) & {f.name for f in dataclasses.fields(MergeWeights)}
 

@@ -18,6 +18,12 @@ import numpy as np
 from .errors import ParameterError, TorchAKVFError
 
 
+class MovedOptionError(ParameterError, AttributeError):
+    """An over-segmentation setting read from :class:`MergeWeights`: a ParameterError naming where
+    it lives now, and an AttributeError, so that ``hasattr`` and ``getattr`` with a default see
+    no such attribute."""
+
+
 def is_int(value, minimum: int) -> bool:
     """Whether value is a Python or numpy integer (not a bool) of at least ``minimum``."""
     return (isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
@@ -170,7 +176,7 @@ class MergeWeights:
 
     def __getattr__(self, name):
         if name in OVERSEG_FIELDS:
-            raise ParameterError(f"{name} moved to OverSegmentation: read SegmentOptions.overseg.{name}")
+            raise MovedOptionError(f"{name} moved to OverSegmentation: read SegmentOptions.overseg.{name}")
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @classmethod
@@ -205,4 +211,4 @@ MERGE_RECORD_FIELDS = ("symmetry", "concavity", "size", "ratio", "part_size", "c
 
 
 __all__ = ["MergeWeights", "OverSegmentation", "LEARNED_WEIGHTS", "LEARNED_FIELDS", "OVERSEG_FIELDS",
-           "MERGE_RECORD_FIELDS", "read_merge_weights", "merge_weights_record", "is_int"]
+           "MERGE_RECORD_FIELDS", "MovedOptionError", "read_merge_weights", "merge_weights_record", "is_int"]
