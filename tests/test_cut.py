@@ -11,13 +11,13 @@ def test_cached_over_segmentation_serves_only_an_identical_clustering():
     labels and the same boundary options: one label changed, or another boundary rule, makes
     a new one."""
     from torchakvf.options import SegmentOptions
-    from torchakvf.parts.cut import OverSegmentation, over_settings, part_floor
+    from torchakvf.parts.cut import ClusteredParts, over_settings, part_floor
 
     rng = np.random.default_rng(3)
     feats, centers, labels = rng.random((50, 4)), rng.random((3, 4)), rng.integers(0, 3, 50)
     opts = SegmentOptions()
     floor = part_floor(3, opts)
-    entry = OverSegmentation(source=(feats.copy(), centers.copy(), labels.copy()),
+    entry = ClusteredParts(source=(feats.copy(), centers.copy(), labels.copy()),
                               settings=over_settings(opts, floor),
                               mesh=None, vdist=None, feats=None, labels=None, area=None, unit=None)
     assert entry.made_from((feats, centers, labels), opts, floor)

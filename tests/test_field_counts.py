@@ -6,9 +6,9 @@ import pytest
 
 import torchakvf as ta
 from torchakvf import options
+from torchakvf.options import OverSegmentation
 from torchakvf.parts import field_counts, rounds
 from torchakvf.parts.field_counts import cluster_safe_n
-from torchakvf.parts.merge import MergeWeights
 
 
 def test_cluster_safe_n():
@@ -24,7 +24,7 @@ def test_field_counts_follow_the_floor(monkeypatch):
     assert [field_counts.default_n_fields(k, "merge", 1) for k in (1, 5, 6, 8, 9, 12)] == [16, 16, 24, 24, 32, 32]
     assert field_counts.default_n_fields(2, "merge", 7) == 24 == field_counts.default_n_fields(7, "merge", 1)
     assert field_counts.default_n_fields(12, "merge", 7) == 32
-    # min_k None: the default MergeWeights' (8) with method merge, 1 with the paper's 2k
+    # min_k None: the default OverSegmentation's (8) with method merge, 1 with the paper's 2k
     assert (field_counts.default_n_fields(2, "merge") == 24
             and field_counts.akvf_count([[2]]) == 24 + options.SPARE_FIELDS)
     assert [field_counts.default_n_fields(k, "paper") for k in (2, 8, 9, 11, 17)] == [16, 16, 18, 22, 32]
@@ -38,7 +38,7 @@ def test_default_field_counts_by_method(fields):
     up to a multiple of 8; clamped to [16, 32]."""
     assert [field_counts.default_n_fields(k) for k in (2, 8, 11, 20)] == [16, 16, 22, 32]
     assert [field_counts.default_n_fields(k, "merge", 1) for k in (2, 5, 6, 7, 9, 20)] == [16, 16, 24, 24, 32, 32]
-    assert MergeWeights().min_k == 8    # the default floor: every k <= 8 takes the 24 fields of k = 8
+    assert OverSegmentation().min_k == 8    # the default floor: every k <= 8 takes the 24 fields of k = 8
     assert [field_counts.default_n_fields(k, "merge") for k in (2, 5, 8, 9, 20)] == [24, 24, 24, 32, 32]
     with pytest.raises(ta.errors.ParameterError, match="method"):
         field_counts.default_n_fields(3, "nope")

@@ -155,13 +155,14 @@ def test_predictions_made_under_other_defaults_are_not_resumed(tiny_psb, run_by_
 
 
 def test_merge_weights_are_recorded_in_the_settings(tiny_psb, tmp_path):
-    from torchakvf.parts.merge import MergeWeights
+    from torchakvf.options import MergeWeights, SegmentOptions
 
     root, _ = tiny_psb
     evaluate_psb(root, tmp_path, progress=False, metrics="rand", plot=False, ids="1",
                  merge=MergeWeights(concavity=8.0), **FAST)
     rec = json.loads((tmp_path / "settings.json").read_text())["prediction"]["segment_kwargs"]
-    assert rec["merge"] == dict(vars(MergeWeights()), concavity=8.0)   # every field, the one given changed
+    # every field (the over-segmentation's too), the one given changed
+    assert rec["merge"] == dict(SegmentOptions().merge_record(), concavity=8.0)
     assert rec["merge"]["concavity"] == 8.0 and MergeWeights().concavity != 8.0
 
 

@@ -11,7 +11,7 @@ from torchakvf import shapes
 from torchakvf.errors import TorchAKVFError
 from torchakvf.mesh import Mesh
 from torchakvf.options import SegmentOptions
-from torchakvf.parts.k_auto import MERGE_TAU, KChoice, choose_k, scan_k, scan_merge_weights, segment_auto
+from torchakvf.parts.k_auto import MERGE_TAU, KChoice, choose_k, scan_k, scan_overseg, segment_auto
 
 
 def test_k_auto_pick_rules():
@@ -34,8 +34,8 @@ def test_a_dumbbell_is_two_parts_by_options_or_keywords():
     seg = segment_auto([mesh], (1, 3), **fast)
     assert seg.meshes[0].k == 2 and seg.meshes[0].params["k_auto"]["ks"] == [1, 2, 3]
     assert choose_k([mesh], (1, 3), **fast) == [2]
-    # the same scan from one options object (given whole: its merge weights as they are)
-    by_options = scan_k([mesh], (1, 3), SegmentOptions(merge=scan_merge_weights(None), **fast))
+    # the same scan from one options object (given whole: its over-segmentation as it is)
+    by_options = scan_k([mesh], (1, 3), SegmentOptions(overseg=scan_overseg(None), **fast))
     assert by_options.chosen == [2] and by_options.costs.tolist() == scan_k([mesh], (1, 3), **fast).costs.tolist()
 
 

@@ -24,6 +24,7 @@ LAYERS = (
     ("solvers",),                       # the remedy decision lives here, with the factorizations
     ("fields",),
     ("cluster",),
+    ("merge_options",),                 # method "merge"'s weights and over-segmentation, held by options
     ("options",),
     ("parts",),
     ("io", "shapes"),                   # files in and out; the built-in shapes

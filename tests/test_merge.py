@@ -18,9 +18,11 @@ from torchakvf.errors import ParameterError
 from torchakvf.evaluate.k_auto import pick_k
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
+from torchakvf.options import OverSegmentation
 from torchakvf.parts.concavity import crease_weights, dual_edges
 from torchakvf.parts.field_counts import akvf_count
 from torchakvf.parts.merge import (
+    MergeCache,
     MergeWeights,
     RegionGraph,
     boundary_bends,
@@ -53,7 +55,7 @@ def test_merge_cost_and_order_by_hand():
                     mean=np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
                     length=np.array([[0, 2, 1], [2, 0, 0], [1, 0, 0]], dtype=float),
                     concave=np.array([[0, 1, 0.5], [1, 0, 0], [0.5, 0, 0]], dtype=float))
-    w = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, size=1.0, ratio=2.0, part_size=0.0, convexity=0.0, cut=0.0)
+    w = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, size=1.0, part_size=0.0, convexity=0.0, cut=0.0)
     cost = merge_costs(g, w)
     # (0,1): same features, κ = 1/2 -> 0 + 2 (1/2) + 1/4; (0,2): orthogonal -> 1 + 1 + 1/4.
     np.testing.assert_allclose(cost[0, 1], 1.25)
@@ -188,16 +190,18 @@ def test_oversegment_k_and_parameter_errors():
     assert oversegment_k(60, 3.0, 10 ** 6, 0) == 60 and oversegment_k(60, 3.0, 65, 8) == 65
     for bad in (-1, 2.5, True):
         with pytest.raises(ParameterError, match="extra_max"):
-            MergeWeights(extra_max=bad)
+            OverSegmentation(extra_max=bad)
     with pytest.raises(ParameterError):
         MergeWeights(concavity=-1.0)
-    with pytest.raises(ParameterError):
-        MergeWeights(ratio=0.5)
+    with pytest.raises(ParameterError, match="ratio must be >= 1"):
+        OverSegmentation(ratio=0.5)
     for bad in (0.0, math.pi, -0.3):
         with pytest.raises(ParameterError, match="crease_split"):
-            MergeWeights(crease_split=bad)
+            OverSegmentation(crease_split=bad)
     with pytest.raises(ParameterError, match="crease_rings"):
-        MergeWeights(crease_rings=0)
+        OverSegmentation(crease_rings=0)
+    with pytest.raises(ParameterError, match="crease_concave"):
+        OverSegmentation(crease_concave=1)
     s = shapes.table()
     with pytest.raises(ParameterError, match="method"):
         ta.segment(ta.Mesh(s.vertices, s.faces), k=5, method="nope")
@@ -219,7 +223,7 @@ def failure_shapes():
     for s in (shapes.table(), shapes.mug()):
         m = ta.Mesh(s.vertices, s.faces, name=s.name)
         # the AKVFs segment solves for itself: the merge method's default fields of k plus spare
-        n = akvf_count([[s.n_parts]], None, "merge", MergeWeights().min_k)
+        n = akvf_count([[s.n_parts]], None, "merge", OverSegmentation().min_k)
         out[s.name] = (s, ta.akvf(m, n=n, remedy="smooth"))
     return out
 
@@ -288,7 +292,7 @@ def test_oversegment_k_floor_by_hand():
 @pytest.mark.parametrize("bad", [0, -1, True, 2.5, None])
 def test_min_k_is_checked(bad):
     with pytest.raises(ParameterError, match="min_k"):
-        MergeWeights(min_k=bad)
+        OverSegmentation(min_k=bad)
 
 
 def test_region_graph_equals_a_plain_loop_over_the_dual_edges():
@@ -367,14 +371,28 @@ def test_region_graph_and_costs_with_shared_arrays_are_those_computed_afresh():
     g1 = region_graph(labels, dual, None, area, weights.crease_angle, unit=unit, bends=bends)
     for name in ("labels", "area", "mean", "length", "concave", "convex"):
         np.testing.assert_array_equal(getattr(g0, name), getattr(g1, name))
-    np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, 4, weights, dual),
-                                  merge_parts(labels, f, v, feats, area, 4, weights, dual, unit=unit, bends=bends))
+    np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, 4, weights),
+                                  merge_parts(labels, f, v, feats, area, 4, weights,
+                                              MergeCache(dual=dual, unit=unit, bends=bends)))
     for k in (2, 4):   # one region graph made beforehand serves every k
-        np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, k, weights, dual),
-                                      merge_parts(labels, f, v, feats, area, k, weights, dual, graph=g1))
+        np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, k, weights, MergeCache(dual=dual)),
+                                      merge_parts(labels, f, v, feats, area, k, weights, MergeCache(graph=g1)))
     assert next_merge_cost(labels, dual, feats, area, weights) == \
         next_merge_cost(labels, dual, feats, area, weights, unit=unit, bends=bends)
     assert partition_cost(labels, feats) == partition_cost(labels, feats, unit=unit)
     every = labels + 1                                               # every face in a part
     assert partition_cost(every, feats) == partition_cost(every, feats, unit=unit)
     assert partition_cost(every, feats) == _partition_cost_plain(every, feats)
+
+
+def test_merge_parts_names_the_cache_for_its_former_arguments():
+    """The caches are one MergeCache argument: the dual edges given where the cache goes, or a
+    cache by its own keyword, fail with one line naming the new spelling."""
+    v, f, labels = sphere_labels(3, 9, seed=4)
+    area = face_areas(v, f)
+    feats = np.abs(np.random.default_rng(4).normal(size=(len(f), 6)))
+    with pytest.raises(ParameterError, match=r"cache=MergeCache\(dual=...\)"):
+        merge_parts(labels, f, v, feats, area, 2, None, dual_edges(v, f))
+    with pytest.raises(ParameterError, match=r"cache=MergeCache\(bends=..., unit=...\)"):
+        merge_parts(labels, f, v, feats, area, 2, unit=unit_rows(feats), bends=None)
+

@@ -8,15 +8,16 @@ import pytest
 import torchakvf as ta
 from torchakvf import options, shapes
 from torchakvf.errors import ParameterError
+from torchakvf.options import MergeWeights, OverSegmentation
 from torchakvf.parts import field_counts, rounds
-from torchakvf.parts.merge import MergeWeights
 
 
 def test_floor_only_when_parts_are_merged():
-    assert options.SegmentOptions(merge=MergeWeights(min_k=5)).merge_min_k == 5
-    assert options.SegmentOptions(method="paper", merge=MergeWeights(min_k=5)).merge_min_k == 1
-    assert options.SegmentOptions(eps=0.1, merge=MergeWeights(min_k=5)).merge_min_k == 1
-    assert field_counts.cluster_count(2, 1000, options.SegmentOptions(method="paper", merge=MergeWeights(min_k=5))) == 2
+    five = OverSegmentation(min_k=5)
+    assert options.SegmentOptions(overseg=five).merge_min_k == 5
+    assert options.SegmentOptions(method="paper", overseg=five).merge_min_k == 1
+    assert options.SegmentOptions(eps=0.1, overseg=five).merge_min_k == 1
+    assert field_counts.cluster_count(2, 1000, options.SegmentOptions(method="paper", overseg=five)) == 2
 
 
 def test_segment_options_take_the_api_graphcut_values():
@@ -75,6 +76,9 @@ def test_replace_and_overrides_by_name():
     with pytest.raises(ParameterError, match="must be a SegmentOptions"):
         options.segment_options({"seed": 1})
     assert options.SegmentOptions(merge=None).merge == options.MergeWeights()
+    assert options.SegmentOptions(overseg=None).overseg == options.OverSegmentation()
+    with pytest.raises(ParameterError, match="overseg must be an OverSegmentation"):
+        options.SegmentOptions(overseg=MergeWeights())
     assert "_kmeans_restarts_given" not in options.SegmentOptions.names()
 
 

@@ -14,10 +14,9 @@ import torchakvf as ta
 from torchakvf import options, shapes
 from torchakvf.cluster import spherical_kmeans
 from torchakvf.mesh.batch import pad_packed
-from torchakvf.options import SegmentOptions
+from torchakvf.options import OverSegmentation, SegmentOptions
 from torchakvf.parts import cut, field_counts, rounds, segment_each_k
 from torchakvf.parts.field_counts import akvf_count
-from torchakvf.parts.merge import MergeWeights
 from torchakvf.parts.rounds import previous_centroids, segment_rounds
 from torchakvf.restarts import best_restart
 
@@ -38,7 +37,7 @@ def test_rounds_untangle_each_mesh_once_per_count(fields, monkeypatch):
     monkeypatch.setitem(options.FIELDS_STEP, "merge", 1)
     ks = [[2, 3, 6, 7], [2, 3]]
     opts = options.SegmentOptions(seed=0, refine=False, kmeans_restarts=4, untangle_restarts=2,
-                                 merge=MergeWeights(min_k=1))
+                                 overseg=OverSegmentation(min_k=1))
     made = list(rounds.segment_rounds(fields, ks, opts))
     pairs = [(b, n) for c in calls for b, n in c.items()]
     assert len(pairs) == len(set(pairs))                       # no (mesh, n) twice
@@ -97,16 +96,16 @@ def _count_kmeans(monkeypatch):
 
 
 def test_ks_below_the_floor_share_one_kmeans_and_equal_each_k_alone(blobs, monkeypatch):
-    merge = MergeWeights(min_k=4)
+    overseg = OverSegmentation(min_k=4)
     calls = _count_kmeans(monkeypatch)
-    res = segment_each_k(blobs, [[2, 3, 4, 5]], merge=merge, **FAST)
+    res = segment_each_k(blobs, [[2, 3, 4, 5]], overseg=overseg, **FAST)
     # k = 2, 3, 4 share (n 16, k' 12); k = 5 has its own k' = 15
     assert calls == [[12], [15]]
     assert {m.params["k_oversegment"] for m in res.meshes[0].values()} == {12, 15}
     assert len({id(r.untangled) for r in res.rounds}) == 1
     for k in (2, 3, 4, 5):
         calls.clear()
-        alone = ta.segment(blobs, k=k, merge=merge, **FAST)[0]
+        alone = ta.segment(blobs, k=k, overseg=overseg, **FAST)[0]
         assert len(calls) == 1
         got = res.meshes[0][k]
         assert len(np.unique(got.labels)) == k
@@ -119,24 +118,24 @@ def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
     ms = [ta.Mesh(s.vertices, s.faces) for s in (shapes.three_blobs(n_around=20), shapes.dumbbell())]
     batch = ta.MeshBatch.from_meshes(ms)
     fields = ta.akvf(batch, n=20, remedy="smooth")
-    merge = MergeWeights(min_k=3)
+    overseg = OverSegmentation(min_k=3)
     calls = _count_kmeans(monkeypatch)
     ks = [[2, 3, 4], [3, 2]]
-    res = segment_each_k(fields, ks, merge=merge, **FAST)
+    res = segment_each_k(fields, ks, overseg=overseg, **FAST)
     # round 0: both new (one call per distinct field count); round 1: both reuse round 0's
     # (k' 9 for k <= 3); round 2: mesh 0's k = 4 only
     assert sorted(k for c in calls for k in c) == [9, 9, 12] and calls[-1] == [12]
     for b, m in enumerate(ms):
         one = ta.akvf(m, n=20, remedy="smooth")
         for k in ks[b]:
-            alone = ta.segment(one, k=k, merge=merge, **FAST)[0]
+            alone = ta.segment(one, k=k, overseg=overseg, **FAST)[0]
             np.testing.assert_array_equal(res.meshes[b][k].labels, alone.labels)
             assert res.meshes[b][k].cost == pytest.approx(alone.cost, rel=1e-12, abs=1e-12)
 
 
 def test_reused_clustering_is_the_recomputed_one(blobs):
     """A round served from the kept clustering equals k-means run again on its features."""
-    opts = options.SegmentOptions(merge=MergeWeights(min_k=4),
+    opts = options.SegmentOptions(overseg=OverSegmentation(min_k=4),
                                   **{k: v for k, v in FAST.items() if k != "untangle_restarts"})
     made = list(rounds.segment_rounds(blobs, [[3, 2]], opts))
     unt = made[1].untangled
@@ -231,7 +230,7 @@ def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
 
     monkeypatch.setattr(rounds_mod, "spherical_kmeans", recording)
     # every k its own over-segmentation (min_k 1), so that every round clusters
-    opts = SegmentOptions(refine=False, kmeans_seeded_restarts=3, graphcut=None, merge=MergeWeights(min_k=1))
+    opts = SegmentOptions(refine=False, kmeans_seeded_restarts=3, graphcut=None, overseg=OverSegmentation(min_k=1))
     first = [r.meshes[0].labels.copy() for r in segment_rounds(blob_fields, [[2, 3, 4]], opts)]
     assert [c[0] for c in calls] == [opts.kmeans_restarts, 3, 3]
     assert calls[0][1] is None and all(c[1][0] is not None for c in calls[1:])
@@ -242,7 +241,7 @@ def test_segment_rounds_seed_each_round_from_the_last(blob_fields, monkeypatch):
     # off: no init, kmeans_restarts every round
     calls.clear()
     list(segment_rounds(blob_fields, [[2, 3]], SegmentOptions(refine=False, graphcut=None, kmeans_seeded_restarts=0,
-                                                              merge=MergeWeights(min_k=1))))
+                                                              overseg=OverSegmentation(min_k=1))))
     assert [(c[0], c[1]) for c in calls] == [(SegmentOptions().kmeans_restarts, None)] * 2
     assert SegmentOptions().kmeans_seeded_restarts == 0   # off by default
 

@@ -189,12 +189,12 @@ def test_segment_each_k_equals_segment_per_k():
     """Every k in rounds over one solve gives the labels ``segment`` gives for that k alone (with
     its own untangling), with numpy integers for k; rounds whose field counts agree share one
     untangling."""
+    from torchakvf.options import OverSegmentation
     from torchakvf.parts import segment_each_k
     from torchakvf.parts.field_counts import akvf_count
-    from torchakvf.parts.merge import MergeWeights
 
     s = shapes.three_blobs(n_around=20)
-    n = akvf_count([[4]], None, "merge", MergeWeights().min_k)   # what segment solves for itself
+    n = akvf_count([[4]], None, "merge", OverSegmentation().min_k)   # what segment solves for itself
     fields = ta.akvf(ta.Mesh(s.vertices, s.faces), n=n, remedy="smooth")
     fast = dict(seed=0, refine=False, kmeans_restarts=5, untangle_restarts=2)
     res = segment_each_k(fields, [[np.int64(2), 3, 4]], **fast)

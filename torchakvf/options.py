@@ -10,10 +10,12 @@ Two layers have defaults of their own, named so: :func:`torchakvf.fields.untangl
 :data:`SEGMENT_UNTANGLE_RESTARTS` (1); :func:`torchakvf.cluster.spherical_kmeans` alone keeps
 :data:`~torchakvf.cluster.spherical_kmeans.DEFAULT_RESTARTS` (20) restarts and 100 Lloyd
 iterations, a segmentation :data:`KMEANS_RESTARTS_BY_METHOD` and :data:`KMEANS_MAX_ITER`.
+
+Method "merge"'s own options, :class:`MergeWeights` (the learned merge cost, read from the
+package's weights file) and :class:`OverSegmentation`, live in :mod:`torchakvf.merge_options`.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from dataclasses import fields as dataclass_fields
 
@@ -21,6 +23,17 @@ import numpy as np
 
 from .errors import ParameterError
 from .fields.akvf import SOLVERS
+from .merge_options import (
+    LEARNED_FIELDS,
+    LEARNED_WEIGHTS,
+    MERGE_RECORD_FIELDS,
+    OVERSEG_FIELDS,
+    MergeWeights,
+    OverSegmentation,
+    is_int,
+    merge_weights_record,
+    read_merge_weights,
+)
 from .operators.killing import DEFAULT_REMEDY
 
 #: Segmentation methods. "paper": spherical k-means into k parts (Solomon et al. 2011);
@@ -74,125 +87,6 @@ EXPANSION_CYCLES = 2
 GRAPHCUT_ENGINES = ("scipy", "gco")
 
 
-def is_int(value, minimum: int) -> bool:
-    """Whether value is a Python or numpy integer (not a bool) of at least ``minimum``."""
-    return (isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
-            and value >= minimum)
-
-
-@dataclass(frozen=True)
-class MergeWeights:
-    """Weights of the merge cost (:mod:`torchakvf.parts.merge`) and the over-segmentation
-    k' = ceil(ratio max(k, min_k)). Every weight is dimensionless; those of terms whose sign is
-    learned (:attr:`SIGNED`) may be negative, the others are >= 0.
-
-    The default is a learned merge decision: the weights of the pair terms
-    (:func:`~torchakvf.parts.merge_terms.pair_terms`) and ``intercept`` are a logistic regression
-    of "the two adjacent parts lie in one part people cut" on the 15 labelled PSB categories
-    (experiments/segmentation/train_merge.py), and the cost is the expected change of the Rand disagreement
-    with the size exponent ``rand_gamma`` chosen by leave-one-category-out (see
-    docs/design.md). ``MergeWeights.hand_set()`` gives the hand-set cost (symmetry 1,
-    concavity 16, convexity 4, boundary share 0.25, no size terms, the weighted sum as cost)."""
-
-    #: weight of 1 - cos between the parts' mean unit feature rows (two parts moved by the same
-    #: fields are one symmetric part cut in two)
-    symmetry: float = 4.099
-    #: weight of the length-weighted mean concave bending along the shared boundary (the minima
-    #: rule: a boundary on smooth or convex surface is a poor cut)
-    concavity: float = 28.69
-    #: weight of the smaller part's share of the whole surface (0: off)
-    size: float = 0.0
-    #: over-segmentation factor k' = ceil(ratio k), >= 1: 3 leaves the merge room to choose
-    ratio: float = 3.0
-    #: weight of the smaller part's area relative to the target part size A / k (0: off)
-    part_size: float = 0.7441
-    #: weight of the length-weighted mean convex bending along the boundary (a sharp ridge is
-    #: also a cut people make, e.g. on mechanical parts)
-    convexity: float = -0.206
-    #: weight of the boundary share 1 - L_ij / min(P_i, P_j) (a part mostly enclosed by its
-    #: neighbour is cheap to merge into it)
-    cut: float = -0.4207
-    #: radians in (0, π] at which a crease's bending counts fully (π: linear in the angle)
-    crease_angle: float = math.pi
-    #: at most this many clusters beyond k (None: ceil(ratio k) at every k); 16 keeps the merge
-    #: method's time near the paper mode's on meshes asking for many parts, at the same score
-    extra_max: int | None = 16
-    #: a k below this is over-segmented as this k is (its fields and clusters those of min_k),
-    #: so the small k's of a mesh share one untangling and one k-means, merged down to each k;
-    #: 1: every k its own. 8 scored better than 1 (see docs/design.md)
-    min_k: int = 8
-    #: weight of log(A_max / A_min), the two parts' size ratio (> 0: a small part is kept off a
-    #: large one, as a protrusion off a body)
-    size_ratio: float = 0.3394
-    #: weight of log(L_ij / sqrt(A_min)), the shared boundary against the smaller part's size
-    #: (the short-cut rule; < 0: a short cut is a good one, merging across it costs more)
-    short_cut: float = -0.2115
-    #: weight of |log(t_i / t_j)|, t a part's mean shape diameter (a thin fin or leg off a thick
-    #: body); != 0 here or in ``thin`` computes the thickness of every mesh (igl rays)
-    thickness: float = 1.718
-    #: weight of log(t_small / t_median), the smaller part's thickness against the mesh's median
-    thin: float = -0.1241
-    #: radians in (0, π): the over-segmentation is also cut along creases where the surface
-    #: normal turns by more than this within ``crease_rings`` dual rings
-    #: (:mod:`torchakvf.parts.creases`), so the merge can keep parts apart that only a crease
-    #: separates (coaxial cylinders, a slab and its legs); None: not cut. Chosen with
-    #: ``crease_concave`` leave-one-group-out over the PSB categories and the procedural
-    #: corpus's families (docs/design.md, "Creases").
-    crease_split: float | None = math.radians(60.0)
-    #: dual rings (>= 1) over which ``crease_split`` measures a crease (a crease rounded over up
-    #: to about this many triangles is found)
-    crease_rings: int = 3
-    #: only concave creases cut the over-segmentation (people cut where the surface turns
-    #: inward, the minima rule; a convex crease is usually the edge of one part: a box leg's)
-    crease_concave: bool = True
-    #: weight of (d_small - d_large) / R, the smaller part's distance from the surface's centroid
-    #: beyond the larger one's, R the RMS radius (a protrusion lies further out)
-    centricity: float = -0.1763
-
-    #: the cost's form. None: the weighted sum s above is the cost. A number γ >= 0: s is read as
-    #: the log-odds that the two parts lie in one part people cut, p = sigmoid(intercept - s),
-    #: and the cost is the expected change of the Rand disagreement, (A_i A_j / A^2)^γ (1 - 2p)
-    #: (γ = 1; 0 orders pairs as s does)
-    rand_gamma: float | None = 0.5
-    #: the log-odds of "one part" where s = 0 (read only with ``rand_gamma``)
-    intercept: float = 3.038
-
-    #: terms whose weight may be negative (their sign is learned, not known beforehand)
-    SIGNED = ("convexity", "cut", "short_cut", "thin", "centricity", "intercept")
-
-    @classmethod
-    def hand_set(cls, **changes) -> "MergeWeights":
-        """The hand-set cost chosen by cross-validation before the learned one (the weighted
-        sum of symmetry 1, concavity 16, convexity 4, boundary share 0.25), with ``changes``."""
-        base = dict(symmetry=1.0, concavity=16.0, part_size=0.0, convexity=4.0, cut=0.25, size_ratio=0.0,
-                    short_cut=0.0, thickness=0.0, thin=0.0, centricity=0.0, rand_gamma=None, intercept=0.0)
-        return cls(**{**base, **changes})
-
-    def __post_init__(self):
-        for name in ("symmetry", "concavity", "size", "part_size", "size_ratio", "thickness"):
-            if not getattr(self, name) >= 0:
-                raise ParameterError(f"merge weight {name} must be >= 0, got {getattr(self, name)!r}")
-        for name in self.SIGNED:
-            if not np.isfinite(getattr(self, name)):
-                raise ParameterError(f"merge weight {name} must be a finite number, got {getattr(self, name)!r}")
-        if self.rand_gamma is not None and not self.rand_gamma >= 0:
-            raise ParameterError(f"rand_gamma must be None or >= 0, got {self.rand_gamma!r}")
-        if not self.ratio >= 1:
-            raise ParameterError(f"over-segmentation ratio must be >= 1, got {self.ratio!r}")
-        if not 0 < self.crease_angle <= math.pi:
-            raise ParameterError(f"crease_angle must be in (0, π] radians, got {self.crease_angle!r}")
-        if self.extra_max is not None and not is_int(self.extra_max, 0):
-            raise ParameterError(f"extra_max must be None or an integer >= 0, got {self.extra_max!r}")
-        if not is_int(self.min_k, 1):
-            raise ParameterError(f"min_k must be an integer >= 1, got {self.min_k!r}")
-        if self.crease_split is not None and not 0 < self.crease_split < math.pi:
-            raise ParameterError(f"crease_split must be None or in (0, π) radians, got {self.crease_split!r}")
-        if not is_int(self.crease_rings, 1):
-            raise ParameterError(f"crease_rings must be an integer >= 1, got {self.crease_rings!r}")
-        if not isinstance(self.crease_concave, bool):
-            raise ParameterError(f"crease_concave must be True or False, got {self.crease_concave!r}")
-
-
 @dataclass(frozen=True)
 class GraphCut:
     """Parameters of the graph cut that re-decides part boundaries after the merge
@@ -223,7 +117,8 @@ class GraphCut:
         if not (isinstance(self.band, (int, np.integer)) and self.band >= 0):
             raise ParameterError(f"graph cut band must be an integer >= 0, got {self.band!r}")
         if not (isinstance(self.cycles, (int, np.integer)) and (self.cycles >= 1 or self.cycles == -1)):
-            raise ParameterError(f"graph cut cycles must be an integer >= 1, or -1 (until converged), got {self.cycles!r}")
+            raise ParameterError("graph cut cycles must be an integer >= 1, or -1 (until converged), "
+                                 f"got {self.cycles!r}")
         if self.engine not in GRAPHCUT_ENGINES:
             raise ParameterError(f"graph cut engine must be one of {GRAPHCUT_ENGINES}, got {self.engine!r}")
 
@@ -271,9 +166,10 @@ class SegmentOptions:
     batched: bool | None = None
     #: the segmentation method, one of :data:`METHODS`; default :data:`DEFAULT_METHOD`
     method: str = DEFAULT_METHOD
-    #: the merge cost and over-segmentation of method "merge" (:class:`MergeWeights`; None: the
-    #: default weights)
+    #: the merge cost of method "merge" (:class:`MergeWeights`; None: the default weights)
     merge: MergeWeights = field(default_factory=MergeWeights)
+    #: the over-segmentation method "merge" merges (:class:`OverSegmentation`; None: the default)
+    overseg: OverSegmentation = field(default_factory=OverSegmentation)
     #: method "merge": the graph cut that re-decides the boundaries after the merge; on by
     #: default (it scored better on every cross-validation fold); None (or False) = off. Given
     #: True / False / a :class:`GraphCut`, stored as a GraphCut or None. The paper mode never cuts
@@ -315,6 +211,10 @@ class SegmentOptions:
             object.__setattr__(self, "merge", MergeWeights())
         if not isinstance(self.merge, MergeWeights):
             raise ParameterError(f"merge must be a MergeWeights, got {self.merge!r}")
+        if self.overseg is None:
+            object.__setattr__(self, "overseg", OverSegmentation())
+        if not isinstance(self.overseg, OverSegmentation):
+            raise ParameterError(f"overseg must be an OverSegmentation, got {self.overseg!r}")
         object.__setattr__(self, "graphcut", graphcut_option(self.graphcut))
         object.__setattr__(self, "_kmeans_restarts_given", self.kmeans_restarts is not None)
         if self.kmeans_restarts is None:
@@ -356,9 +256,23 @@ class SegmentOptions:
 
     @property
     def merge_min_k(self) -> int:
-        """The k below which k's are over-segmented alike (``merge.min_k`` when parts are
+        """The k below which k's are over-segmented alike (``overseg.min_k`` when parts are
         merged, else 1: every k its own fields and clusters)."""
-        return int(self.merge.min_k) if self.merges_parts else 1
+        return int(self.overseg.min_k) if self.merges_parts else 1
+
+    def merge_record(self) -> dict:
+        """{field: value} of the merge weights and the over-segmentation in one flat dict, in
+        :data:`MERGE_RECORD_FIELDS` order: how settings files, manifests and a segmentation's
+        params record them."""
+        return {name: getattr(self.overseg if name in OVERSEG_FIELDS else self.merge, name)
+                for name in MERGE_RECORD_FIELDS}
+
+    def recorded(self) -> dict:
+        """{option name: value} as records keep the options: every option but ``overseg``,
+        whose fields are inside ``merge`` (:meth:`merge_record`, a dict), so that a record of
+        the same settings reads the same."""
+        return {name: self.merge_record() if name == "merge" else getattr(self, name)
+                for name in self.names() if name != "overseg"}
 
 
 def segment_options(options: SegmentOptions | None = None, **overrides) -> SegmentOptions:
@@ -371,7 +285,10 @@ def segment_options(options: SegmentOptions | None = None, **overrides) -> Segme
     return options.replace(**overrides)
 
 
-__all__ = ["SegmentOptions", "MergeWeights", "GraphCut", "segment_options", "graphcut_option", "METHODS",
+__all__ = ["SegmentOptions", "MergeWeights", "OverSegmentation", "GraphCut", "LEARNED_WEIGHTS", "LEARNED_FIELDS",
+           "MERGE_RECORD_FIELDS", "OVERSEG_FIELDS", "read_merge_weights", "merge_weights_record", "is_int",
+           "segment_options", "graphcut_option", "METHODS",
            "DEFAULT_METHOD", "BOUNDARIES", "DEFAULT_REMEDY", "SEGMENT_UNTANGLE_RESTARTS",
            "KMEANS_RESTARTS_BY_METHOD", "KMEANS_MAX_ITER", "FIELDS_PER_PART", "FIELDS_STEP", "FIELD_COUNT_RANGE",
-           "SPARE_FIELDS", "CLUSTER_GAP", "MIN_PART_FRACTION", "PART_FLOOR_OF_MEAN", "EXPANSION_CYCLES", "GRAPHCUT_ENGINES"]
+           "SPARE_FIELDS", "CLUSTER_GAP", "MIN_PART_FRACTION", "PART_FLOOR_OF_MEAN", "EXPANSION_CYCLES",
+           "GRAPHCUT_ENGINES"]

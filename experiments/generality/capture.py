@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from items import items as all_items  # noqa: E402
 from items import read_truth
 
-#: over-segmentation variants: MergeWeights changes (the weights themselves do not matter here)
+#: over-segmentation variants: OverSegmentation changes (the merge weights do not matter here)
 OVERSEG = {
     "base": dict(crease_split=None),
     "crease60": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=False),
@@ -42,9 +42,10 @@ OVERSEG = {
 
 
 def options(variant: str, merge_changes: dict | None = None):
-    from torchakvf.options import MergeWeights, SegmentOptions
+    from torchakvf.options import MergeWeights, OverSegmentation, SegmentOptions
 
-    return SegmentOptions(refine=False, merge=MergeWeights(**{**OVERSEG[variant], **(merge_changes or {})}))
+    return SegmentOptions(refine=False, merge=MergeWeights(**(merge_changes or {})),
+                          overseg=OverSegmentation(**OVERSEG[variant]))
 
 
 def capture_item(args) -> str:

@@ -26,8 +26,9 @@ from items import corpus_items, read_truth  # noqa: E402
 
 def setting_options(name: str):
     """SegmentOptions overrides of a named setting: "default", "hand-set" (the hand-set merge
-    weights), "paper" (the paper's method), or a JSON object of MergeWeights changes."""
-    from torchakvf.options import MergeWeights
+    weights), "paper" (the paper's method), or a JSON object of MergeWeights and
+    OverSegmentation changes (each field to its own class)."""
+    from torchakvf.options import OVERSEG_FIELDS, MergeWeights, OverSegmentation
 
     if name == "default":
         return {}
@@ -35,7 +36,10 @@ def setting_options(name: str):
         return dict(merge=MergeWeights.hand_set())
     if name == "paper":
         return dict(method="paper")
-    return dict(merge=MergeWeights(**json.loads(name)))
+    changes = json.loads(name)
+    over = {k: v for k, v in changes.items() if k in OVERSEG_FIELDS}
+    weights = {k: v for k, v in changes.items() if k not in OVERSEG_FIELDS}
+    return dict(merge=MergeWeights(**weights), **({"overseg": OverSegmentation(**over)} if over else {}))
 
 
 def score_item(args):
@@ -71,11 +75,13 @@ def family_table(rows, settings) -> str:
     lines = ["| family | kind | shapes | " + " | ".join(settings) + " |", "|---|---|---:|" + "---:|" * len(settings)]
     for kind, fam in fams:
         n = len(by[(fam, settings[0])])
-        lines.append(f"| {fam} | {kind} | {n} | " + " | ".join(f"{np.nanmean(by[(fam, s)]):.3f}" for s in settings) + " |")
+        cells = " | ".join(f"{np.nanmean(by[(fam, s)]):.3f}" for s in settings)
+        lines.append(f"| {fam} | {kind} | {n} | {cells} |")
     for kind in ("organic", "mechanical"):
         vals = {s: [np.nanmean(by[(f, s)]) for k_, f in fams if k_ == kind] for s in settings}
         if vals[settings[0]]:
-            lines.append(f"| **{kind} families** | | | " + " | ".join(f"{np.mean(vals[s]):.3f}" for s in settings) + " |")
+            cells = " | ".join(f"{np.mean(vals[s]):.3f}" for s in settings)
+            lines.append(f"| **{kind} families** | | | {cells} |")
     allv = {s: [np.nanmean(by[(f, s)]) for _, f in fams] for s in settings}
     lines.append("| **all families** | | | " + " | ".join(f"{np.mean(allv[s]):.3f}" for s in settings) + " |")
     return "\n".join(lines)

@@ -5,7 +5,7 @@ Each k of a mesh today gets its own untangling (n = 3k clamped to [16, 32]) and 
 into k' = min(3k, k + 16) clusters. The PSB protocol asks 4.3 distinct k's per mesh, so these
 rules make ~1.2 untanglings and 4.3 k-means runs per mesh. Variants (``--variants``):
 
-* ``base``       every k its own rules (MergeWeights.min_k 1, options.FIELDS_STEP["merge"] 1);
+* ``base``       every k its own rules (OverSegmentation.min_k 1, options.FIELDS_STEP["merge"] 1);
 * ``floorF``     min_k F: every k < F is treated as F for both rules (k' and n of k = F), so
                  all k <= F of a mesh share one untangling and one over-segmentation, merged
                  down to each k;
@@ -38,12 +38,12 @@ from kmeans_restarts import BLOCKS, LABELLED, StageClock
 from torchakvf import options as O
 from torchakvf.evaluate import harness as H
 from torchakvf.evaluate import psb as P
+from torchakvf.options import OverSegmentation
 from torchakvf.parts import field_counts as FC
-from torchakvf.parts.merge import MergeWeights
 
 
 def rules(variant: str) -> tuple[int, int]:
-    """(MergeWeights.min_k, options.FIELDS_STEP["merge"]) of a variant name: floorF -> min_k F,
+    """(OverSegmentation.min_k, options.FIELDS_STEP["merge"]) of a variant name: floorF -> min_k F,
     q8/u8 -> step 8 (u8 rounds up, as the package does; q8, rounding to the nearest multiple,
     was measured with an earlier version of this script and is not the package's rule)."""
     m = re.fullmatch(r"(base|floor(\d+))?(\+?u8)?", variant)
@@ -57,7 +57,7 @@ def implied_counts(variant: str) -> tuple[int, int]:
     distinct n per mesh, distinct (n, k') per mesh (cluster_safe_n ignored)."""
     min_k, step = rules(variant)
     keep, O.FIELDS_STEP["merge"] = O.FIELDS_STEP["merge"], step
-    opts = O.SegmentOptions(merge=MergeWeights(min_k=min_k))
+    opts = O.SegmentOptions(overseg=OverSegmentation(min_k=min_k))
     unt = km = 0
     for e in P.find_psb_meshes(P.default_psb_root()):
         ks = sorted(set(P.human_segment_counts(e)))
@@ -85,7 +85,7 @@ def main():
         clock.akvf = clock.segment = 0.0
         t0 = time.process_time()
         s = H.evaluate_psb(P.default_psb_root(), Path(a.out) / v, ids=ids, metrics="rand", workers=1,
-                           plot=False, progress=False, coarse_faces=4000, merge=MergeWeights(min_k=min_k))
+                           plot=False, progress=False, coarse_faces=4000, overseg=OverSegmentation(min_k=min_k))
         unt, km = implied_counts(v)
         res[v] = {"overall": s.overall_categories["rand_index_error"],
                   "per_category": {c: val["rand_index_error"] for c, val in s.per_category.items()},

@@ -20,17 +20,17 @@ import numpy as np
 from torchakvf.evaluate.psb import category_of
 from torchakvf.parts.concavity import DualEdges
 from torchakvf.parts.graphcut import GraphCut, graphcut_labels
-from torchakvf.parts.merge import MergeWeights, greedy_merge
+from torchakvf.parts.merge import greedy_merge
 
 try:
     import merge_terms_cv as V2
-    from merge_method_cv import rand_error
+    from merge_method_cv import SweptWeights, rand_error
 except ImportError:
     import experiments.merge_terms_cv as V2
-    from experiments.merge_method_cv import rand_error
+    from experiments.merge_method_cv import SweptWeights, rand_error
 
 N_FOLDS = 3
-W: MergeWeights | None = None
+W: SweptWeights | None = None
 EXTRA: dict = {}
 
 
@@ -85,7 +85,7 @@ def main():
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cuts", default="0.3:10,1:10,3:10,1:0", help="smoothness:beta,...")
     a = ap.parse_args()
-    w = MergeWeights.hand_set(**{kv.split("=")[0]: float(kv.split("=")[1]) for kv in a.weights.split(",")})
+    w = SweptWeights.hand_set(**{kv.split("=")[0]: float(kv.split("=")[1]) for kv in a.weights.split(",")})
     V2.RATIOS = (w.ratio,)
     CUTS = [GraphCut(smoothness=s, beta=b, crease_angle=math.radians(45), band=6)
             for s, b in [tuple(float(x) for x in c.split(":")) for c in a.cuts.split(",")]]

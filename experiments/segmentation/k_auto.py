@@ -89,10 +89,10 @@ def sweep(a):
     import sys
     sys.path.insert(0, str(Path(__file__).parent))
     import merge_terms_cv as V2
-    from merge_method_cv import rand_error
+    from merge_method_cv import SweptWeights, rand_error
 
-    from torchakvf.parts.merge import MergeWeights, greedy_merge, merge_costs
-    w = MergeWeights(**{kv.split("=")[0]: float(kv.split("=")[1]) for kv in a.weights.split(",")})
+    from torchakvf.parts.merge import greedy_merge, merge_costs
+    w = SweptWeights(**{kv.split("=")[0]: float(kv.split("=")[1]) for kv in a.weights.split(",")})
     lo, hi = K_RANGE
     ks = list(range(lo, hi + 1))
     rows = {}

@@ -16,12 +16,27 @@ from __future__ import annotations
 import argparse
 import itertools
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from torchakvf.evaluate.psb import category_of
 from torchakvf.parts.merge import MergeWeights, RegionGraph, greedy_merge
+
+
+@dataclass(frozen=True)
+class SweptWeights(MergeWeights):
+    """Merge weights with the over-segmentation ratio they merge: the candidates of these sweeps
+    (and of merge_terms_cv, graph_cut, k_auto), which cache one over-segmentation per (k, ratio)
+    and choose the weights and the ratio together. The package keeps the ratio in
+    OverSegmentation; a candidate's weights are these fields without it."""
+
+    ratio: float = 3.0
+
+    def __new__(cls, *args, **changes):
+        return object.__new__(cls)    # ratio is a field here, not a moved name
+
 
 RATIOS = (1.5, 2.0, 3.0)
 SYMMETRY = (0.0, 1.0)
@@ -93,7 +108,7 @@ def main():
     meshes = load_cache(Path(a.cache))
     cats = sorted({category_of(i) for i in meshes}, key=lambda c: min(i for i in meshes if category_of(i) == c))
     paper = category_table(meshes, None)
-    grid = [MergeWeights.hand_set(symmetry=s, concavity=c, size=z, ratio=r)
+    grid = [SweptWeights.hand_set(symmetry=s, concavity=c, size=z, ratio=r)
             for r, s, c, z in itertools.product(ratios, SYMMETRY, CONCAVITY, SIZE)
             if (s, c, z) != (0.0, 0.0, 0.0)]
     tables = {w: category_table(meshes, w) for w in grid}
@@ -139,13 +154,13 @@ def main():
     lines += ["", "## Ablation (at the setting chosen on all; one change at a time)", "",
               "| setting | overall | " + " | ".join(cats) + " |", "|---|---:|" + "---:|" * len(cats)]
     variants = [("chosen", chosen),
-                ("w_sym = 0", MergeWeights.hand_set(symmetry=0.0, concavity=chosen.concavity, size=chosen.size,
+                ("w_sym = 0", SweptWeights.hand_set(symmetry=0.0, concavity=chosen.concavity, size=chosen.size,
                                                     ratio=chosen.ratio)),
-                ("w_cav = 0", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=0.0, size=chosen.size,
+                ("w_cav = 0", SweptWeights.hand_set(symmetry=chosen.symmetry, concavity=0.0, size=chosen.size,
                                                     ratio=chosen.ratio)),
-                ("w_size = 0", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity, size=0.0,
+                ("w_size = 0", SweptWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity, size=0.0,
                                                      ratio=chosen.ratio))]
-    variants += [(f"ratio {r:g}", MergeWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity,
+    variants += [(f"ratio {r:g}", SweptWeights.hand_set(symmetry=chosen.symmetry, concavity=chosen.concavity,
                                                         size=chosen.size, ratio=r))
                  for r in RATIOS if r != chosen.ratio]   # all cached ratios, also those not allowed
     lines.append(f"| paper (no merging) | {overall(paper, cats):.4f} | "

@@ -1,7 +1,7 @@
 """The learned merge's over-segmentation size and Rand exponent, chosen on one half of the
 labelled PSB categories and reported on the other.
 
-The default merge (``MergeWeights()``) over-segments into k' = min(ceil(ratio max(k, min_k)),
+The default merge (``OverSegmentation()``, ``MergeWeights()``) over-segments into k' = min(ceil(ratio max(k, min_k)),
 max(k, min_k) + extra_max) clusters and merges them with the learned cost
 (A_i A_j / A^2)^rand_gamma (1 - 2p). Each variant (:data:`VARIANTS`) changes ratio, extra_max
 or rand_gamma. Every mesh is solved once as ``torchakvf eval`` solves it (coarse 4000 faces, 36
@@ -44,7 +44,7 @@ from torchakvf.evaluate.psb import find_psb_meshes
 from torchakvf.evaluate.settings import eval_segment_options
 from torchakvf.io import load_mesh
 from torchakvf.mesh import MeshBatch
-from torchakvf.options import MergeWeights
+from torchakvf.options import OVERSEG_FIELDS, MergeWeights, OverSegmentation
 from torchakvf.parts.rounds import segment_rounds
 from torchakvf.parts.solve import solve_akvfs
 
@@ -57,7 +57,7 @@ LABELLED = ["Airplane", "Ant", "Armadillo", "Bust", "Chair", "Cup", "Fish", "Gla
 HALF_A = LABELLED[0::2]
 HALF_B = LABELLED[1::2]
 
-#: variant name -> changes to the default MergeWeights
+#: variant name -> changes to the default OverSegmentation or MergeWeights (each field to its own)
 VARIANTS = {
     "default": {},
     "ratio2.5": {"ratio": 2.5},
@@ -71,8 +71,12 @@ VARIANTS = {
 
 
 def opts_of(name: str):
-    """The evaluation's segmentation options with variant ``name``'s merge weights."""
-    return eval_segment_options(None, {"merge": dataclasses.replace(MergeWeights(), **VARIANTS[name])})
+    """The evaluation's segmentation options with variant ``name``'s over-segmentation and merge weights."""
+    changes = VARIANTS[name]
+    over = {k: v for k, v in changes.items() if k in OVERSEG_FIELDS}
+    weights = {k: v for k, v in changes.items() if k not in OVERSEG_FIELDS}
+    return eval_segment_options(None, {"merge": dataclasses.replace(MergeWeights(), **weights),
+                                       "overseg": dataclasses.replace(OverSegmentation(), **over)})
 
 
 def score_mesh_variants(entry, names: list[str]) -> dict:

@@ -22,12 +22,12 @@ import numpy as np
 
 from torchakvf.evaluate.psb import category_of
 from torchakvf.parts.concavity import crease_weights
-from torchakvf.parts.merge import MergeWeights, RegionGraph, greedy_merge
+from torchakvf.parts.merge import RegionGraph, greedy_merge
 
 try:
-    from merge_method_cv import rand_error
+    from merge_method_cv import SweptWeights, rand_error
 except ImportError:
-    from experiments.merge_method_cv import rand_error
+    from experiments.merge_method_cv import SweptWeights, rand_error
 
 RATIOS = tuple(float(r) for r in __import__("os").environ.get("QUALITY_RATIOS", "2,2.5,3,4").split(","))
 N_FOLDS = 3
@@ -65,7 +65,7 @@ def graph(m: dict, k: int, r: float, crease: float, memo: dict) -> RegionGraph:
     return memo[key]
 
 
-def mesh_score(mid: int, w: MergeWeights | None) -> float:
+def mesh_score(mid: int, w: SweptWeights | None) -> float:
     m = MESHES[mid]
     memo = m.setdefault("memo", {})
     preds = {}
@@ -95,8 +95,8 @@ def overall(t, cats):
     return float(np.mean([t[c] for c in cats]))
 
 
-def fmt(w: MergeWeights) -> str:
-    d = MergeWeights.hand_set(crease_angle=math.pi)
+def fmt(w: SweptWeights) -> str:
+    d = SweptWeights.hand_set(crease_angle=math.pi)
     parts = [f"ratio {w.ratio:g}", f"sym {w.symmetry:g}", f"cav {w.concavity:g}"]
     for name in ("size", "part_size", "convexity", "cut"):
         if getattr(w, name):
@@ -130,13 +130,13 @@ def main():
     paper = table(None)
     # the former default (ratio 2, symmetry and concavity only); at the smallest ratio swept
     # when 2 is not among them
-    old = MergeWeights.hand_set(symmetry=1.0, concavity=16.0, size=0.0, ratio=2.0 if 2.0 in ratios else min(ratios),
+    old = SweptWeights.hand_set(symmetry=1.0, concavity=16.0, size=0.0, ratio=2.0 if 2.0 in ratios else min(ratios),
                        part_size=0.0, convexity=0.0, cut=0.0, crease_angle=math.pi)
 
     def with_(w, **kw):
         d = dict(vars(w))
         d.update(kw)
-        return MergeWeights(**d)
+        return SweptWeights(**d)
     base = old
     # stage 1: ratio x concavity weight (the former terms)
     best = run([with_(old, concavity=c, ratio=r) for r in ratios for c in (4.0, 8.0, 16.0, 32.0)] + [base])

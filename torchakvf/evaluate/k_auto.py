@@ -13,10 +13,10 @@ from ..parts.k_auto import (
     choose_k,
     pick_k,
     scan_k,
-    scan_merge_weights,
     scan_options,
+    scan_overseg,
     segment_auto,
 )
 
-__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "scan_merge_weights", "scan_options", "DEFAULT_K_RANGE",
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "scan_overseg", "scan_options", "DEFAULT_K_RANGE",
            "KScan", "KChoice", "AutoSegmentation", "scan_k", "choose_k", "segment_auto", "pick_k", "check_k_range"]

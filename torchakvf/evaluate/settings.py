@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import TorchAKVFError
 from ..options import SegmentOptions, segment_options
-from .k_auto import DEFAULT_K_RANGE, DEFAULT_RULE, RULES, check_k_range, scan_merge_weights
+from .k_auto import DEFAULT_K_RANGE, DEFAULT_RULE, RULES, check_k_range, scan_overseg
 from .plan import DEFAULT_K_NO_GT, PROTOCOLS
 
 __all__ = ["EvalSettings", "EVAL_SEGMENT_DEFAULTS", "eval_segment_options", "split_overrides",
@@ -110,12 +110,12 @@ def split_overrides(overrides: dict, settings_class) -> tuple[dict, dict]:
 def eval_segment_options(options: SegmentOptions | None, overrides: dict, auto: bool = False) -> SegmentOptions:
     """The segmentation options of an evaluation: ``options`` (None: the package's defaults
     with :data:`EVAL_SEGMENT_DEFAULTS`) with ``overrides`` applied. With k auto and no merge
-    weights given, the scan's own (:func:`~torchakvf.evaluate.k_auto.scan_merge_weights`)."""
+    over-segmentation given, the scan's own (:func:`~torchakvf.evaluate.k_auto.scan_overseg`)."""
     given = dict(overrides)
     if options is None:
         given = {**EVAL_SEGMENT_DEFAULTS, **given}
         if auto:
-            given["merge"] = scan_merge_weights(given.get("merge"))
+            given["overseg"] = scan_overseg(given.get("overseg"))
         return segment_options(**given)
     return segment_options(options, **given)
 
@@ -127,9 +127,9 @@ def _jsonable(value):
 def changed_options(options: SegmentOptions) -> dict:
     """{name: value (JSON-able)} of the options that differ from the package's defaults, seed
     and remedy aside."""
-    defaults = SegmentOptions()
-    return {f: _jsonable(getattr(options, f)) for f in SegmentOptions.names()
-            if f not in ("seed", "remedy") and getattr(options, f) != getattr(defaults, f)}
+    defaults = SegmentOptions().recorded()
+    return {f: _jsonable(v) for f, v in options.recorded().items()
+            if f not in ("seed", "remedy") and v != defaults[f]}
 
 
 def prediction_record(options: SegmentOptions, settings: EvalSettings) -> dict:
@@ -138,8 +138,9 @@ def prediction_record(options: SegmentOptions, settings: EvalSettings) -> dict:
     resumed as these (``segment_kwargs``: the options that differ from the package's defaults,
     and the decimation)."""
     changed = changed_options(options)
-    if settings.auto and changed.get("merge") == _jsonable(scan_merge_weights(None)):
-        del changed["merge"]           # the scan's own weights, not a choice of the caller
+    scan = SegmentOptions(overseg=scan_overseg(None)).merge_record()
+    if settings.auto and changed.get("merge") == _jsonable(scan):
+        del changed["merge"]           # the scan's own over-segmentation, not a choice of the caller
     if settings.coarse_faces:
         changed["coarse_faces"] = settings.coarse_faces
     auto = settings.auto
@@ -148,7 +149,7 @@ def prediction_record(options: SegmentOptions, settings: EvalSettings) -> dict:
                 k_rule=settings.k_rule if auto else None, default_k=int(settings.default_k),
                 segment_kwargs=dict(sorted(changed.items())),
                 method=options.method,
-                options={f: _jsonable(getattr(options, f)) for f in SegmentOptions.names()})
+                options={f: _jsonable(v) for f, v in options.recorded().items()})
 
 
 def settings_guard(out: Path, prediction_settings: dict) -> None:

@@ -13,7 +13,7 @@ a triangle or two (marching cubes, fillets), so a threshold on single dihedral a
 through the gaps of a rounded crease. Faces near a crease form a band; the patches are the
 connected pieces of the other faces, and each band face joins the patch nearest it (in dual
 hops), so a patch boundary runs along the middle of its crease. The segmentation's default cuts
-along concave creases only (``MergeWeights.crease_concave``, ``concave_only`` here): people cut a
+along concave creases only (``OverSegmentation.crease_concave``, ``concave_only`` here): people cut a
 shape where its surface turns inward, and a convex crease is most often the edge of one part.
 """
 from __future__ import annotations

@@ -23,6 +23,7 @@ from .field_counts import cluster_count
 from .generators import part_generators
 from .graphcut import CornerMeans, edge_weights, graphcut_labels
 from .merge import (
+    MergeCache,
     RegionGraph,
     boundary_bends,
     merge_parts,
@@ -41,7 +42,7 @@ from .topology import face_adjacency
 
 
 @dataclass
-class OverSegmentation:
+class ClusteredParts:
     """One mesh's clustering carried to the mesh its parts are cut on, up to the merge: the
     boundaries (isolines) and, with ε = 0, the clean-up of small pieces. It depends on the
     clustering alone, not on k, so k's clustered alike (the merge method's k <= min_k, one
@@ -90,7 +91,7 @@ class MeshCache:
     adjacency : [P, 2] face pairs sharing an edge (of the mesh the parts are cut on)
     dual : its dual edges; bends : {crease angle: :func:`~torchakvf.parts.merge.boundary_bends`}
     cut_costs : {GraphCut: [P] dual-edge costs of the graph cut}
-    over : the last :class:`OverSegmentation` (ε = 0), for the next k clustered alike
+    over : the last :class:`ClusteredParts` (ε = 0), for the next k clustered alike
     sums_inputs : (centroids, thickness) of the mesh the merge terms read
         (:func:`~torchakvf.parts.merge.mesh_sums_inputs`), made when first needed
     patches : {(angle, rings, concave only): [F] :func:`~torchakvf.parts.creases.crease_patches`}
@@ -102,11 +103,11 @@ class MeshCache:
     dual: DualEdges | None = None
     bends: dict[float, tuple] = field(default_factory=dict)
     cut_costs: dict[GraphCut, np.ndarray] = field(default_factory=dict)
-    over: OverSegmentation | None = None
+    over: ClusteredParts | None = None
 
 
 def over_settings(opts: SegmentOptions, floor: float) -> tuple:
-    """The options an :class:`OverSegmentation` depends on besides its clustering (floor:
+    """The options an :class:`ClusteredParts` depends on besides its clustering (floor:
     :func:`part_floor` of its k)."""
     split = crease_key(opts) if crease_split_on(opts) else None
     return (opts.boundary, opts.eps > 0, floor, split)
@@ -114,12 +115,12 @@ def over_settings(opts: SegmentOptions, floor: float) -> tuple:
 
 def crease_key(opts: SegmentOptions) -> tuple:
     """(angle, rings, concave only): the arguments of the crease patches the options ask for."""
-    return (opts.merge.crease_split, opts.merge.crease_rings, opts.merge.crease_concave)
+    return (opts.overseg.crease_split, opts.overseg.crease_rings, opts.overseg.crease_concave)
 
 
 def crease_split_on(opts: SegmentOptions) -> bool:
     """Whether the over-segmentation is cut along creases: only where parts are merged."""
-    return opts.merges_parts and opts.merge.crease_split is not None
+    return opts.merges_parts and opts.overseg.crease_split is not None
 
 
 def joining_weights(dual: DualEdges) -> np.ndarray:
@@ -136,8 +137,8 @@ def part_floor(k: int, opts: SegmentOptions) -> float:
 
 
 def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: tuple,
-                      opts: SegmentOptions, cache: MeshCache, floor: float) -> OverSegmentation:
-    """:class:`OverSegmentation` of mesh b from its clustering (features, centers, labels on
+                      opts: SegmentOptions, cache: MeshCache, floor: float) -> ClusteredParts:
+    """:class:`ClusteredParts` of mesh b from its clustering (features, centers, labels on
     the solved mesh); sets the mesh's face adjacency in ``cache``."""
     feats, centers, labels = clustered
     clean = batch.meshes[b]
@@ -178,7 +179,7 @@ def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: t
     for shared in (vdist, feats, labels, unit):
         if shared is not None:     # read by every k that shares them: a write would be a bug
             shared.flags.writeable = False
-    return OverSegmentation(source=tuple(np.array(a) for a in clustered), settings=over_settings(opts, floor),
+    return ClusteredParts(source=tuple(np.array(a) for a in clustered), settings=over_settings(opts, floor),
                             mesh=clean, vdist=vdist, feats=feats, labels=labels, area=area, unit=unit,
                             n_patches=n_patches)
 
@@ -238,7 +239,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         converged=converged, max_residual=residual)
 
 
-def _discovery_labels(over: OverSegmentation, cache: MeshCache, opts: SegmentOptions, floor: float) -> np.ndarray:
+def _discovery_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOptions, floor: float) -> np.ndarray:
     """Part discovery (ε > 0): the connecting region between the parts, small pieces made
     connecting region."""
     adjacency = cache.adjacency
@@ -248,7 +249,7 @@ def _discovery_labels(over: OverSegmentation, cache: MeshCache, opts: SegmentOpt
     return absorb_single_neighbour_regions(labels, adjacency)
 
 
-def _segmentation_labels(over: OverSegmentation, cache: MeshCache, opts: SegmentOptions, k: int, floor: float,
+def _segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOptions, k: int, floor: float,
                          cost: float, n_solved: int) -> CutParts:
     """Plain segmentation (ε = 0): with method "merge", adjacent parts merged down to k and the
     boundaries re-decided by the graph cut; the cost of the next merge either way.
@@ -269,7 +270,7 @@ def _segmentation_labels(over: OverSegmentation, cache: MeshCache, opts: Segment
             over.graphs[crease] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
                                                centroids=centroids, thickness=thickness)
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
-                             dual=dual, unit=unit, bends=bends, graph=over.graphs[crease])
+                             MergeCache(dual=dual, unit=unit, bends=bends, graph=over.graphs[crease]))
         # the refined cut and the graph cut's data term follow the merged parts
         vdist = merged_distances(vdist, over.centers, merged, faces=clean.faces,
                                  patches=over.labels % over.n_patches if over.n_patches > 1 else None)
@@ -302,14 +303,15 @@ def recorded_params(batch: MeshBatch, b: int, k: int, n_fields: int, k_cluster: 
                   solver=opts.solver, method=opts.method)
     if opts.graphcut is not None and opts.merges_parts:
         params["graphcut"] = True
-        params.update({f"graphcut_{name}": v if isinstance(v, str) else float(v) for name, v in vars(opts.graphcut).items()})
+        params.update({f"graphcut_{name}": v if isinstance(v, str) else float(v)
+                       for name, v in vars(opts.graphcut).items()})
     if merge_next is not None:
         params["merge_next"] = merge_next
     if opts.merges_parts:
         params["k_oversegment"] = k_cluster
-        params.update({f"merge_{name}": float(v) for name, v in vars(opts.merge).items() if v is not None})
+        params.update({f"merge_{name}": float(v) for name, v in opts.merge_record().items() if v is not None})
     return params
 
 
-__all__ = ["cut_parts", "MeshCache", "OverSegmentation", "CutParts", "over_segmentation", "over_settings",
+__all__ = ["cut_parts", "MeshCache", "ClusteredParts", "CutParts", "over_segmentation", "over_settings",
            "part_floor", "recorded_params"]

@@ -19,7 +19,7 @@ from ..options import (
     FIELDS_PER_PART,
     FIELDS_STEP,
     SPARE_FIELDS,
-    MergeWeights,
+    OverSegmentation,
     SegmentOptions,
 )
 from .merge import oversegment_k
@@ -59,18 +59,18 @@ def check_ks(batch, ks) -> list:
 
 
 def min_k_of(method: str, min_k: int | None) -> int:
-    """min_k as given, or for None the default MergeWeights' with method "merge", else 1."""
+    """min_k as given, or for None the default OverSegmentation's with method "merge", else 1."""
     if min_k is not None:
         return int(min_k)
-    return int(MergeWeights().min_k) if method == "merge" else 1
+    return int(OverSegmentation().min_k) if method == "merge" else 1
 
 
 def default_n_fields(k: int, method: str = "paper", min_k: int | None = None) -> int:
     """Fields untangled for k parts: FIELDS_PER_PART[method] x max(k, min_k), rounded up to a
     multiple of FIELDS_STEP[method], clamped to FIELD_COUNT_RANGE ([16, 32]; method "paper",
     the default here: the paper's N = 2k). min_k: the merge method's
-    :attr:`~torchakvf.options.MergeWeights.min_k` (a k below it is over-segmented as min_k
-    is, from the same fields); None: the default MergeWeights' with method "merge", else 1."""
+    :attr:`~torchakvf.options.OverSegmentation.min_k` (a k below it is over-segmented as min_k
+    is, from the same fields); None: the default OverSegmentation's with method "merge", else 1."""
     if method not in FIELDS_PER_PART:
         raise ParameterError(f"method must be one of {tuple(FIELDS_PER_PART)}, got {method!r}")
     step = FIELDS_STEP[method]
@@ -110,7 +110,7 @@ def field_counts(fields: AKVFResult, k, n_fields=None, method: str = DEFAULT_MET
     paper's 2k, the merge method's 3 max(k, min_k), clamped to [16, 32]), moved by
     :func:`cluster_safe_n` off a degenerate cluster of the mesh's computed eigenvalues;
     otherwise ``n_fields`` (one int or one per mesh), which must not exceed ``fields.n``.
-    min_k None: the default MergeWeights' for method "merge" (:func:`default_n_fields`).
+    min_k None: the default OverSegmentation's for method "merge" (:func:`default_n_fields`).
     """
     min_k = min_k_of(method, min_k)
     nb = len(fields.batch)
@@ -146,7 +146,7 @@ def cluster_count(k: int, n_faces: int, opts: SegmentOptions) -> int:
     the parts are merged afterwards (:func:`~torchakvf.parts.merge.oversegment_k`)."""
     if not opts.merges_parts:
         return int(k)
-    return oversegment_k(k, opts.merge.ratio, n_faces, opts.merge.extra_max, opts.merge.min_k)
+    return oversegment_k(k, opts.overseg.ratio, n_faces, opts.overseg.extra_max, opts.overseg.min_k)
 
 
 __all__ = ["per_mesh", "check_ks", "min_k_of", "default_n_fields", "cluster_safe_n", "field_counts", "akvf_count",

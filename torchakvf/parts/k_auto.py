@@ -36,7 +36,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..fields.akvf import AKVFResult, as_batch
 from ..fields.untangle import UntangledFields
-from ..options import SPARE_FIELDS, MergeWeights, SegmentOptions, segment_options
+from ..options import SPARE_FIELDS, OverSegmentation, SegmentOptions, segment_options
 from .field_counts import cluster_safe_n, default_n_fields
 from .results import Segmentation
 from .rounds import segment_rounds
@@ -49,28 +49,28 @@ DEFAULT_RULE = "merge"
 #: The "merge" rule's threshold on the cheapest merge left (units of the merge cost): chosen by
 #: cross-validation across PSB categories with the default merge weights (see docs/design.md).
 MERGE_TAU = 0.95
-#: The merge weights' min_k of the scan when the caller gives no ``merge``: 1, every k
+#: The over-segmentation's min_k of the scan when the caller gives no ``overseg``: 1, every k
 #: over-segmented on its own, the setting MERGE_TAU was chosen with. With the segmentation
-#: default (MergeWeights.min_k 8) the small k's of the scan are merged down from one
+#: default (OverSegmentation.min_k 8) the small k's of the scan are merged down from one
 #: over-segmentation and their next-merge costs read differently (a dumbbell's neck is left as
 #: a costly third part).
 SCAN_MIN_K = 1
 DEFAULT_K_RANGE = (2, 10)
 
 
-def scan_merge_weights(merge: MergeWeights | None) -> MergeWeights:
-    """The scan's merge weights: ``merge`` as given, None: the defaults at :data:`SCAN_MIN_K`."""
-    return MergeWeights(min_k=SCAN_MIN_K) if merge is None else merge
+def scan_overseg(overseg: OverSegmentation | None) -> OverSegmentation:
+    """The scan's over-segmentation: ``overseg`` as given, None: the default at :data:`SCAN_MIN_K`."""
+    return OverSegmentation(min_k=SCAN_MIN_K) if overseg is None else overseg
 
 
 def scan_options(options: SegmentOptions | None, overrides: dict) -> SegmentOptions:
     """The options of a scan: ``options`` with ``overrides`` applied; None: the defaults with
-    the scan's merge weights unless ``overrides`` name others."""
+    the scan's over-segmentation unless ``overrides`` name another."""
     if options is None:
-        return segment_options(**{**overrides, "merge": scan_merge_weights(overrides.get("merge"))})
+        return segment_options(**{**overrides, "overseg": scan_overseg(overrides.get("overseg"))})
     return segment_options(options, **overrides)
 
-__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "scan_merge_weights", "scan_options", "DEFAULT_K_RANGE",
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "scan_overseg", "scan_options", "DEFAULT_K_RANGE",
            "KScan", "KChoice", "AutoSegmentation", "scan_k", "scan_akvf_count", "scan_field_counts", "choose_k",
            "segment_auto", "auto_segmentation", "pick_k", "check_k_range", "is_auto"]
 
@@ -192,7 +192,7 @@ def scan_k(meshes, k_range=DEFAULT_K_RANGE, options: SegmentOptions | None = Non
     meshes : MeshBatch, Mesh, list of Mesh, or an :class:`AKVFResult` to reuse
     k_range : (k_min, k_max), inclusive, k_max >= k_min + 2
     options : the :class:`~torchakvf.options.SegmentOptions` (None: the defaults, with
-        the scan's merge weights :func:`scan_merge_weights` unless ``merge`` is given); used as
+        the scan's over-segmentation :func:`scan_overseg` unless ``overseg`` is given); used as
         given otherwise
     rule : see the module notes (default :data:`DEFAULT_RULE`)
     n_fields : fields untangled for every k (default ``default_n_fields(k_max)`` per mesh, moved

@@ -231,32 +231,51 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     return np.searchsorted(roots, owner), history
 
 
+@dataclass
+class MergeCache:
+    """What :func:`merge_parts` can take ready-made instead of making it from the mesh (each
+    None: made there). A caller merging one over-segmentation to several k makes them once.
+
+    dual : :func:`dual_edges` of the mesh; unit : [F, n] :func:`unit_rows` of the features;
+    bends : :func:`boundary_bends` (dual, the weights' crease angle); graph :
+    :func:`region_graph` of the labels at the weights' crease angle (it does not depend on k);
+    thickness : [F] :func:`face_thickness` of the mesh (read where the weights read it and no
+    graph is given).
+    """
+
+    dual: DualEdges | None = None
+    unit: np.ndarray | None = None
+    bends: tuple | None = None
+    graph: RegionGraph | None = None
+    thickness: np.ndarray | None = None
+
+
 def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, features: np.ndarray,
                 face_area: np.ndarray, k: int, weights: MergeWeights | None = None,
-                dual: DualEdges | None = None, *, unit: np.ndarray | None = None,
-                bends: tuple | None = None, graph: RegionGraph | None = None,
-                thickness: np.ndarray | None = None) -> np.ndarray:
+                cache: MergeCache | None = None, **moved) -> np.ndarray:
     """Labels [F] of an over-segmentation merged down to k adjacent-part unions.
 
     labels : [F] int part per face (negative = no part, kept as is); faces [F, 3] and
     vertices [V, 3] the mesh they live on (outward-oriented); features : [F, n] untangled
     per-face features; face_area : [F]; k : parts wanted; weights : :class:`MergeWeights`
-    (default: the cross-validated ones); dual : :func:`dual_edges` of the mesh, if at hand;
-    unit, bends : :func:`unit_rows` (features), :func:`boundary_bends` (dual, the weights'
-    crease angle), if at hand; graph : :func:`region_graph` of these labels (at the weights'
-    crease angle), if at hand (it does not depend on k: a caller merging one over-segmentation
-    to several k makes it once); thickness : [F] :func:`face_thickness` of the mesh, if at hand
-    (computed here where the weights read it and no graph is given).
+    (default: the learned ones); cache : a :class:`MergeCache` of what is at hand (dual edges,
+    unit rows, boundary bends, the region graph, thickness).
     Returns labels in 0..k_out-1 (k_out = k unless fewer parts were given or no adjacent pair
     was left, e.g. more connected components than k).
     """
+    if moved or not (cache is None or isinstance(cache, MergeCache)):
+        # the five caches are one argument: name the new spelling for the old one
+        names = sorted(moved) or ["dual"]
+        raise ParameterError(f"merge_parts takes {', '.join(names)} as cache=MergeCache("
+                             + ", ".join(f"{n}=..." for n in names) + ")")
     weights = MergeWeights() if weights is None else weights
-    if dual is None:
-        dual = dual_edges(vertices, faces)
+    cache = MergeCache() if cache is None else cache
+    graph = cache.graph
     if graph is None:
-        centroids, thickness = mesh_sums_inputs(vertices, faces, weights, thickness)
-        graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends,
-                             centroids=centroids, thickness=thickness)
+        dual = dual_edges(vertices, faces) if cache.dual is None else cache.dual
+        centroids, thickness = mesh_sums_inputs(vertices, faces, weights, cache.thickness)
+        graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=cache.unit,
+                             bends=cache.bends, centroids=centroids, thickness=thickness)
     new_id, _ = greedy_merge(graph, k, weights)
     out = np.where(graph.labels >= 0, new_id[np.maximum(graph.labels, 0)], graph.labels)
     return out.astype(np.asarray(labels).dtype, copy=False)
@@ -355,5 +374,7 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     return out
 
 
-__all__ = ["MergeWeights", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_part_sums", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
-           "greedy_merge", "merge_parts"]
+__all__ = ["MergeWeights", "MergeCache", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_part_sums",
+           "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances", "partition_cost",
+           "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs", "greedy_merge",
+           "merge_parts"]

@@ -131,7 +131,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     if not ks or ks[0] < 2 or not seeds:
         raise ParameterError(f"part descriptors need part counts >= 2 and a seed, got ks={list(ks)!r}, "
                              f"seeds={list(seeds)!r}")
-    enough = fields.n >= akvf_count([ks], None, opts.method, opts.merge.min_k)
+    enough = fields.n >= akvf_count([ks], None, opts.method, opts.overseg.min_k)
     n_fields = None if enough else fields.n
     batch = fields.batch
     # a segmentation asks for at most one part per face: a smaller mesh is segmented at its face count

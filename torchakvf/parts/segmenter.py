@@ -78,7 +78,7 @@ class Segmenter:
         (its n must cover the field counts asked for)
     options : a :class:`~torchakvf.options.SegmentOptions` (None: the defaults); ``**overrides``
         are its field names, as in :func:`~torchakvf.parts.segment.segment`. With ``k="auto"``
-        and no options given, the scan's merge weights
+        and no options given, the scan's over-segmentation
         (:func:`~torchakvf.parts.k_auto.scan_options`), as the evaluation's ``-k auto`` uses
     n : AKVFs to solve for (the count :func:`~torchakvf.fields.akvf` calls ``n``). Default: what
         the first call needs (:func:`~torchakvf.parts.field_counts.akvf_count`; with k auto
