@@ -81,7 +81,7 @@ def capture_item(args) -> str:
     except Exception as exc:                         # noqa: BLE001 - recorded, the run goes on
         return f"{item.key} FAILED {type(exc).__name__}: {exc}"
     record = {"overs": [], "k_over": {}, "final": {}}
-    original = C._segmentation_labels
+    original = C.segmentation_labels
 
     def recording(over, cache, o, k, floor, cost, n_solved):
         ids = [i for i, s in enumerate(record["overs"]) if s["labels"] is over.labels]
@@ -94,13 +94,13 @@ def capture_item(args) -> str:
         record["mesh"] = over.mesh
         return original(over, cache, o, k, floor, cost, n_solved)
 
-    C._segmentation_labels = recording
+    C.segmentation_labels = recording
     try:
         for rnd in segment_rounds(fields, [ks], opts):
             for b in rnd.active:
                 record["final"][int(rnd.ks[b])] = rnd.meshes[b].labels.astype(np.int32)
     finally:
-        C._segmentation_labels = original
+        C.segmentation_labels = original
     record.update(key=item.key, group=item.group, kind=item.kind, gts=[g.astype(np.int32) for g in gts],
                   variant=variant, coarse_faces=coarse_faces, remedy=fields.remedies[0], rings=rings,
                   seconds=time.perf_counter() - t0)

@@ -49,7 +49,7 @@ def capture_mesh(args) -> str:
     mb = MeshBatch.from_meshes([mesh], coarse_faces=coarse_faces)
     fields, _ = solve_akvfs(mb, eval_akvf_count(settings), opts)
     record = {"overs": [], "k_over": {}, "final": {}}
-    original = C._segmentation_labels
+    original = C.segmentation_labels
 
     def recording(over, cache, o, k, floor, cost, n_solved):
         ids = [i for i, s in enumerate(record["overs"]) if s["labels"] is over.labels]
@@ -61,13 +61,13 @@ def capture_mesh(args) -> str:
         record["mesh"] = over.mesh
         return original(over, cache, o, k, floor, cost, n_solved)
 
-    C._segmentation_labels = recording
+    C.segmentation_labels = recording
     try:
         for rnd in segment_rounds(fields, [ks], opts):
             for b in rnd.active:
                 record["final"][int(rnd.ks[b])] = rnd.meshes[b].labels.astype(np.int16)
     finally:
-        C._segmentation_labels = original
+        C.segmentation_labels = original
     record.update(mesh_id=entry.mesh_id, category=entry.category, gts=[g.astype(np.int16) for g in gts],
                   seconds=time.perf_counter() - t0)
     with open(path, "wb") as fh:

@@ -224,7 +224,7 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
     if opts.eps > 0:
         cut = CutParts(labels=_discovery_labels(over, cache, opts, floor), vdist=over.vdist, cost=float(km.cost[b]))
     else:
-        cut = _segmentation_labels(over, cache, opts, k, floor, float(km.cost[b]), f1 - f0)
+        cut = segmentation_labels(over, cache, opts, k, floor, float(km.cost[b]), f1 - f0)
     clean, feats = over.mesh, over.feats
     labels = limit_parts(cut.labels, clean.vertices, clean.faces, k)
     gens = part_generators(labels, feats, over.area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
@@ -249,10 +249,12 @@ def _discovery_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOptio
     return absorb_single_neighbour_regions(labels, adjacency)
 
 
-def _segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOptions, k: int, floor: float,
-                         cost: float, n_solved: int) -> CutParts:
+def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOptions, k: int, floor: float,
+                        cost: float, n_solved: int) -> CutParts:
     """Plain segmentation (ε = 0): with method "merge", adjacent parts merged down to k and the
-    boundaries re-decided by the graph cut; the cost of the next merge either way.
+    boundaries re-decided by the graph cut; the cost of the next merge either way. The one place
+    an over-segmentation becomes k parts, so the merge's training captures record its inputs
+    here (experiments/segmentation/merge_capture.py).
     n_solved : the faces of the solved mesh (the cost's unit)."""
     clean, vdist, feats, labels, area, unit = over.mesh, over.vdist, over.feats, over.labels, over.area, over.unit
     if cache.dual is None:
@@ -314,4 +316,4 @@ def recorded_params(batch: MeshBatch, b: int, k: int, n_fields: int, k_cluster: 
 
 
 __all__ = ["cut_parts", "MeshCache", "ClusteredParts", "CutParts", "over_segmentation", "over_settings",
-           "part_floor", "recorded_params"]
+           "segmentation_labels", "part_floor", "recorded_params"]
