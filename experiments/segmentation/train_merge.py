@@ -28,7 +28,7 @@ from torchakvf.parts.merge import FIELD_OF_TERM
 from torchakvf.parts.merge_terms import TERM_NAMES
 
 #: The package's learned-weights file, which this script writes.
-PACKAGE_FILE = Path(__file__).resolve().parents[1] / "torchakvf" / "parts" / "merge_weights.json"
+PACKAGE_FILE = Path(__file__).resolve().parents[2] / "torchakvf" / "parts" / "merge_weights.json"
 
 
 def weights_record(w, b0: float, gamma: float, n_meshes: int, n_categories: int) -> dict:

@@ -76,14 +76,14 @@ def segment(meshes, k, options: SegmentOptions | None = None, *, n_fields=None,
         :class:`~torchakvf.parts.k_auto.AutoSegmentation`, whose ``k_auto`` [B]
         (:class:`~torchakvf.parts.k_auto.KChoice`) says which k each mesh got
     options : a :class:`~torchakvf.options.SegmentOptions` (default: ``SegmentOptions()``; with
-        ``k="auto"``, the defaults with the scan's merge weights,
-        :func:`~torchakvf.parts.k_auto.scan_merge_weights`): eps, seed, method, solver, merge
-        weights, graph cut, restarts, boundary, ...
+        ``k="auto"``, the defaults with the scan's over-segmentation,
+        :func:`~torchakvf.parts.k_auto.scan_overseg`): eps, seed, method, solver, merge
+        weights, over-segmentation, graph cut, restarts, boundary, ...
     **overrides : SegmentOptions field names, applied to ``options``:
         ``segment(batch, k=6, eps=0.1, seed=1)``; an unknown name is a ParameterError
     n_fields : fields untangled per mesh (one int or one per mesh; with k "auto" one int for
         every k); default :func:`~torchakvf.parts.field_counts.default_n_fields` (2k in [16, 32];
-        with method "merge" 3 max(k, merge.min_k) rounded up to a multiple of 8, in [16, 32];
+        with method "merge" 3 max(k, overseg.min_k) rounded up to a multiple of 8, in [16, 32];
         k "auto": that of k_max, method "paper"), moved to the nearest count that does not split
         a degenerate cluster (:func:`~torchakvf.parts.field_counts.cluster_safe_n`)
     coarse_faces : solve on meshes decimated to about this many faces and report on the

@@ -127,7 +127,7 @@ def _add_segment(sub) -> None:
 def run_segment(args) -> int:
     from ..mesh.coarse import DEFAULT_COARSE_FACES
     from ..options import DEFAULT_REMEDY, SegmentOptions
-    from ..parts.k_auto import is_auto, scan_merge_weights
+    from ..parts.k_auto import is_auto, scan_overseg
     from .segment_task import SegmentTask, parse_formats
 
     auto = is_auto(args.k)
@@ -143,7 +143,7 @@ def run_segment(args) -> int:
     options = SegmentOptions(eps=eps, seed=parse_seed(args.seed),
                              remedy=parse_remedy(args.remedy or DEFAULT_REMEDY), solver=args.solver,
                              method=args.method, graphcut=args.graph_cut == "on", batched=args.batched,
-                             **({"merge": scan_merge_weights(None)} if auto else {}))
+                             **({"overseg": scan_overseg(None)} if auto else {}))
     task = SegmentTask(k, options, n_fields=n_fields, coarse_faces=coarse or None,
                        formats=parse_formats(args.formats), subdivide=args.subdivide, k_range=(lo, hi))
     return _run(args, task, parse_device(args.device, check_available=not _ray_workers(args)))
