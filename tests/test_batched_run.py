@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from helpers.meshfiles import write_off
 from helpers.runs import by_stem, cli_run
@@ -75,9 +76,31 @@ def test_cli_segment_batched_prints_the_stage_line(corpus, tmp_path, capsys):
     assert json.loads((tmp_path / "o" / TIMINGS).read_text())["workers"] == 0
 
 
+def test_features_overlap_gives_the_in_turn_arrays_and_uses_the_cache(corpus, tmp_path, monkeypatch):
+    """features --batched through the overlap: the in-turn path's arrays; a second run into
+    another folder copies every mesh from the content cache (not solved again)."""
+    def run(out, workers, cache=None):
+        task = FeaturesTask(8, batched=True, part_descriptors=False, cache_dir=cache)
+        return runner.run_corpus(corpus, out, task, workers=workers, progress=False)
+
+    over = run(tmp_path / "over", 2, tmp_path / "cache")
+    with monkeypatch.context() as m:
+        m.setattr(runner, "overlapped", lambda task, device: False)
+        run(tmp_path / "turn", 1)
+    assert (over.ok, over.failed) == (3, 1) and set(over.timings) >= {"akvf", "untangle", "write", "host_share"}
+    for stem in "abc":
+        a, b = np.load(tmp_path / "over" / f"{stem}.npz"), np.load(tmp_path / "turn" / f"{stem}.npz")
+        for key in ("features", "akvf_norms", "eigenvalues", "descriptors"):
+            assert np.array_equal(a[key], b[key]), (stem, key)
+    again = run(tmp_path / "again", 2, tmp_path / "cache")
+    assert (again.ok, again.cached, again.failed) == (3, 3, 1) and again.timings["batches"] >= 1
+    assert all((tmp_path / "again" / f"{stem}.npz").read_bytes() == (tmp_path / "over" / f"{stem}.npz").read_bytes()
+               for stem in "abc")
+
+
 def test_which_tasks_overlap():
-    assert overlaps(SegmentTask(2)) and not overlaps(FeaturesTask(8))
+    assert overlaps(SegmentTask(2)) and overlaps(FeaturesTask(8))
     assert runner.overlapped(SegmentTask(2, batched=True), "cpu")
     assert not runner.overlapped(SegmentTask(2), "cpu")            # the CPU's default: in turn
     assert not runner.overlapped(SegmentTask(2, batched=False), "cuda")
-    assert not runner.overlapped(FeaturesTask(8, batched=True), "cpu")
+    assert runner.overlapped(FeaturesTask(8, batched=True), "cpu") and not runner.overlapped(FeaturesTask(8), "cpu")

@@ -1,5 +1,6 @@
 """A corpus run's batches through the host/device overlap (:mod:`.overlap`): the runner's path
-for a task solved as one batch (``torchakvf segment --batched``, and on a GPU by default).
+for a task solved as one batch (``torchakvf segment --batched``, ``features --batched``, and on
+a GPU by default).
 
 A task takes this path when it has the two halves of its ``process``:
 
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.outputs import atomic_write_bytes
-from .execute import Item, failed_record, load_item, write_item
+from .execute import Item, base_record, failed_record, load_item, output_record, write_item
 from .overlap import OverlapTimes, PreparedMesh, pack, run_overlapped
 
 __all__ = ["CorpusOverlap", "run_batches_overlapped", "overlaps", "TIMINGS"]
@@ -53,16 +54,24 @@ class CorpusOverlap:
         from ..mesh.batch import coarse_or_none
 
         t0 = time.perf_counter()
-        load_item(item, self.task, self.out_dir)
+        if not load_item(item, self.task, self.out_dir):      # copied from the task's cache
+            return PreparedMesh(None, None, None, time.perf_counter() - t0, item=item)
         coarse = coarse_or_none(item.clean, self.coarse_faces)
         item.seconds["load"] = time.perf_counter() - t0
         return PreparedMesh(item.mesh, item.clean, coarse, time.perf_counter() - t0, item=item)
 
     def solve(self, ready: list, times: OverlapTimes) -> list:
         """In the solving process: pack, solve; each mesh's cut input carries its item (mesh as
-        read, seconds so far, the batch's stage seconds charged by its share of the faces)."""
+        read, seconds so far, the batch's stage seconds charged by its share of the faces); a
+        mesh found in the task's cache is not solved (its cut input: (item, None))."""
+        solved = {id(prep): inp for prep, inp in self.solve_loaded([p for _, p in ready if p.mesh is not None], times)}
+        return [solved.get(id(prep), (prep.item, None)) for _, prep in ready]
+
+    def solve_loaded(self, preps: list, times: OverlapTimes) -> list:
+        """[(PreparedMesh, cut input)] of the loaded meshes, solved as one batch."""
+        if not preps:
+            return []
         t0 = time.perf_counter()
-        preps = [prep for _, prep in ready]
         batch = pack(preps, self.device, self.coarse_faces)
         t_pack = time.perf_counter() - t0
         inputs, stage_s = self.task.solve_prepared(batch)
@@ -76,7 +85,7 @@ class CorpusOverlap:
             for stage in self.task.stages:
                 it.seconds[stage] = stage_s.get(stage, 0.0) * share[b]
             it.seconds[self.task.stages[0]] += t_pack * share[b]
-            out.append((it, inputs[b]))
+            out.append((prep, (it, inputs[b])))
         return out
 
     def cut(self, item: Item, cut_input) -> tuple:
@@ -84,6 +93,10 @@ class CorpusOverlap:
         Returns (record, {"cut": s, "write": s})."""
         it, inp = cut_input
         t0 = time.perf_counter()
+        if inp is None:                # copied from the cache when it was prepared
+            rec = base_record(it, self.task, self.seed)
+            rec.update(status="ok", cached=True)
+            return output_record(rec, self.task, self.out_dir, it.stem), {}
         output = self.task.cut(inp)
         t1 = time.perf_counter()
         it.seconds[self.task.stages[-1]] = it.seconds.get(self.task.stages[-1], 0.0) + (t1 - t0)

@@ -45,6 +45,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="run the batches on N Ray actors (pip install 'torchakvf[ray]'; joins the "
                         "cluster of RAY_ADDRESS or `ray start`, else a local one; with --device cuda "
                         "one GPU each). Default 0: no Ray")
+    p.add_argument("--workers", default=None, metavar="W",
+                   help="with --batched (or on cuda): processes in all, one solving, the others loading, "
+                        "cutting and writing meshes meanwhile (default: one per CPU core, at most 16)")
     add_batched_argument(p)
 
 
@@ -52,7 +55,11 @@ def _ray_workers(args) -> int:
     return parse_int(args.ray_workers, "--ray-workers", 0)
 
 
-def _run(args, task, device: str, workers: int | None = None) -> int:
+def _workers(args) -> int | None:
+    return parse_int(args.workers, "--workers", 1) if args.workers is not None else None
+
+
+def _run(args, task, device: str) -> int:
     from .batches import default_batch_faces
     from .inputs import discover_inputs
     from .outdir import check_output_dir
@@ -82,7 +89,7 @@ def _run(args, task, device: str, workers: int | None = None) -> int:
                                  gpus_per_worker=1.0 if cuda else 0.0)
     else:
         summary = run_corpus(paths, out, task, batch_faces=batch_faces, device=device,
-                             seed=task.seed, resume=not args.force, workers=workers)
+                             seed=task.seed, resume=not args.force, workers=_workers(args))
     print(summary.line(task.name))
     if summary.failed:
         shown = summary.failures[:5]
@@ -116,9 +123,6 @@ def _add_segment(sub) -> None:
     p.add_argument("--subdivide", action="store_true",
                    help="subdivide a mesh with too few edges for its fields (a 12-face cube at -k 5) "
                         "at its edge midpoints until it has enough; labels stay one per face of the file")
-    p.add_argument("--workers", default=None, metavar="W",
-                   help="with --batched (or on cuda): processes in all, one solving, the others loading, "
-                        "cutting and writing meshes meanwhile (default: one per CPU core, at most 16)")
     add_solver_argument(p, default="auto")
     add_graph_cut_argument(p)
     add_method_argument(p, DEFAULT_METHOD, METHODS)
@@ -140,8 +144,7 @@ def run_segment(args) -> int:
                              method=args.method, graphcut=args.graph_cut == "on", batched=args.batched)
     task = SegmentTask(k, options, n_fields=n_fields, coarse_faces=coarse or None,
                        formats=parse_formats(args.formats), subdivide=args.subdivide)
-    workers = parse_int(args.workers, "--workers", 1) if args.workers is not None else None
-    return _run(args, task, parse_device(args.device, check_available=not _ray_workers(args)), workers)
+    return _run(args, task, parse_device(args.device, check_available=not _ray_workers(args)))
 
 
 # ---- features -----------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """The host/device overlap of a batched run (the accelerator's path): host processes feed the
 solving process and finish what it solved, so that the device never waits on one core's host
-work. Every batched corpus command goes through it (``segment --batched``, ``eval --batched``).
+work. Every batched corpus command goes through it (``segment``, ``features`` and ``eval`` with
+``--batched``, or on a GPU).
 
 ::
 

@@ -222,7 +222,8 @@ def overlapped(task, device) -> bool:
 
     if not overlaps(task):
         return False
-    b = getattr(getattr(task, "options", None), "batched", None)
+    opts = getattr(task, "options", None)
+    b = opts.batched if opts is not None else getattr(task, "batched", None)
     return batched_by_default(device) if b is None else bool(b)
 
 
