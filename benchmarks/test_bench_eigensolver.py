@@ -62,7 +62,8 @@ def _batch(shapes) -> MeshBatch:
 
 
 def _psb_batch() -> MeshBatch:
-    root = default_psb_root()
+    checkout_psb = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "psb"
+    root = default_psb_root() or ((checkout_psb / "meshes").is_dir() and checkout_psb) or None
     if root is None:
         pytest.skip("Princeton Segmentation Benchmark not found: set TORCHAKVF_PSB or put it at "
                     "../shared/psb")

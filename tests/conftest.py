@@ -12,18 +12,25 @@ Helpers that are not fixtures live in the ``helpers`` package beside this file
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from torchakvf.evaluate.psb import default_psb_root
+from torchakvf.evaluate.psb import PSB_ENV, default_psb_root
+
+#: The benchmark beside this checkout, where the tests look when $TORCHAKVF_PSB is not set (the
+#: package itself looks only where --psb or the variable say).
+CHECKOUT_PSB = Path(__file__).resolve().parents[1].parent / "shared" / "psb"
+if not os.environ.get(PSB_ENV) and (CHECKOUT_PSB / "meshes").is_dir():
+    os.environ[PSB_ENV] = str(CHECKOUT_PSB)
 
 
 @pytest.fixture(scope="session")
 def psb() -> Path:
-    root = default_psb_root()   # $TORCHAKVF_PSB, else ../shared/psb beside the repository
+    root = default_psb_root()   # $TORCHAKVF_PSB, set above to ../shared/psb beside the checkout
     if root is None:
         pytest.skip("Princeton Segmentation Benchmark not found: set TORCHAKVF_PSB or put it at "
                     "../shared/psb (meshes/N.off.gz, gt/N/N_k.seg.gz)")

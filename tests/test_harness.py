@@ -262,6 +262,20 @@ def test_eval_command_parses_and_validates(tiny_psb, tmp_path):
         missing.func(missing)
 
 
+def test_eval_without_psb_says_what_to_pass(tmp_path, monkeypatch, capsys):
+    """No --psb and no $TORCHAKVF_PSB: one line naming both (the package looks nowhere else,
+    not beside the checkout), exit 2; the variable alone is enough."""
+    from torchakvf.cli import main
+
+    monkeypatch.delenv("TORCHAKVF_PSB", raising=False)
+    assert main(["eval", "--out", str(tmp_path / "e"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pass --psb DIR" in err and "TORCHAKVF_PSB" in err
+    monkeypatch.setenv("TORCHAKVF_PSB", str(tmp_path / "nowhere"))
+    assert main(["eval", "--out", str(tmp_path / "e"), "--quiet"]) == 2
+    assert "no PSB data at " + str(tmp_path / "nowhere") in capsys.readouterr().err
+
+
 def test_k_auto_end_to_end(tiny_psb, tmp_path):
     root, d = tiny_psb
     s = evaluate_psb(root, tmp_path, ids=[1], k_mode="auto", k_range=(1, 3), progress=False,

@@ -31,6 +31,16 @@ needs_psb = pytest.mark.skipif(
     psb_root() is None,
     reason="PSB data not found: set TORCHAKVF_PSB or put it at <repo>/../shared/psb")
 
+
+def test_default_root_is_the_variable_only(tmp_path, monkeypatch):
+    """$TORCHAKVF_PSB when it holds meshes/, else None: never a folder beside the checkout."""
+    monkeypatch.delenv("TORCHAKVF_PSB", raising=False)
+    assert psb_root() is None
+    monkeypatch.setenv("TORCHAKVF_PSB", str(tmp_path))
+    assert psb_root() is None
+    (tmp_path / "meshes").mkdir()
+    assert psb_root() == tmp_path
+
 # ---------------------------------------------------------------------------------------------
 # reading and naming
 # ---------------------------------------------------------------------------------------------

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import TorchAKVFError
-from ..evaluate.commands import default_psb_arg
+from ..evaluate.commands import psb_folder
 from ..mesh.coarse import DEFAULT_COARSE_FACES
 from ..options import METHODS
 from ..pipeline.arguments import (
@@ -32,8 +32,7 @@ def add_bench_command(subparsers) -> None:
 def add_bench_arguments(p) -> None:
     """The options of ``torchakvf bench`` (values are checked in :func:`run_bench_command`)."""
     p.add_argument("--psb", default=None, metavar="DIR",
-                   help="PSB folder with meshes/ and gt/ (default: $TORCHAKVF_PSB, else "
-                        "<repo>/../shared/psb)")
+                   help="PSB folder with meshes/ and gt/ (default: $TORCHAKVF_PSB)")
     p.add_argument("--out", default="bench", metavar="DIR",
                    help="output folder for report.md and report.json (default: bench/)")
     p.add_argument("--limit", default=None, metavar="N", help="only the first N meshes by id (default: all)")
@@ -94,7 +93,7 @@ def run_bench_command(args) -> int:
                              coarse_faces=coarse or None, batch_faces=batch_faces, workers=workers,
                              device=device, budgets=args.budgets,
                              repeats=parse_int(args.repeats, "--repeats", 1))
-    report = run_bench(Path(args.psb or default_psb_arg()), out, eval_segment_options(None, given), settings,
+    report = run_bench(psb_folder(args.psb), out, eval_segment_options(None, given), settings,
                        command_line={k: v for k, v in vars(args).items() if k not in ("func", "command")})
     for line in summary_lines(report, out):
         print(line)

@@ -2,7 +2,7 @@
 
 ::
 
-    torchakvf bench --psb ../shared/psb --out bench/            # every mesh, every protocol k
+    torchakvf bench --psb DIR --out bench/                      # every mesh, every protocol k
     torchakvf bench --limit 20 --baseline-every 5 --out bench/   # quicker
 
 What is measured, in one process and one run (units: seconds of wall time, ``time.perf_counter``;

@@ -2,7 +2,7 @@
 
 ::
 
-    torchakvf eval --psb ../shared/psb --out eval/            # whole benchmark, by-segmentation
+    torchakvf eval --psb DIR --out eval/                      # whole benchmark, by-segmentation
     torchakvf eval --psb DIR --categories Human,Octopus --protocol by-model --out eval/
     torchakvf eval --per-category 2 -k auto --out eval_auto/
 """
@@ -25,15 +25,28 @@ from ..pipeline.arguments import (
 )
 from ..pipeline.parallel import default_workers
 
-__all__ = ["add_eval_command", "add_eval_arguments", "run_eval", "default_psb_arg"]
+__all__ = ["add_eval_command", "add_eval_arguments", "run_eval", "default_psb_arg", "psb_folder"]
 
 
-def default_psb_arg() -> str:
-    """$TORCHAKVF_PSB, else <repo>/../shared/psb (whether or not it exists)."""
-    env = os.environ.get("TORCHAKVF_PSB")
-    if env:
-        return env
-    return str(Path(__file__).resolve().parents[2].parent / "shared" / "psb")
+def default_psb_arg() -> str | None:
+    """``$TORCHAKVF_PSB`` (None where it is not set)."""
+    from .psb import PSB_ENV
+
+    return os.environ.get(PSB_ENV) or None
+
+
+def psb_folder(given) -> Path:
+    """The PSB folder of a command: ``--psb`` (``given``), else ``$TORCHAKVF_PSB``; one-line
+    errors when neither is given or the folder holds no benchmark."""
+    root = given or default_psb_arg()
+    if not root:
+        raise TorchAKVFError("no PSB folder given: pass --psb DIR (the folder with meshes/ and gt/) "
+                             "or set TORCHAKVF_PSB")
+    root = Path(root)
+    if not (root / "meshes").is_dir():
+        raise TorchAKVFError(f"no PSB data at {root} (expected meshes/N.off.gz and "
+                             f"gt/N/N_k.seg.gz); pass --psb DIR or set TORCHAKVF_PSB")
+    return root
 
 
 def add_eval_command(subparsers) -> None:
@@ -51,8 +64,7 @@ def add_eval_arguments(p) -> None:
     from .harness import DEFAULT_K_NO_GT, METRIC_GROUPS, PROTOCOLS
 
     p.add_argument("--psb", default=None, metavar="DIR",
-                   help="PSB folder with meshes/ and gt/ (default: $TORCHAKVF_PSB, else "
-                        "<repo>/../shared/psb)")
+                   help="PSB folder with meshes/ and gt/ (default: $TORCHAKVF_PSB)")
     p.add_argument("--out", default="eval", metavar="DIR", help="output folder (default: eval/)")
     p.add_argument("--categories", default=None, metavar="A,B",
                    help="comma-separated category names (default: all)")
@@ -118,10 +130,7 @@ def run_eval(args) -> int:
     from .psb import CATEGORIES
     from .settings import EvalSettings, eval_segment_options
 
-    psb_root = Path(args.psb or default_psb_arg())
-    if not (psb_root / "meshes").is_dir():
-        raise TorchAKVFError(f"no PSB data at {psb_root} (expected meshes/N.off.gz and "
-                             f"gt/N/N_k.seg.gz); pass --psb DIR or set TORCHAKVF_PSB")
+    psb_root = psb_folder(args.psb)
     categories = None
     if args.categories:
         categories = [c.strip() for c in args.categories.split(",") if c.strip()]

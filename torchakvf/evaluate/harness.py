@@ -275,13 +275,12 @@ class _EvalRun:
         self.device_times = predict_on_device(batches, predict, workers,
                                               (s.protocol, self.groups, False), finish, self.tell)
         self.bar.close()
-        self.score_seconds += self.device_times.score     # in the host workers
-        self.predict_seconds = time.perf_counter() - t_pred - self.device_times.score
+        host_score = self.device_times.host.get("score", 0.0)     # in the host workers
+        self.score_seconds += host_score
+        self.predict_seconds = time.perf_counter() - t_pred - host_score
         self.recorded["run"]["timings"] = self.device_times.record()
         atomic_write_bytes(self.out / "settings.json", json.dumps(self.recorded, indent=2).encode())
-        t = self.device_times
-        self.tell(f"batched: {t.batches} batches on 1 solving process + {t.workers} host workers, "
-                  f"solve {t.record()['solve']:.1f}s of {t.wall:.1f}s, host share {100 * t.host_share:.0f}%")
+        self.tell(self.device_times.line())
 
     def write_reports(self) -> None:
         write_reports(self.out, self.rows, self.plans, self.settings, self.groups,

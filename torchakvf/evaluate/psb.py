@@ -1,6 +1,6 @@
 """Access to the Princeton Segmentation Benchmark (PSB) data set on disk.
 
-Layout (as prepared by ``datasets_scripts/prepare_psb.py``; see the README beside the data, e.g. ``../shared/psb/README.md``)::
+Layout (as prepared by ``datasets_scripts/prepare_psb.py``; see the README beside the data)::
 
     <root>/meshes/N.off[.gz]        N = 1..400 (Spring, 261..280, is not in the benchmark)
     <root>/gt/N/N_k.seg[.gz]        human segmentation k of mesh N, k = 0, 1, ...
@@ -32,6 +32,7 @@ __all__ = [
     "category_of",
     "find_psb_meshes",
     "default_psb_root",
+    "PSB_ENV",
     "read_seg",
     "write_seg",
     "human_segment_counts",
@@ -103,19 +104,19 @@ def category_of(mesh_id: int) -> str:
     return CATEGORIES[(int(mesh_id) - 1) // MESHES_PER_CATEGORY]
 
 
-def default_psb_root() -> Path | None:
-    """Where the PSB data is, if anywhere: ``$TORCHAKVF_PSB``, else ``<repo>/../shared/psb``.
+#: The environment variable that names the PSB folder when no ``--psb`` is given.
+PSB_ENV = "TORCHAKVF_PSB"
 
-    Returns None when neither exists (callers, e.g. tests, then skip). A set but missing
-    ``TORCHAKVF_PSB`` also gives None, so a stale variable does not turn into an error here;
-    :func:`find_psb_meshes` reports missing roots.
-    """
-    env = os.environ.get("TORCHAKVF_PSB")
-    candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[2].parent / "shared" / "psb")
-    for c in candidates:
-        if (c / "meshes").is_dir():
-            return c
+
+def default_psb_root() -> Path | None:
+    """The PSB folder ``$TORCHAKVF_PSB`` names, if it holds ``meshes/``; else None (callers,
+    e.g. tests, then skip). The package looks nowhere else: a checkout's neighbours are no
+    place of an installed library's (the tests' conftest sets the variable for a checkout).
+    A set but missing folder also gives None, so a stale variable does not turn into an error
+    here; :func:`find_psb_meshes` reports missing roots."""
+    env = os.environ.get(PSB_ENV)
+    if env and (Path(env) / "meshes").is_dir():
+        return Path(env)
     return None
 
 

@@ -93,7 +93,7 @@ class MeshBatch:
             raise ParameterError("MeshBatch.from_meshes needs at least one mesh")
         coarse = []
         if coarse_faces is not None:
-            coarse = [_coarse_or_none(m, coarse_faces) for m in meshes]
+            coarse = [coarse_or_none(m, coarse_faces) for m in meshes]
             meshes = [m if c is None else c.coarse for m, c in zip(meshes, coarse)]
         if dtype not in (torch.float32, torch.float64):
             raise ParameterError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
@@ -210,7 +210,11 @@ class MeshBatch:
         return list(torch.split(packed, sizes, dim=0))
 
 
-def _coarse_or_none(mesh: CleanMesh, faces: int) -> CoarseMesh | None:
+def coarse_or_none(mesh: CleanMesh, faces: int | None) -> CoarseMesh | None:
+    """The decimation of ``mesh`` to about ``faces`` faces that :meth:`MeshBatch.from_meshes`
+    solves on (None: none asked, the mesh is small enough, or decimation failed)."""
+    if faces is None:
+        return None
     try:
         return coarse_mesh(mesh, faces)
     except MeshError as exc:

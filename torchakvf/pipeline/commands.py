@@ -45,11 +45,18 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="run the batches on N Ray actors (pip install 'torchakvf[ray]'; joins the "
                         "cluster of RAY_ADDRESS or `ray start`, else a local one; with --device cuda "
                         "one GPU each). Default 0: no Ray")
+    p.add_argument("--workers", default=None, metavar="W",
+                   help="with --batched (or on cuda): processes in all, one solving, the others loading, "
+                        "cutting and writing meshes meanwhile (default: one per CPU core, at most 16)")
     add_batched_argument(p)
 
 
 def _ray_workers(args) -> int:
     return parse_int(args.ray_workers, "--ray-workers", 0)
+
+
+def _workers(args) -> int | None:
+    return parse_int(args.workers, "--workers", 1) if args.workers is not None else None
 
 
 def _run(args, task, device: str) -> int:
@@ -82,7 +89,7 @@ def _run(args, task, device: str) -> int:
                                  gpus_per_worker=1.0 if cuda else 0.0)
     else:
         summary = run_corpus(paths, out, task, batch_faces=batch_faces, device=device,
-                             seed=task.seed, resume=not args.force)
+                             seed=task.seed, resume=not args.force, workers=_workers(args))
     print(summary.line(task.name))
     if summary.failed:
         shown = summary.failures[:5]

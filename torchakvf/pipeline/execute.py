@@ -76,7 +76,7 @@ def _input_failure(exc: BaseException) -> str:
     return error_text(exc)
 
 
-def _load(it: Item, task, out_dir: Path) -> bool:
+def load_item(it: Item, task, out_dir: Path) -> bool:
     """Load, clean and check one item (True), or find it in the task's cache (False)."""
     t0 = time.perf_counter()
     try:
@@ -120,7 +120,7 @@ def process_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> 
     for it in items:
         t0 = time.perf_counter()
         try:
-            if _load(it, task, out_dir):
+            if load_item(it, task, out_dir):
                 ready.append(it)
                 continue
             rec = base_record(it, task, seed)
@@ -158,26 +158,32 @@ def _compute_and_write(items: list[Item], task, out_dir: Path, device, seed: int
         share = len(it.clean.faces) / total
         for stage in task.stages:
             it.seconds[stage] = stage_s.get(stage, 0.0) * share
-        t0 = time.perf_counter()
-        try:
-            written = task.write(it, out, out_dir)
-            store = getattr(task, "cache_store", None)
-            if store is not None:
-                store(it, written)
-            it.seconds["write"] = time.perf_counter() - t0
-            rec = base_record(it, task, seed)
-            rec.update(status="ok")
-            fields = getattr(task, "manifest_fields", None)
-            if fields is not None:
-                rec.update(fields(out))
-            recs.append(output_record(rec, task, out_dir, it.stem))
-        except Exception as exc:  # noqa: BLE001
-            error = _input_failure(exc)
-            log.debug("writing %s failed", it.stem, exc_info=True)
-            it.seconds["write"] = time.perf_counter() - t0
-            recs.append(failed_record(it, task, seed, error))
+        recs.append(write_item(it, out, task, out_dir, seed))
         it.mesh = it.clean = None
     return recs
+
+
+def write_item(it: Item, out, task, out_dir: Path, seed: int) -> dict:
+    """Write one computed mesh (``out``: what the task computed for it) and return its manifest
+    record: ``ok`` with the outputs' fingerprints, or ``failed`` where writing failed."""
+    t0 = time.perf_counter()
+    try:
+        written = task.write(it, out, out_dir)
+        store = getattr(task, "cache_store", None)
+        if store is not None:
+            store(it, written)
+        it.seconds["write"] = time.perf_counter() - t0
+        rec = base_record(it, task, seed)
+        rec.update(status="ok")
+        fields = getattr(task, "manifest_fields", None)
+        if fields is not None:
+            rec.update(fields(out))
+        return output_record(rec, task, out_dir, it.stem)
+    except Exception as exc:  # noqa: BLE001
+        error = _input_failure(exc)
+        log.debug("writing %s failed", it.stem, exc_info=True)
+        it.seconds["write"] = time.perf_counter() - t0
+        return failed_record(it, task, seed, error)
 
 
 def _free_device_memory(device) -> None:
@@ -204,4 +210,4 @@ def run_batch(items: list[Item], task, out_dir: Path, device, seed: int) -> list
     return records
 
 
-__all__ = ["Item", "process_batch", "run_batch", "base_record", "failed_record"]
+__all__ = ["Item", "process_batch", "run_batch", "base_record", "failed_record", "load_item", "write_item"]

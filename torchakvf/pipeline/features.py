@@ -171,13 +171,29 @@ class FeaturesTask:
         check_fields_fit(str(item.path), item.clean.faces, self.n, fewer_hint="use a smaller --n")
 
     def process(self, items, device):
-        from ..fields import akvf, untangle
         from ..mesh import MeshBatch
-        from ..parts.input_descriptors import input_face_descriptors
 
         t0 = time.perf_counter()
         batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
                                       coarse_faces=self.coarse_faces)
+        t_pack = time.perf_counter() - t0
+        outs, seconds = self.solve_prepared(batch)
+        seconds["akvf"] += t_pack     # the manifest has no stage of its own for packing
+        return outs, seconds
+
+    @staticmethod
+    def cut(out: dict) -> dict:
+        """The host half of the batched path (:mod:`.batched_run`): nothing left to do, the
+        arrays are written as they come."""
+        return out
+
+    def solve_prepared(self, batch):
+        """The AKVFs, their untangling and the descriptors of a packed batch: (one dict of
+        arrays per mesh, {"akvf": s, "untangle": s})."""
+        from ..fields import akvf, untangle
+        from ..parts.input_descriptors import input_face_descriptors
+
+        t0 = time.perf_counter()
         fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol, batched=self.batched)
         t1 = time.perf_counter()
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
@@ -187,7 +203,7 @@ class FeaturesTask:
         names = np.array(desc.names)
         raw_norms = fields.face_vectors.norm(dim=-1)
         outs = []
-        for b in range(len(items)):
+        for b in range(len(batch)):
             f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
 
             def on_input(values, b=b):

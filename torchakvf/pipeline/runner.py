@@ -69,6 +69,7 @@ class RunSummary:
     manifest: Path | None = None
     failures: list = field(default_factory=list)     # (path, error)
     interrupted: bool = False
+    timings: dict | None = None    # a batched run's stage seconds (OverlapTimes.record())
 
     @property
     def exit_code(self) -> int:
@@ -171,7 +172,8 @@ def failure_text(path, error: str) -> str:
 
 def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None, device="cpu",
                seed: int = 0, resume: bool = True, progress: bool | None = None,
-               on_batch: Callable[[int, list[dict]], None] | None = None) -> RunSummary:
+               on_batch: Callable[[int, list[dict]], None] | None = None,
+               workers: int | None = None) -> RunSummary:
     """Run ``task`` over mesh files ``paths`` into ``out_dir`` (see the module docstring).
 
     batch_faces : face budget per batch (default :data:`DEFAULT_BATCH_FACES` for the device)
@@ -180,7 +182,10 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
     resume : skip meshes the manifest records as done with the same params (False: redo all)
     progress : False: report nothing; otherwise a bar on a terminal, log lines elsewhere
     on_batch : called after each batch's manifest lines are written, with the batch number
-        and its records (tests use it to interrupt a run)
+        and its records (tests use it to interrupt a run); on the overlapped path after each
+        mesh's line, with the count of meshes done
+    workers : processes of a batched run (:func:`overlapped`): this one solves, the others
+        load, cut and write (default :func:`~.parallel.default_workers` of a batched run)
 
     Returns a :class:`RunSummary`; ``summary.exit_code`` is 0 when no mesh failed, else 1.
     KeyboardInterrupt propagates after the finished meshes are safely recorded; so does a
@@ -195,30 +200,74 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
                         resume=resume)
         summary = plan.summary
         total_faces = sum(it.cost for b in plan.batches for it in b)
-        n_meshes = sum(map(len, plan.batches))
         start_bar = lambda: progress_report(total_faces, f"torchakvf {task.name}", "faces",  # noqa: E731
                                             enabled=progress is not False)
         try:
             with recording(out_dir, summary, start_bar) as (writer, bar):
-                done = 0
-                for bno, batch in enumerate(plan.batches, 1):
-                    faces = sum(it.cost for it in batch)
-                    if faces > ANNOUNCE_FACES:
-                        bar.write(f"torchakvf {task.name}: batch {bno}/{len(plan.batches)}: {len(batch)} "
-                                  f"mesh(es), {faces:,} faces ({batch[0].path.name}...); this can take minutes")
-                    records = run_batch(batch, task, out_dir, device, seed)
-                    record_batch(records, writer, summary, bar, task.name)
-                    done += len(batch)
-                    bar.update(faces, note=f"{done}/{n_meshes} meshes, {summary.failed} failed")
-                    if on_batch is not None:
-                        on_batch(bno, records)
+                if overlapped(task, device):
+                    _run_overlapped(plan, task, device, seed, workers, writer, bar, on_batch)
+                else:
+                    _run_in_turn(plan, task, device, seed, writer, bar, on_batch)
         finally:
             summary.elapsed = time.perf_counter() - t_start
     return summary
 
 
-__all__ = ["MANIFEST", "RunSummary", "run_corpus", "plan_run", "record_batch", "recording", "default_batch_faces",
-           "peek_faces", "failure_text", "DEFAULT_BATCH_FACES",
+def overlapped(task, device) -> bool:
+    """Whether a run of ``task`` on ``device`` goes through the host/device overlap
+    (:mod:`.batched_run`): the task can, and its batches are solved as one (``batched``, by
+    default on every device but the CPU)."""
+    from ..solvers.akvf_solver import batched_by_default
+    from .batched_run import overlaps
+
+    if not overlaps(task):
+        return False
+    opts = getattr(task, "options", None)
+    b = opts.batched if opts is not None else getattr(task, "batched", None)
+    return batched_by_default(device) if b is None else bool(b)
+
+
+def _run_in_turn(plan: RunPlan, task, device, seed: int, writer, bar, on_batch) -> None:
+    """The batches one after the other in this process: load, compute, write."""
+    summary, n_meshes, done = plan.summary, sum(map(len, plan.batches)), 0
+    for bno, batch in enumerate(plan.batches, 1):
+        faces = sum(it.cost for it in batch)
+        if faces > ANNOUNCE_FACES:
+            bar.write(f"torchakvf {task.name}: batch {bno}/{len(plan.batches)}: {len(batch)} "
+                      f"mesh(es), {faces:,} faces ({batch[0].path.name}...); this can take minutes")
+        records = run_batch(batch, task, plan.out_dir, device, seed)
+        record_batch(records, writer, plan.summary, bar, task.name)
+        done += len(batch)
+        bar.update(faces, note=f"{done}/{n_meshes} meshes, {summary.failed} failed")
+        if on_batch is not None:
+            on_batch(bno, records)
+
+
+def _run_overlapped(plan: RunPlan, task, device, seed: int, workers, writer, bar, on_batch) -> None:
+    """The batches through the host/device overlap: host workers load and cut, this process
+    solves; each mesh's line is written as it finishes; the stage seconds go to ``timings.json``
+    and a line."""
+    from .batched_run import run_batches_overlapped
+    from .parallel import default_workers
+
+    summary, n_meshes, done = plan.summary, sum(map(len, plan.batches)), [0]
+
+    def record(records, item):
+        record_batch(records, writer, summary, bar, task.name)
+        done[0] += 1
+        bar.update(item.cost, note=f"{done[0]}/{n_meshes} meshes, {summary.failed} failed")
+        if on_batch is not None:
+            on_batch(done[0], records)
+
+    workers = default_workers(device, batched=True) if workers is None else int(workers)
+    times = run_batches_overlapped(plan.batches, task, plan.out_dir, device, seed, workers, record,
+                                   lambda line: bar.write(f"torchakvf {task.name}: {line}"))
+    summary.timings = times.record()
+    bar.write(f"torchakvf {task.name}: {times.line()}")
+
+
+__all__ = ["MANIFEST", "overlapped", "RunSummary", "run_corpus", "plan_run", "record_batch", "recording",
+           "default_batch_faces", "peek_faces", "failure_text", "DEFAULT_BATCH_FACES",
            # re-exported from the modules a run is made of
            "Item", "plan_batches", "process_batch", "run_batch", "assign_stems", "discover_inputs",
            "is_mesh_file", "prepare", "read_manifest", "ManifestWriter", "check_output_dir", "OutputLock"]

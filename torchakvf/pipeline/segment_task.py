@@ -19,8 +19,11 @@ from ..mesh.subdivide import levels_to_fit, subdivide
 from ..options import SegmentOptions, segment_options
 from ..parts.field_counts import akvf_count
 from ..parts.k_auto import DEFAULT_K_RANGE, DEFAULT_RULE, check_k_range, is_auto, scan_akvf_count, scan_options
+from ..parts.results import Segmentation
+from ..parts.rounds import cut_mesh_rounds, mesh_cut_job, segment_rounds
 from ..parts.segment import segment_each_k
 from ..parts.segmenter import Segmenter
+from ..parts.solve import solve_akvfs
 
 
 def parse_formats(text: str) -> tuple[str, ...]:
@@ -131,6 +134,36 @@ class SegmentTask:
         seconds = dict(res.seconds)
         seconds["akvf"] += t_pack     # the manifest has no stage of its own for packing
         return list(zip(seg.meshes, vectors)), seconds
+
+    @property
+    def overlappable(self) -> bool:
+        """Whether the batched path may split this task into :meth:`solve_prepared` and
+        :meth:`cut`: not with k auto, whose scan cuts every k of a mesh to read its merge costs
+        (it runs whole, by :meth:`process`)."""
+        return not self.auto
+
+    def solve_prepared(self, batch):
+        """The batched path's device half of :meth:`process` (:mod:`.batched_run`): the AKVFs,
+        untangling and k-means of a packed batch, its parts not cut. Returns (one picklable cut
+        input per mesh: its :class:`~torchakvf.parts.rounds.MeshCutJob` and PNG arrows,
+        {"akvf", "untangle", "cluster", "jobs": seconds})."""
+        t0 = time.perf_counter()
+        fields, _ = solve_akvfs(batch, self.n_akvf, self.options)
+        t1 = time.perf_counter()
+        rounds = list(segment_rounds(fields, self.k, self.options, n_fields=self.n_fields, cut=False))
+        t2 = time.perf_counter()
+        seg = Segmentation([None] * len(batch), untangled=rounds[0].untangled)
+        inputs = [(mesh_cut_job(fields, rounds, b), seg.face_vectors(b) if "png" in self.formats else None)
+                  for b in range(len(batch))]
+        seconds = {"akvf": t1 - t0, **rounds[0].seconds, "jobs": time.perf_counter() - t2}
+        return inputs, seconds
+
+    def cut(self, cut_input):
+        """The host half of :meth:`process` for one mesh: its parts cut from its job, as
+        :meth:`process` returns them."""
+        job, vectors = cut_input
+        (_, ms), = cut_mesh_rounds(job, self.options)
+        return ms, vectors
 
     @staticmethod
     def manifest_fields(out) -> dict:
