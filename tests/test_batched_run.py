@@ -100,6 +100,7 @@ def test_features_overlap_gives_the_in_turn_arrays_and_uses_the_cache(corpus, tm
 
 def test_which_tasks_overlap():
     assert overlaps(SegmentTask(2)) and overlaps(FeaturesTask(8))
+    assert not overlaps(SegmentTask("auto", batched=True))         # k auto runs whole (process)
     assert runner.overlapped(SegmentTask(2, batched=True), "cpu")
     assert not runner.overlapped(SegmentTask(2), "cpu")            # the CPU's default: in turn
     assert not runner.overlapped(SegmentTask(2, batched=False), "cuda")

@@ -57,6 +57,11 @@ def test_segment_k_auto_records_the_k_each_mesh_got(tmp_path, capsys):
     labels = np.loadtxt(out / "dumb.seg", dtype=int)
     from torchakvf.evaluate.metrics import matched_agreement
     assert set(labels.tolist()) == {0, 1} and matched_agreement(labels, s.part_labels) >= 0.95
+    # --batched runs k auto whole in the solving process: the same calls, the same file
+    rc, stdout, err = cli_run(["segment", str(src), "-k", "auto", "--k-range", "1,3", "--out", str(tmp_path / "b"),
+                               "--formats", "seg", "--batched"], capsys)
+    assert rc == 0, err
+    assert (tmp_path / "b" / "dumb.seg").read_bytes() == (out / "dumb.seg").read_bytes()
     # the k given: no k recorded beside the parameters (manifests of earlier runs still resume)
     rc, _, err = cli_run(["segment", str(src), "-k", "2", "--out", str(tmp_path / "two"), "--formats", "seg"], capsys)
     assert rc == 0, err
