@@ -72,8 +72,8 @@ def add_eval_arguments(p) -> None:
                    help="by-segmentation: k = each human's segment count, compared with that "
                         "human only (default); by-model: k = the most common human count")
     p.add_argument("-k", dest="k", default=None, choices=["auto"],
-                   help="'auto': choose the number of parts per mesh (merge costs: stop where the cheapest merge is expensive); one "
-                        "prediction per mesh, compared with every human (--protocol is ignored)")
+                   help="'auto': choose the number of parts per mesh (merge costs: stop where the cheapest merge "
+                        "is expensive); one prediction per mesh, compared with every human (--protocol is ignored)")
     p.add_argument("--k-range", default="2,10", metavar="LO,HI",
                    help="k's tried with -k auto (default 2,10)")
     p.add_argument("--per-category", type=positive_int, default=None, metavar="N",
@@ -83,7 +83,8 @@ def add_eval_arguments(p) -> None:
     p.add_argument("--remedy", default=None,
                    help="mesh-quality remedy of the Killing operator (default: the package's)")
     p.add_argument("--n-fields", type=positive_int, default=None,
-                   help="fields untangled per mesh (default for method merge 3 max(k, 8) rounded up to a multiple of 8, in [16, 32]; the paper's 2k for paper)")
+                   help="fields untangled per mesh (default for method merge 3 max(k, 8) rounded up to a multiple "
+                        "of 8, in [16, 32]; the paper's 2k for paper)")
     p.add_argument("--metrics", default=",".join(METRIC_GROUPS), metavar="LIST",
                    help=f"metric groups to compute (default: {','.join(METRIC_GROUPS)})")
     p.add_argument("--boundary", default=None, choices=["isoline", "faces"],

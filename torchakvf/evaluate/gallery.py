@@ -107,7 +107,8 @@ def write_gallery(path, items: Sequence[tuple], title: str | None = None,
         k = len(np.unique(pred[pred >= 0]))
         k_human = len(np.unique(human[human >= 0]))
         err_text = "n/a" if err is None or not np.isfinite(err) else f"{float(err):.3f}"
-        fig.text((c * cell_w + cell_w / 2) / W, 1 - (top + 14) / H, f"{name}   k={k}" + (f" (human {k_human})" if k_human != k else "") + f"   1-RI={err_text}",
+        human = f" (human {k_human})" if k_human != k else ""
+        fig.text((c * cell_w + cell_w / 2) / W, 1 - (top + 14) / H, f"{name}   k={k}{human}   1-RI={err_text}",
                  ha="center", va="center", fontsize=11)
     if title:
         fig.text(0.5, 1 - (head_h / 2) / H, title, ha="center", va="center", fontsize=15)

@@ -200,11 +200,13 @@ def _header_lines(s: EvalSummary, protocol, auto) -> list:
     n_no = sum(r.status == "no score" for r in s.rows)
     n_fail = sum(r.status.startswith("failed") for r in s.rows)
     L.append("# torchakvf on the Princeton Segmentation Benchmark\n")
-    L.append(f"- protocol: **{'k auto (' + str(pred['k_rule']) + ', k in ' + str(pred['k_range']) + ')' if auto else protocol}**")
+    shown = f"k auto ({pred['k_rule']}, k in {pred['k_range']})" if auto else protocol
+    L.append(f"- protocol: **{shown}**")
     L.append(f"- meshes: {len(s.rows)} ({n_ok} scored, {n_no} without human segmentations: no score, "
              f"{n_fail} failed)")
-    L.append(f"- settings: seed {pred['seed']}, remedy {pred['remedy']}, n_fields "
-             f"{pred['n_fields'] or 'default (3 max(k, 8) rounded up to 8s, in [16, 32], for method merge; 2k for paper)'}, segment {pred['segment_kwargs']}, "
+    n_fields = pred['n_fields'] or "default (3 max(k, 8) rounded up to 8s, in [16, 32], for method merge; 2k for paper)"
+    L.append(f"- settings: seed {pred['seed']}, remedy {pred['remedy']}, n_fields {n_fields}, "
+             f"segment {pred['segment_kwargs']}, "
              f"k without ground truth {pred['default_k']}, batch_faces {run['batch_faces']}, "
              f"metrics {','.join(run['metrics'])}")
     L.append(f"- wall time of this run: {s.wall_seconds:.1f} s "

@@ -12,8 +12,8 @@ from ..errors import TorchAKVFError
 from ..fields.akvf import KRYLOV_MIN_EDGES, SOLVERS
 
 __all__ = ["MAX_SEED", "parse_int", "parse_float", "parse_seed", "parse_device", "parse_remedy",
-           "positive_int", "add_solver_argument", "add_batched_argument", "add_graph_cut_argument", "add_method_argument",
-           "register_command"]
+           "positive_int", "add_solver_argument", "add_batched_argument", "add_graph_cut_argument",
+           "add_method_argument", "register_command"]
 
 #: Largest ``--seed``: every generator the package seeds (torch.Generator, numpy) takes it,
 #: and it fits the int64 a seed may be stored in.

@@ -17,7 +17,8 @@ from typing import Callable, NamedTuple, Sequence
 from ..mesh.coarse import DECIMATE_ABOVE
 
 __all__ = ["DEFAULT_BATCH_FACES", "BATCHED_BATCH_FACES", "default_batch_faces", "MemoryBudget",
-           "solve_bytes", "batch_bytes_budget", "cut_by_bytes", "FREE_MEMORY_SHARE", "DEFAULT_CPU_BATCH_BYTES", "cut_by_budget", "plan_batches",
+           "solve_bytes", "batch_bytes_budget", "cut_by_bytes", "FREE_MEMORY_SHARE", "DEFAULT_CPU_BATCH_BYTES",
+           "cut_by_budget", "plan_batches",
            "solved_face_counts", "batches_per_worker", "make_batches", "balanced_batches",
            "mesh_work", "heaviest_first", "prediction_batches"]
 

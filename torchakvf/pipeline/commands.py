@@ -37,8 +37,8 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="face budget per batch, meshes sorted by size (default 20000 on cpu; a batch solved "
                         "as one, on cuda or with --batched, is sized by its memory, capped at 1000000)")
     p.add_argument("--remedy", default=None, help="mesh-quality remedy of the Killing operator "
-                                                    "(default: the segmenter's, 'auto': the paper's operator on each mesh that "
-                                                    "has no spurious mode, 'smooth' on the others)")
+                                                    "(default: the segmenter's, 'auto': the paper's operator on each "
+                                                    "mesh that has no spurious mode, 'smooth' on the others)")
     p.add_argument("--force", action="store_true",
                    help="recompute every mesh, even those the manifest records as done")
     p.add_argument("--ray-workers", default="0", metavar="N",

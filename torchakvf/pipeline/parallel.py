@@ -5,8 +5,9 @@ thousand rows) gains little from intra-op threads, and two OpenMP threads on a b
 machine spin-wait on each other; one process per core, each on one thread, keeps every core
 busy with useful work. :func:`map_batches` runs a queue of batches either inline
 (``workers=1``) or on a spawned process pool, retries a failing multi-mesh batch by halves
-(bisection) until the culprit fails alone, and reports every outcome to the caller as it finishes, so results are written (by the
-function itself, atomically) and counted as they come and an interrupt loses nothing finished.
+(bisection) until the culprit fails alone, and reports every outcome to the caller as it finishes,
+so results are written (by the function itself, atomically) and counted as they come and an
+interrupt loses nothing finished.
 """
 from __future__ import annotations
 
@@ -244,5 +245,5 @@ def _outcome(queue, batch, result, error, seconds):
         yield BatchOutcome(batch, result, error, seconds)
 
 
-__all__ = ["map_batches", "halves", "host_pool", "InlineExecutor", "usable_cores", "MAX_BATCHED_PROCESSES", "BatchOutcome", "default_workers", "error_text", "is_programming_error",
-           "PROGRAMMING_ERRORS"]
+__all__ = ["map_batches", "halves", "host_pool", "InlineExecutor", "usable_cores", "MAX_BATCHED_PROCESSES",
+           "BatchOutcome", "default_workers", "error_text", "is_programming_error", "PROGRAMMING_ERRORS"]

@@ -63,9 +63,10 @@ def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, devi
 
     ``ray.init()`` is called unless Ray is already initialized (it joins the cluster named by
     ``RAY_ADDRESS`` or started on this machine with ``ray start``, else starts a local one).
-    Each actor reserves ``cpus_per_worker`` CPUs (and runs torch with that many threads) and ``gpus_per_worker`` GPUs: set
-    ``gpus_per_worker=1`` and ``device="cuda"`` for one actor per GPU (Ray gives each actor its
-    own GPU as ``cuda``). Largest batches are submitted first, so the workers finish together.
+    Each actor reserves ``cpus_per_worker`` CPUs (and runs torch with that many threads) and
+    ``gpus_per_worker`` GPUs: set ``gpus_per_worker=1`` and ``device="cuda"`` for one actor per
+    GPU (Ray gives each actor its own GPU as ``cuda``). Largest batches are submitted first, so
+    the workers finish together.
     """
     try:
         import ray
