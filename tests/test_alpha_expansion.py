@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from torchakvf.parts.alpha_expansion import expansion_step, min_cut_sink_side, potts_alpha_expansion, potts_energy
+from torchakvf.parts.graphcut import gco_expansion
 
 
 def _random_problem(rng, n, k, p_edge=0.4, top=6):
@@ -137,31 +138,11 @@ def test_same_input_same_labels_and_no_pairs():
                                   np.argmin(unary, axis=1))
 
 
-def _gco_labels(gco, unary, pairs, weights, cycles, initial=None):
-    n, k = unary.shape
-    g = gco.GCO()
-    g.create_general_graph(n, k, energy_is_float=False)
-    try:
-        g.set_data_cost(np.ascontiguousarray(unary, dtype=np.intc))
-        if len(pairs):
-            g.set_all_neighbors(np.ascontiguousarray(pairs[:, 0], dtype=np.intc),
-                                np.ascontiguousarray(pairs[:, 1], dtype=np.intc),
-                                np.ascontiguousarray(weights, dtype=np.intc))
-        g.set_smooth_cost(np.ascontiguousarray(1 - np.eye(k), dtype=np.intc))
-        if initial is not None:
-            for site, label in enumerate(initial.tolist()):
-                g.init_label_at_site(site, label)
-        g.expansion(cycles)
-        return np.asarray(g.get_labels(), dtype=np.int64)
-    finally:
-        g.destroy_graph()
-
-
 @pytest.mark.parametrize("start", ["first", "random"])
 def test_the_labels_of_gco(start):
     """The reference implementation's labels on 300 random integer problems (ties included),
     cycles 1, 2 and until converged, from its first-label start and from a given labelling."""
-    gco = pytest.importorskip("gco", reason="gco-wrapper (the optional engine: pip install 'torchakvf[gco]') "
+    pytest.importorskip("gco", reason="gco-wrapper (the optional engine: pip install 'torchakvf[gco]') "
                                             "not installed")
     rng = np.random.default_rng(11 if start == "first" else 12)
     for _ in range(100):
@@ -170,6 +151,6 @@ def test_the_labels_of_gco(start):
                                                 top=int(rng.integers(2, 40)))
         initial = None if start == "first" else rng.integers(0, k, n)
         for cycles in (1, 2, -1):
-            want = _gco_labels(gco, unary, pairs, weights, cycles, initial)
+            want = gco_expansion(unary, pairs, weights, cycles, initial)
             got = potts_alpha_expansion(unary, pairs, weights, cycles, initial=initial)
             np.testing.assert_array_equal(got, want)

@@ -13,17 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from torchakvf import merge_options as mo
 from torchakvf.errors import ParameterError, TorchAKVFError
-from torchakvf.merge_options import (
-    LEARNED_FIELDS,
-    LEARNED_WEIGHTS,
-    MERGE_RECORD_FIELDS,
-    OVERSEG_FIELDS,
-    MergeWeights,
-    OverSegmentation,
-    merge_weights_record,
-    read_merge_weights,
-)
 from torchakvf.options import SegmentOptions
 from torchakvf.parts.merge import FIELD_OF_TERM
 from torchakvf.parts.merge_terms import TERM_NAMES
@@ -44,19 +35,19 @@ def test_default_weights_are_the_package_file():
     """MergeWeights() reads every learned field from the package file, and the file sets exactly
     the fields a fit makes: the pair terms' weights, size, the intercept and the Rand exponent."""
     values = json.loads(PACKAGE_FILE.read_text())["merge_weights"]
-    assert set(values) == set(LEARNED_FIELDS) == set(FIELD_OF_TERM.values()) | {"size", "intercept", "rand_gamma"}
-    assert dict(LEARNED_WEIGHTS) == read_merge_weights(PACKAGE_FILE) == values
-    default = MergeWeights()
-    assert {name: getattr(default, name) for name in LEARNED_FIELDS} == values
-    assert {f.name for f in dataclasses.fields(MergeWeights)} - set(LEARNED_FIELDS) == {"crease_angle"}
+    assert set(values) == set(mo.LEARNED_FIELDS) == set(FIELD_OF_TERM.values()) | {"size", "intercept", "rand_gamma"}
+    assert dict(mo.LEARNED_WEIGHTS) == mo.read_merge_weights(PACKAGE_FILE) == values
+    default = mo.MergeWeights()
+    assert {name: getattr(default, name) for name in mo.LEARNED_FIELDS} == values
+    assert {f.name for f in dataclasses.fields(mo.MergeWeights)} - set(mo.LEARNED_FIELDS) == {"crease_angle"}
     with pytest.raises(TypeError):
-        LEARNED_WEIGHTS["symmetry"] = 0.0     # the defaults are read once and cannot be changed
+        mo.LEARNED_WEIGHTS["symmetry"] = 0.0     # the defaults are read once and cannot be changed
 
 
 def test_training_script_writes_the_package_file():
     """The script's writer, given the package file's weights as a fit returns them (the cost
     weights by TERM_NAMES, the intercept, γ), writes the package file byte for byte; another fit
-    writes a file that reads back as MergeWeights (4 significant digits)."""
+    writes a file that reads back as mo.MergeWeights (4 significant digits)."""
     tm = train_merge()
     record = json.loads(PACKAGE_FILE.read_text())
     values = record["merge_weights"]
@@ -74,48 +65,48 @@ def test_training_script_writes_the_package_file():
 
 def test_weights_file_round_trip_and_errors(tmp_path):
     path = tmp_path / "w.json"
-    values = dict(LEARNED_WEIGHTS, symmetry=1.5, rand_gamma=0.25)
-    path.write_text(json.dumps(merge_weights_record(values, "a test")))
-    assert read_merge_weights(path) == values and read_merge_weights(str(path)) == values
-    assert MergeWeights(**read_merge_weights(path)).symmetry == 1.5
+    values = dict(mo.LEARNED_WEIGHTS, symmetry=1.5, rand_gamma=0.25)
+    path.write_text(json.dumps(mo.merge_weights_record(values, "a test")))
+    assert mo.read_merge_weights(path) == values and mo.read_merge_weights(str(path)) == values
+    assert mo.MergeWeights(**mo.read_merge_weights(path)).symmetry == 1.5
     with pytest.raises(ParameterError, match="fields must be"):
-        merge_weights_record({**values, "ratio": 3.0}, "a test")
+        mo.merge_weights_record({**values, "ratio": 3.0}, "a test")
     with pytest.raises(ParameterError, match="fields must be"):
-        merge_weights_record({k: v for k, v in values.items() if k != "size"}, "a test")
+        mo.merge_weights_record({k: v for k, v in values.items() if k != "size"}, "a test")
     for text in ("{", '{"weights": {}}', '{"merge_weights": {"symmetry": "x"}}'):
         path.write_text(text)
         with pytest.raises(TorchAKVFError, match=r"w\.json: not a merge weights file"):
-            read_merge_weights(path)
+            mo.read_merge_weights(path)
 
 
 def test_over_segmentation_settings_name_their_new_spelling():
     """The over-segmentation's settings given to (or read from) MergeWeights fail with one line
-    naming OverSegmentation."""
+    naming mo.OverSegmentation."""
     with pytest.raises(ParameterError, match=r"^ratio moved to OverSegmentation: "
                                              r"SegmentOptions\(overseg=OverSegmentation\(ratio=2\)\)$"):
-        MergeWeights(ratio=2)
+        mo.MergeWeights(ratio=2)
     with pytest.raises(ParameterError, match=r"min_k, crease_split moved to OverSegmentation"):
-        dataclasses.replace(MergeWeights(), min_k=1, crease_split=None)
+        dataclasses.replace(mo.MergeWeights(), min_k=1, crease_split=None)
     with pytest.raises(ParameterError, match=r"extra_max moved"):
-        MergeWeights.hand_set(extra_max=4)
+        mo.MergeWeights.hand_set(extra_max=4)
     with pytest.raises(ParameterError, match=r"read SegmentOptions.overseg.crease_rings"):
-        MergeWeights().crease_rings
-    assert not hasattr(MergeWeights(), "nope") and not hasattr(MergeWeights(), "ratio")
-    assert getattr(MergeWeights(), "min_k", None) is None
-    assert set(OVERSEG_FIELDS) == {"ratio", "extra_max", "min_k", "crease_split", "crease_rings", "crease_concave"}
-    assert not set(OVERSEG_FIELDS) & {f.name for f in dataclasses.fields(MergeWeights)}
+        mo.MergeWeights().crease_rings
+    assert not hasattr(mo.MergeWeights(), "nope") and not hasattr(mo.MergeWeights(), "ratio")
+    assert getattr(mo.MergeWeights(), "min_k", None) is None
+    assert set(mo.OVERSEG_FIELDS) == {"ratio", "extra_max", "min_k", "crease_split", "crease_rings", "crease_concave"}
+    assert not set(mo.OVERSEG_FIELDS) & {f.name for f in dataclasses.fields(mo.MergeWeights)}
 
 
 def test_records_keep_weights_and_over_segmentation_in_one_merge_entry():
     """SegmentOptions.recorded(): every option but overseg, whose fields are in merge's flat dict
-    (MERGE_RECORD_FIELDS: both classes' fields, each once), read from the object that holds it."""
-    merge_fields = [f.name for f in dataclasses.fields(MergeWeights)]
-    assert sorted(MERGE_RECORD_FIELDS) == sorted(merge_fields + list(OVERSEG_FIELDS))
-    opts = SegmentOptions(merge=MergeWeights(concavity=8.0), overseg=OverSegmentation(min_k=3, crease_split=None))
+    (mo.MERGE_RECORD_FIELDS: both classes' fields, each once), read from the object that holds it."""
+    merge_fields = [f.name for f in dataclasses.fields(mo.MergeWeights)]
+    assert sorted(mo.MERGE_RECORD_FIELDS) == sorted(merge_fields + list(mo.OVERSEG_FIELDS))
+    opts = SegmentOptions(merge=mo.MergeWeights(concavity=8.0), overseg=mo.OverSegmentation(min_k=3, crease_split=None))
     rec = opts.recorded()
     assert list(rec) == [name for name in SegmentOptions.names() if name != "overseg"]
-    assert list(rec["merge"]) == list(MERGE_RECORD_FIELDS)
+    assert list(rec["merge"]) == list(mo.MERGE_RECORD_FIELDS)
     assert rec["merge"] == {**dataclasses.asdict(opts.merge), **dataclasses.asdict(opts.overseg)}
     assert rec["merge"]["min_k"] == 3 and rec["merge"]["crease_split"] is None and rec["merge"]["concavity"] == 8.0
-    assert SegmentOptions().recorded() != rec and SegmentOptions(overseg=OverSegmentation(min_k=3)).recorded() != \
+    assert SegmentOptions().recorded() != rec and SegmentOptions(overseg=mo.OverSegmentation(min_k=3)).recorded() != \
         SegmentOptions().recorded()

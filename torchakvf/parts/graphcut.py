@@ -179,7 +179,7 @@ def _gco_by_component(unary, e, w, cycles, allowed, initial) -> np.ndarray:
     """:func:`potts_expansion` with gco on integer terms, one gco problem per component."""
     n = len(unary)
     if allowed is None:
-        return _expand(unary, e, w, cycles, initial)
+        return gco_expansion(unary, e, w, cycles, initial)
     n_comp, comp = connected_components(
         coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
     out = np.zeros(n, dtype=np.int64)
@@ -197,7 +197,7 @@ def _gco_by_component(unary, e, w, cycles, allowed, initial) -> np.ndarray:
         local[sites] = np.arange(len(sites))
         ce = edge_order[edge_ptr[c]:edge_ptr[c + 1]]
         start = None if initial is None else np.searchsorted(labels, initial[sites])
-        got = _expand(unary[np.ix_(sites, labels)], local[e[ce]], w[ce], cycles, start)
+        got = gco_expansion(unary[np.ix_(sites, labels)], local[e[ce]], w[ce], cycles, start)
         out[sites] = labels[got]
     return out
 
@@ -223,10 +223,11 @@ def _components(e: np.ndarray, n: int, allowed: np.ndarray) -> tuple[np.ndarray,
     return comp.astype(np.int64), [np.flatnonzero(row) for row in anywhere]
 
 
-def _expand(unary: np.ndarray, e: np.ndarray, w: np.ndarray, cycles: int,
-            initial: np.ndarray | None = None) -> np.ndarray:
+def gco_expansion(unary: np.ndarray, e: np.ndarray, w: np.ndarray, cycles: int,
+                  initial: np.ndarray | None = None) -> np.ndarray:
     """gco's alpha-expansion on integer terms (unary [F, k], pairs e [P, 2], weights w [P]),
-    from the labels ``initial`` [F] if given."""
+    from the labels ``initial`` [F] if given: the ``engine="gco"`` solver, and the reference the
+    default engine's labels are tested against."""
     n, k = unary.shape
     gco = _gco()
     g = gco.GCO()
@@ -352,4 +353,4 @@ def _restore_parts(own: np.ndarray, new: np.ndarray, area: np.ndarray, k: int, m
 
 
 __all__ = ["GraphCut", "CornerMeans", "INTEGER_UNITS", "graphcut_labels", "potts_expansion", "energy", "edge_weights",
-           "allowed_labels"]
+           "allowed_labels", "gco_expansion"]

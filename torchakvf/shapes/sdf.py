@@ -148,17 +148,30 @@ class Ellipsoid(Placed):
 
 
 @dataclass(frozen=True, eq=False)
-class RoundCone:
-    """Spheres of radius ``ra`` at ``a`` and ``rb`` at ``b`` and the cone tangent to both
-    (a capsule when the radii are equal): exact distance."""
+class _AlongSegment:
+    """A solid of revolution about the segment a-b, of radius ``ra`` at ``a`` and ``rb`` at
+    ``b``."""
     a: tuple
     b: tuple
     ra: float
     rb: float
 
-    def __call__(self, x):
+    def axis(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(b - a [3], x - a [N, 3])."""
         a, b = np.asarray(self.a, dtype=np.float64), np.asarray(self.b, dtype=np.float64)
-        ba, pa = b - a, x - a
+        return b - a, x - a
+
+    def bounds(self):
+        return _segment_bounds(self.a, self.b, max(self.ra, self.rb))
+
+
+@dataclass(frozen=True, eq=False)
+class RoundCone(_AlongSegment):
+    """Spheres of radius ``ra`` at ``a`` and ``rb`` at ``b`` and the cone tangent to both
+    (a capsule when the radii are equal): exact distance."""
+
+    def __call__(self, x):
+        ba, pa = self.axis(x)
         l2 = ba @ ba
         rr = self.ra - self.rb
         a2 = l2 - rr * rr
@@ -171,9 +184,6 @@ class RoundCone:
         out = np.where(np.sign(y) * a2 * y2 < k, np.sqrt(x2 + y2) / l2 - self.ra, middle)
         return np.where(np.sign(z) * a2 * z2 > k, np.sqrt(x2 + z2) / l2 - self.rb, out)
 
-    def bounds(self):
-        return _segment_bounds(self.a, self.b, max(self.ra, self.rb))
-
 
 def capsule(a, b, radius: float) -> RoundCone:
     """The capsule of ``radius`` around the segment a-b."""
@@ -181,17 +191,12 @@ def capsule(a, b, radius: float) -> RoundCone:
 
 
 @dataclass(frozen=True, eq=False)
-class Frustum:
+class Frustum(_AlongSegment):
     """A capped cone from the disc of radius ``ra`` at ``a`` to that of ``rb`` at ``b`` (a
     cylinder when the radii are equal), flat ends: exact distance."""
-    a: tuple
-    b: tuple
-    ra: float
-    rb: float
 
     def __call__(self, x):
-        a, b = np.asarray(self.a, dtype=np.float64), np.asarray(self.b, dtype=np.float64)
-        ba, pa = b - a, x - a
+        ba, pa = self.axis(x)
         baba = ba @ ba
         paba = pa @ ba / baba
         r = np.sqrt(np.maximum(np.sum(pa * pa, axis=1) - paba * paba * baba, 0.0))
@@ -202,9 +207,6 @@ class Frustum:
         cbx, cby = r - self.ra - f * rba, paba - f
         s = np.where((cbx < 0) & (cay < 0), -1.0, 1.0)
         return s * np.sqrt(np.minimum(cax * cax + cay * cay * baba, cbx * cbx + cby * cby * baba))
-
-    def bounds(self):
-        return _segment_bounds(self.a, self.b, max(self.ra, self.rb))
 
 
 def cylinder(a, b, radius: float) -> Frustum:
