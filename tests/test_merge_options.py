@@ -47,7 +47,7 @@ def test_default_weights_are_the_package_file():
 def test_training_script_writes_the_package_file():
     """The script's writer, given the package file's weights as a fit returns them (the cost
     weights by TERM_NAMES, the intercept, γ), writes the package file byte for byte; another fit
-    writes a file that reads back as mo.MergeWeights (4 significant digits)."""
+    writes a file that reads back as MergeWeights (4 significant digits)."""
     tm = train_merge()
     record = json.loads(PACKAGE_FILE.read_text())
     values = record["merge_weights"]
@@ -81,7 +81,7 @@ def test_weights_file_round_trip_and_errors(tmp_path):
 
 def test_over_segmentation_settings_name_their_new_spelling():
     """The over-segmentation's settings given to (or read from) MergeWeights fail with one line
-    naming mo.OverSegmentation."""
+    naming OverSegmentation."""
     with pytest.raises(ParameterError, match=r"^ratio moved to OverSegmentation: "
                                              r"SegmentOptions\(overseg=OverSegmentation\(ratio=2\)\)$"):
         mo.MergeWeights(ratio=2)
@@ -99,7 +99,7 @@ def test_over_segmentation_settings_name_their_new_spelling():
 
 def test_records_keep_weights_and_over_segmentation_in_one_merge_entry():
     """SegmentOptions.recorded(): every option but overseg, whose fields are in merge's flat dict
-    (mo.MERGE_RECORD_FIELDS: both classes' fields, each once), read from the object that holds it."""
+    (MERGE_RECORD_FIELDS: both classes' fields, each once), read from the object that holds it."""
     merge_fields = [f.name for f in dataclasses.fields(mo.MergeWeights)]
     assert sorted(mo.MERGE_RECORD_FIELDS) == sorted(merge_fields + list(mo.OVERSEG_FIELDS))
     opts = SegmentOptions(merge=mo.MergeWeights(concavity=8.0), overseg=mo.OverSegmentation(min_k=3, crease_split=None))
