@@ -25,8 +25,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "segmentation"))
 from items import items as all_items  # noqa: E402
 from items import read_truth
+from merge_capture import capture_rounds
 
 #: over-segmentation variants: OverSegmentation changes (the merge weights do not matter here)
 OVERSEG = {
@@ -60,9 +62,7 @@ def capture_item(args) -> str:
     torch.set_num_threads(1)
     from torchakvf.io import load_mesh
     from torchakvf.mesh import MeshBatch
-    from torchakvf.parts import cut as C
     from torchakvf.parts.field_counts import akvf_count
-    from torchakvf.parts.rounds import segment_rounds
     from torchakvf.parts.solve import solve_akvfs
 
     path = Path(out) / f"{item.key.replace(':', '_')}.pkl"
@@ -80,27 +80,7 @@ def capture_item(args) -> str:
         fields, _ = solve_akvfs(mb, n_akvf, opts)
     except Exception as exc:                         # noqa: BLE001 - recorded, the run goes on
         return f"{item.key} FAILED {type(exc).__name__}: {exc}"
-    record = {"overs": [], "k_over": {}, "final": {}}
-    original = C.segmentation_labels
-
-    def recording(over, cache, o, k, floor, cost, n_solved):
-        ids = [i for i, s in enumerate(record["overs"]) if s["labels"] is over.labels]
-        if not ids:
-            record["overs"].append({"labels": over.labels, "unit": over.unit.astype(np.float32),
-                                    "area": over.area, "n_clusters": int(over.source[1].shape[0]),
-                                    "n_patches": int(over.n_patches)})
-            ids = [len(record["overs"]) - 1]
-        record["k_over"][int(k)] = ids[0]
-        record["mesh"] = over.mesh
-        return original(over, cache, o, k, floor, cost, n_solved)
-
-    C.segmentation_labels = recording
-    try:
-        for rnd in segment_rounds(fields, [ks], opts):
-            for b in rnd.active:
-                record["final"][int(rnd.ks[b])] = rnd.meshes[b].labels.astype(np.int32)
-    finally:
-        C.segmentation_labels = original
+    record = capture_rounds(fields, ks, opts, np.int32)
     record.update(key=item.key, group=item.group, kind=item.kind, gts=[g.astype(np.int32) for g in gts],
                   variant=variant, coarse_faces=coarse_faces, remedy=fields.remedies[0], rings=rings,
                   seconds=time.perf_counter() - t0)

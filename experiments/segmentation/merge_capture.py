@@ -22,6 +22,38 @@ from pathlib import Path
 import numpy as np
 
 
+def capture_rounds(fields, ks: list, opts, label_dtype) -> dict:
+    """Segment one mesh's AKVFs at each of ``ks``, recording what the merge starts from at each
+    k: {"overs": [{labels, unit rows, area, n_clusters, n_patches}] (one per over-segmentation),
+    "k_over": {k: index into overs}, "final": {k: the segmentation's labels}, "mesh": the cleaned
+    mesh}. Records at :func:`torchakvf.parts.cut.segmentation_labels`, the one place an
+    over-segmentation becomes k parts. Shared with experiments/generality/capture.py."""
+    from torchakvf.parts import cut as C
+    from torchakvf.parts.rounds import segment_rounds
+
+    record = {"overs": [], "k_over": {}, "final": {}}
+    original = C.segmentation_labels
+
+    def recording(over, cache, o, k, floor, cost, n_solved):
+        ids = [i for i, s in enumerate(record["overs"]) if s["labels"] is over.labels]
+        if not ids:
+            record["overs"].append({"labels": over.labels, "unit": over.unit.astype(np.float32),
+                                    "area": over.area, "n_clusters": int(over.source[1].shape[0]),
+                                    "n_patches": int(over.n_patches)})
+            ids = [len(record["overs"]) - 1]
+        record["k_over"][int(k)] = ids[0]
+        record["mesh"] = over.mesh
+        return original(over, cache, o, k, floor, cost, n_solved)
+
+    C.segmentation_labels = recording
+    try:
+        for rnd in segment_rounds(fields, [ks], opts):
+            for b in rnd.active:
+                record["final"][int(rnd.ks[b])] = rnd.meshes[b].labels.astype(label_dtype)
+    finally:
+        C.segmentation_labels = original
+    return record
+
 def capture_mesh(args) -> str:
     entry, out, coarse_faces = args
     import torch
@@ -32,8 +64,6 @@ def capture_mesh(args) -> str:
     from torchakvf.io import load_mesh
     from torchakvf.mesh import MeshBatch
     from torchakvf.options import SegmentOptions
-    from torchakvf.parts import cut as C
-    from torchakvf.parts.rounds import segment_rounds
     from torchakvf.parts.solve import solve_akvfs
 
     path = Path(out) / f"{entry.mesh_id}.pkl"
@@ -48,26 +78,7 @@ def capture_mesh(args) -> str:
     ks = sorted({int(g.max()) + 1 for g in gts})
     mb = MeshBatch.from_meshes([mesh], coarse_faces=coarse_faces)
     fields, _ = solve_akvfs(mb, eval_akvf_count(settings), opts)
-    record = {"overs": [], "k_over": {}, "final": {}}
-    original = C.segmentation_labels
-
-    def recording(over, cache, o, k, floor, cost, n_solved):
-        ids = [i for i, s in enumerate(record["overs"]) if s["labels"] is over.labels]
-        if not ids:
-            record["overs"].append({"labels": over.labels, "unit": over.unit.astype(np.float32),
-                                    "area": over.area, "n_clusters": int(over.source[1].shape[0])})
-            ids = [len(record["overs"]) - 1]
-        record["k_over"][int(k)] = ids[0]
-        record["mesh"] = over.mesh
-        return original(over, cache, o, k, floor, cost, n_solved)
-
-    C.segmentation_labels = recording
-    try:
-        for rnd in segment_rounds(fields, [ks], opts):
-            for b in rnd.active:
-                record["final"][int(rnd.ks[b])] = rnd.meshes[b].labels.astype(np.int16)
-    finally:
-        C.segmentation_labels = original
+    record = capture_rounds(fields, ks, opts, np.int16)
     record.update(mesh_id=entry.mesh_id, category=entry.category, gts=[g.astype(np.int16) for g in gts],
                   seconds=time.perf_counter() - t0)
     with open(path, "wb") as fh:
