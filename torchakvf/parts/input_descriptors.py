@@ -9,9 +9,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import TorchAKVFError
 from ..fields.akvf_result import AKVFResult
 from ..fields.descriptors import descriptor_names, face_descriptors
 from ..fields.untangle import DEFAULT_RESTARTS, UntangledFields
+from ..mesh.batch import MeshBatch
+from ..mesh.coarse import coarse_mesh
 from .part_descriptors import part_descriptor_names, part_descriptors
 
 
@@ -25,6 +28,31 @@ class InputDescriptors:
     names: list
 
 
+def descriptor_batch(batch: MeshBatch) -> MeshBatch:
+    """The batch the descriptors solve on: ``batch`` with each decimated mesh decimated again
+    from its full-resolution mesh, to the same face count, in the surface's canonical frame
+    (:func:`~torchakvf.mesh.coarse.decimate` with ``canonical=True``), so that a moved or
+    renumbered copy of a mesh solves on the same coarse surface. Meshes at full resolution,
+    already canonical, or whose canonical decimation fails keep theirs. Segmentations never
+    use it: their coarse mesh is ``batch``'s own."""
+    coarse = list(batch.coarse)
+    changed = False
+    for b, c in enumerate(coarse):
+        if c is None or c.canonical or c.faces_asked is None:
+            continue
+        try:
+            coarse[b] = coarse_mesh(c.fine, c.faces_asked, canonical=True) or c
+        except TorchAKVFError:
+            continue                  # the batch's own coarse mesh is still a correct input
+        changed = True
+    if not changed:
+        return batch
+    meshes = [m if c is None else c.coarse for m, c in zip(batch.meshes, coarse)]
+    out = MeshBatch.from_meshes(meshes, device=batch.device, dtype=batch.dtype)
+    out.coarse = coarse
+    return out
+
+
 def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
                            untangled: Mapping[int, UntangledFields] | None = None, seed: int = 0,
                            restarts: int = DEFAULT_RESTARTS, parts: bool = True) -> InputDescriptors:
@@ -34,7 +62,9 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     A decimated mesh's field columns are those of the coarse face under each input face; its
     part columns are computed where its parts are cut, on the full-resolution mesh.
     untangled, seed, restarts : :func:`~torchakvf.fields.descriptors.face_descriptors`'; the
-    part descriptors use their own seeds (:data:`~torchakvf.parts.part_descriptors.PART_SEEDS`).
+    seed is the descriptors' own (0 by default, whatever seed solved the fields: callers pass
+    ``untangled`` only when it was made with it); the part descriptors use their own seeds
+    (:data:`~torchakvf.parts.part_descriptors.PART_SEEDS`).
     """
     batch = fields.batch
     # one field has no membership to describe and too few fields to cut parts from
@@ -51,4 +81,4 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     return InputDescriptors(values=values, names=names)
 
 
-__all__ = ["InputDescriptors", "input_face_descriptors"]
+__all__ = ["InputDescriptors", "descriptor_batch", "input_face_descriptors"]

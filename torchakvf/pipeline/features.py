@@ -172,17 +172,23 @@ class FeaturesTask:
 
     def process(self, items, device):
         from ..fields import akvf, untangle
+        from ..fields.canonical import canonical_signs
+        from ..fields.descriptors import DESCRIPTOR_SEED
         from ..mesh import MeshBatch
-        from ..parts.input_descriptors import input_face_descriptors
+        from ..parts.input_descriptors import descriptor_batch, input_face_descriptors
 
         t0 = time.perf_counter()
-        batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
-                                      coarse_faces=self.coarse_faces)
+        # decimated in each surface's canonical frame: a moved or renumbered file gets the same rows
+        batch = descriptor_batch(MeshBatch.from_meshes([it.clean for it in items], device=device,
+                                                       coarse_faces=self.coarse_faces))
         fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol, batched=self.batched)
         t1 = time.perf_counter()
+        fields = canonical_signs(fields)
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
         counts = counts_for(self.n)
-        desc = input_face_descriptors(fields, counts, untangled={self.n: unt}, seed=self.seed,
+        # the descriptors untangle with their own seed, so that they do not depend on the solve's
+        desc = input_face_descriptors(fields, counts,
+                                      untangled={self.n: unt} if self.seed == DESCRIPTOR_SEED else None,
                                       restarts=self.untangle_restarts, parts=self.part_descriptors)
         names = np.array(desc.names)
         raw_norms = fields.face_vectors.norm(dim=-1)
