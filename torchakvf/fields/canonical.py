@@ -18,7 +18,6 @@ import torch
 
 from .akvf_result import AKVFResult
 
-
 #: Sign moments smaller than this (they are scale-free, O(0.01-1) on PSB meshes) are round-off
 #: of a field a symmetry makes odd (a sphere's rotations): such a field keeps the solver's sign
 #: rather than one decided by round-off, which would differ between float types or machines.

@@ -174,13 +174,11 @@ class FeaturesTask:
         from ..fields import akvf, untangle
         from ..fields.canonical import canonical_signs
         from ..fields.descriptors import DESCRIPTOR_SEED
-        from ..mesh import MeshBatch
-        from ..parts.input_descriptors import descriptor_batch, input_face_descriptors
+        from ..parts.input_descriptors import input_face_descriptors, pack_for_descriptors
 
         t0 = time.perf_counter()
         # decimated in each surface's canonical frame: a moved or renumbered file gets the same rows
-        batch = descriptor_batch(MeshBatch.from_meshes([it.clean for it in items], device=device,
-                                                       coarse_faces=self.coarse_faces))
+        batch = pack_for_descriptors([it.clean for it in items], self.coarse_faces, device=device)
         fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol, batched=self.batched)
         t1 = time.perf_counter()
         fields = canonical_signs(fields)
