@@ -55,8 +55,9 @@ def moved_renumbered(mesh: Mesh, seed: int = 3) -> tuple[Mesh, np.ndarray]:
 
 def descriptors(mesh: Mesh, seed: int = 0, solver: str = "auto") -> tuple[np.ndarray, list, float]:
     """([F, d] descriptors on the input faces, names, CPU seconds)."""
-    from torchakvf.interop import face_features
     import importlib
+
+    from torchakvf.interop import face_features
     akvf_mod = importlib.import_module("torchakvf.fields.akvf")
 
     t = time.process_time()
