@@ -40,9 +40,9 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
                   descriptors: bool = True, part_descriptors: bool = True) -> list[FaceFeatures]:
     """:class:`FaceFeatures` of every mesh of ``batch`` (a :class:`~torchakvf.MeshBatch`,
     optionally built with ``coarse_faces``: the fields are computed on the decimated mesh and
-    reported on the input's faces, and on the faces of a mesh decimated again in the surface's
-    canonical frame: :func:`~torchakvf.parts.input_descriptors.descriptor_batch`, so that a
-    moved or renumbered copy of the mesh gets the same features). ``remedy`` defaults to the segmentation's
+    reported on the input's faces; the mesh is decimated again in the surface's canonical frame,
+    :func:`~torchakvf.parts.input_descriptors.descriptor_batch`, so that a moved or renumbered
+    copy of the mesh gets the same features). ``remedy`` defaults to the segmentation's
     (:data:`torchakvf.operators.killing.DEFAULT_REMEDY`); the other arguments are
     :func:`~torchakvf.akvf`'s and :func:`~torchakvf.untangle`'s. ``descriptors=False`` skips
     the per-face descriptors (the field descriptors untangle again at 8 and 16 fields, about

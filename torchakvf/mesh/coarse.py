@@ -162,9 +162,9 @@ def canonical_frame(vertices: np.ndarray, faces: np.ndarray):
     sees the same bits, not a rotation's rounding noise, which flips its many exact ties on flat
     regions). Vertices are numbered in lexicographic order of their coordinates there, faces
     by their vertices' numbers (each face starting at its lowest, orientation kept).
-    ``to_input(points)`` maps [P, 3] points of the frame back. Where the axes are not unique (equal principal moments, a symmetric third
-    moment) another copy may get a rotated or mirrored frame: the same surface, differently
-    sampled.
+    ``to_input(points)`` maps [P, 3] points of the frame back. Where the axes are not unique
+    (equal principal moments, a symmetric third moment) another copy may get another frame: the
+    same surface, differently sampled.
     """
     u, to_input = _principal_frame(vertices, faces)
     order, g, face_order = _canonical_numbering(u, faces)
