@@ -7,7 +7,7 @@ import numpy as np
 from torchakvf import Mesh, MeshBatch, shapes
 from torchakvf.interop import face_features
 from torchakvf.mesh.coarse import canonical_numbering
-from torchakvf.parts.input_descriptors import descriptor_batch
+from torchakvf.parts.input_descriptors import descriptor_batch, pack_for_descriptors
 
 
 def _moved_renumbered(v: np.ndarray, f: np.ndarray, seed: int = 3):
@@ -61,3 +61,19 @@ def test_a_moved_renumbered_copy_solved_as_it_is_gets_the_same_field_columns():
     back = np.empty_like(d0)
     back[pf] = run(moved)
     np.testing.assert_allclose(back, d0, atol=1e-5)
+
+
+def test_pack_for_descriptors_decimates_once_as_descriptor_batch_does():
+    from torchakvf.mesh.clean import clean_mesh
+    s = shapes.fish()
+    clean = clean_mesh(Mesh(s.vertices, s.faces))
+    table = clean_mesh(Mesh(shapes.table().vertices, shapes.table().faces))
+    packed = pack_for_descriptors([clean, table], 2000)
+    again = descriptor_batch(MeshBatch.from_meshes([clean, table], coarse_faces=2000))
+    assert packed.coarse_of(0).canonical
+    np.testing.assert_array_equal(packed.meshes[0].faces, again.meshes[0].faces)
+    np.testing.assert_array_equal(packed.meshes[0].vertices, again.meshes[0].vertices)
+    np.testing.assert_array_equal(packed.coarse_of(0).faces_on_coarse.face, again.coarse_of(0).faces_on_coarse.face)
+    # the table (4,320 faces) is decimated too at 2000: both paths give the same canonical collapse
+    np.testing.assert_array_equal(packed.meshes[1].faces, again.meshes[1].faces)
+    assert packed.verts.shape == again.verts.shape
