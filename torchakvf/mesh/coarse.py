@@ -182,15 +182,28 @@ def canonical_numbering(vertices: np.ndarray, faces: np.ndarray):
     return order, g[face_order], face_order, np.ascontiguousarray(u[order])
 
 
+def _sum(terms: np.ndarray) -> np.ndarray:
+    """Σ over axis 0 in an order set by the values alone: the same bits for any order of the
+    faces (their round-off decides the frame of a shape whose principal moments are equal)."""
+    return np.sort(terms, axis=0).sum(axis=0)
+
+
 def _principal_frame(vertices: np.ndarray, faces: np.ndarray):
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    area = face_areas(v, f)
-    total = max(float(area.sum()), 1e-300)
-    center = (area @ v[f].mean(axis=1)) / total
-    c = (v[f].mean(axis=1) - center) / np.sqrt(total)
-    _, axes = np.linalg.eigh((c * area[:, None]).T @ c / total)
-    third = area @ (c @ axes) ** 3
+    # each face's corners in lexicographic order: its area and centroid do not depend on where
+    # its vertex list starts, nor on the numbering
+    corners = v[f].reshape(-1, 3)
+    order = np.lexsort((corners[:, 2], corners[:, 1], corners[:, 0], np.repeat(np.arange(len(f)), 3)))
+    vf = corners[order].reshape(-1, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(vf[:, 1] - vf[:, 0], vf[:, 2] - vf[:, 0]), axis=1)
+    centroid = (vf[:, 0] + vf[:, 1] + vf[:, 2]) / 3.0
+    total = max(float(_sum(area)), 1e-300)
+    center = _sum(area[:, None] * centroid) / total
+    c = (centroid - center) / np.sqrt(total)
+    second = _sum(area[:, None, None] * c[:, :, None] * c[:, None, :]) / total
+    _, axes = np.linalg.eigh(0.5 * (second + second.T))
+    third = _sum(area[:, None] * (c @ axes) ** 3)
     axes = axes * np.where(third < 0, -1.0, 1.0)
     # a rotation, not a mirror, so that the frame keeps the faces' orientation
     axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
