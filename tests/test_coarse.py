@@ -144,3 +144,51 @@ def test_psb_decimations_with_pinched_holes_are_closed_and_solvable(psb):
         fields, fell_back = akvf_falling_back(batch, n=8)
         assert fell_back == [] and int(fields.batch.edge_ptr[-1]) < 6100
         assert bool(fields.converged[0]) and float(fields.eigenvalues[0, 0]) > -1.0
+
+
+def test_a_moved_renumbered_copy_decimates_canonically_to_the_same_surface():
+    """canonical=True runs the collapse in a frame and numbering made from the surface
+    (canonical_frame): the copy's coarse mesh is the coarse mesh moved, vertex for vertex."""
+    from torchakvf.mesh.coarse import canonical_numbering
+    s = shapes.fish()
+    v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
+    rng = np.random.default_rng(3)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    pv, pf = rng.permutation(len(v)), rng.permutation(len(f))
+    shift = np.array([1.0, -2.0, 0.5])
+    a = clean_mesh(decimate(ta.Mesh(v, f), 2000, canonical=True))
+    moved_v = v @ q.T + shift
+    b = clean_mesh(decimate(ta.Mesh(moved_v[pv], np.argsort(pv)[f][pf]), 2000, canonical=True))
+    assert len(a.faces) == len(b.faces)
+    back = (b.vertices - shift) @ q
+    np.testing.assert_allclose(np.sort(back, axis=0), np.sort(a.vertices, axis=0), atol=1e-9)
+    # the same triangles, in the same canonical order
+    ta_ = a.vertices[a.faces[canonical_numbering(a.vertices, a.faces)[2]]]
+    tb = back[b.faces[canonical_numbering(b.vertices, b.faces)[2]]]
+    np.testing.assert_allclose(np.sort(tb, axis=1), np.sort(ta_, axis=1), atol=1e-9)
+
+
+def test_canonical_coarse_mesh_records_its_target():
+    s = shapes.fish()
+    c = coarse_mesh(ta.Mesh(s.vertices, s.faces), 2000, canonical=True)
+    d = coarse_mesh(ta.Mesh(s.vertices, s.faces), 2000)
+    assert c.canonical and not d.canonical and c.faces_asked == d.faces_asked == 2000
+    assert abs(len(c.coarse.faces) - 2000) < 100
+    # the same fine mesh; every fine face located on the canonical coarse surface
+    assert c.fine.faces.shape == d.fine.faces.shape and np.all(c.faces_on_coarse.face < len(c.coarse.faces))
+
+
+def test_canonical_frame_of_a_renumbered_sphere_is_the_same():
+    """A sphere's principal moments are equal, so its frame is decided by round-off: the sums
+    behind it are taken in an order set by the values, so that a renumbered copy (faces
+    shuffled and rolled, vertices permuted) still gets the same frame, to the bit."""
+    from torchakvf.mesh.coarse import canonical_frame
+    s = shapes.icosphere(level=3)
+    v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
+    rng = np.random.default_rng(1)
+    pv, pf = rng.permutation(len(v)), rng.permutation(len(f))
+    g = np.roll(np.argsort(pv)[f][pf], 1, axis=1)
+    u0, g0, _ = canonical_frame(v, f)
+    u1, g1, _ = canonical_frame(v[pv], g)
+    np.testing.assert_array_equal(u1, u0)
+    np.testing.assert_array_equal(g1, g0)

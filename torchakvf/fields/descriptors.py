@@ -39,9 +39,11 @@ column                        meaning, range
                               carried by the face change within r; [0, 1]
 ============================  ================================================================
 
-The untangling-based columns are reproducible where the orthomax optimum is well separated;
-where it is not (a shape with a continuous symmetry, such as a surface of revolution, where any
-rotation of a part's fields about the axis is as good), another seed may pick another optimum
+The untangling-based columns untangle the fields with their canonical signs
+(:func:`~torchakvf.fields.canonical.canonical_signs`) from :data:`DESCRIPTOR_SEED`'s starts,
+so they repeat whatever solver start, eigensolver, pose or numbering made the fields (to the
+solver's tolerance). Where eigenvalues are exactly equal (an exactly symmetric shape, a surface
+of revolution) no sign fixes the basis of their eigenspace: the untangling may start elsewhere,
 and only ``log_density`` and the coherences are guaranteed to repeat.
 
 Counts and radii make ``len(counts) * (7 + 2 * len(CONTRAST_RADII))`` columns, named by
@@ -61,6 +63,7 @@ from ..errors import ParameterError
 from ..mesh.batch import mesh_edges
 from ..mesh.clean import face_areas
 from .akvf_result import AKVFResult
+from .canonical import canonical_signs
 from .untangle import DEFAULT_RESTARTS, UntangledFields, untangle
 
 #: Field counts the descriptors are computed at by default: a few large primitives (8), the
@@ -71,6 +74,9 @@ DEFAULT_COUNTS = (8, 16, 32)
 CONTRAST_RADII = (0.05, 0.15)
 #: Per-count columns other than the contrasts, in output order.
 BASE_COLUMNS = ("share1", "share2", "share3", "entropy", "log_density", "energy", "part_area")
+#: Seed of the descriptors' own untangling, whatever seed solved the fields: with the fields'
+#: canonical signs the columns then depend on the fields' span and eigenvalues alone.
+DESCRIPTOR_SEED = 0
 #: Floor of Σ φ² relative to its surface mean before the log (faces where no field moves).
 DENSITY_FLOOR = 1e-12
 
@@ -209,24 +215,33 @@ def _counts(counts, available: int) -> list[int]:
 
 def face_descriptors(fields: AKVFResult, counts: Sequence[int] | int = DEFAULT_COUNTS, *,
                      untangled: Mapping[int, UntangledFields] | None = None,
-                     radii: Sequence[float] = CONTRAST_RADII, restarts: int = DEFAULT_RESTARTS, seed: int = 0,
+                     radii: Sequence[float] = CONTRAST_RADII, restarts: int = DEFAULT_RESTARTS,
+                     seed: int = DESCRIPTOR_SEED,
                      tol: float = 1e-6) -> list[torch.Tensor]:
     """Order-, sign- and motion-invariant per-face descriptors of every mesh of a batch.
 
     fields : the batch's AKVFs (at least ``max(counts)`` of them)
     counts : field counts to untangle at; each gives the columns of :func:`descriptor_block`
         and :func:`span_coherence` (none: [F_b, 0] tensors)
-    untangled : already untangled fields by count (reused instead of untangling again)
-    restarts, seed, tol : :func:`~torchakvf.untangle`'s, for the counts not given
+    untangled : already untangled fields by count (reused instead of untangling again; to
+        repeat across solves, from :func:`~torchakvf.fields.canonical.canonical_signs` of the
+        fields with the same seed and restarts)
+    restarts, seed, tol : :func:`~torchakvf.untangle`'s, for the counts not given (untangled
+        from the fields with their canonical signs, so that the columns do not depend on the
+        eigensolver's start, the solver, the pose or the numbering of the mesh)
     Returns one [F_b, d] tensor per mesh, on the faces of the packed mesh
     (``fields.batch.meshes[b]``: cleaned, decimated in a ``coarse_faces`` batch), in the
     fields' device and float type; d = ``len(descriptor_names(counts, radii))``.
     """
     counts = _counts(counts, fields.n)
     untangled = dict(untangled or {})
+    canonical = None
     for n in counts:
         if n not in untangled:
-            untangled[n] = untangle(fields, n, restarts=restarts, seed=seed, tol=tol)
+            # random starts act on the fields' coefficients: on fields whose signs the surface
+            # fixes, a seed gives the same starts whatever solver, pose or numbering made them
+            canonical = canonical_signs(fields) if canonical is None else canonical
+            untangled[n] = untangle(canonical, n, restarts=restarts, seed=seed, tol=tol)
     out = []
     for b, mesh in enumerate(fields.batch.meshes):
         diffusion = FaceDiffusion(mesh.vertices, mesh.faces) if len(radii) else None
@@ -245,5 +260,5 @@ def face_descriptors(fields: AKVFResult, counts: Sequence[int] | int = DEFAULT_C
     return out
 
 
-__all__ = ["DEFAULT_COUNTS", "CONTRAST_RADII", "BASE_COLUMNS", "FaceDiffusion", "descriptor_block",
+__all__ = ["DEFAULT_COUNTS", "DESCRIPTOR_SEED", "CONTRAST_RADII", "BASE_COLUMNS", "FaceDiffusion", "descriptor_block",
            "counts_for", "descriptor_names", "face_descriptors", "span_coherence"]

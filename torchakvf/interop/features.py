@@ -40,7 +40,9 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
                   descriptors: bool = True, part_descriptors: bool = True) -> list[FaceFeatures]:
     """:class:`FaceFeatures` of every mesh of ``batch`` (a :class:`~torchakvf.MeshBatch`,
     optionally built with ``coarse_faces``: the fields are computed on the decimated mesh and
-    reported on the input's faces). ``remedy`` defaults to the segmentation's
+    reported on the input's faces; the mesh is decimated again in the surface's canonical frame,
+    :func:`~torchakvf.parts.input_descriptors.descriptor_batch`, so that a moved or renumbered
+    copy of the mesh gets the same features). ``remedy`` defaults to the segmentation's
     (:data:`torchakvf.operators.killing.DEFAULT_REMEDY`); the other arguments are
     :func:`~torchakvf.akvf`'s and :func:`~torchakvf.untangle`'s. ``descriptors=False`` skips
     the per-face descriptors (the field descriptors untangle again at 8 and 16 fields, about
@@ -49,16 +51,19 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
     on a mesh decimated to 4000 faces)."""
     from ..fields import untangle
     from ..fields.akvf import akvf_falling_back
-    from ..fields.descriptors import counts_for
+    from ..fields.canonical import canonical_signs
+    from ..fields.descriptors import DESCRIPTOR_SEED, counts_for
     from ..operators.killing import DEFAULT_REMEDY
-    from ..parts.input_descriptors import input_face_descriptors
+    from ..parts.input_descriptors import descriptor_batch, input_face_descriptors
 
-    fields, _ = akvf_falling_back(batch, n=n, seed=seed, tol=tol,
+    fields, _ = akvf_falling_back(descriptor_batch(batch), n=n, seed=seed, tol=tol,
                                   remedy=DEFAULT_REMEDY if remedy is None else remedy)
+    fields = canonical_signs(fields)
     unt = untangle(fields, seed=seed, restarts=restarts)
     counts = counts_for(n) if descriptors else ()
-    desc = input_face_descriptors(fields, counts, untangled={n: unt}, seed=seed, restarts=restarts,
-                                  parts=part_descriptors) if descriptors else None
+    # the descriptors untangle with their own seed, so that they do not depend on the solve's
+    desc = input_face_descriptors(fields, counts, untangled={n: unt} if seed == DESCRIPTOR_SEED else None,
+                                  restarts=restarts, parts=part_descriptors) if descriptors else None
     batch = fields.batch              # the fallback may have re-packed meshes at full resolution
     raw = fields.face_vectors.norm(dim=-1)
     out = []

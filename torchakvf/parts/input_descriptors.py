@@ -4,14 +4,20 @@
 and the PyG transform hand them out (docs/descriptors.md)."""
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
+from ..errors import TorchAKVFError
 from ..fields.akvf_result import AKVFResult
 from ..fields.descriptors import descriptor_names, face_descriptors
 from ..fields.untangle import DEFAULT_RESTARTS, UntangledFields
+from ..mesh.batch import MeshBatch
+from ..mesh.clean import CleanMesh
+from ..mesh.coarse import DECIMATE_ABOVE, CoarseMesh, canonical_numbering, coarse_mesh
 from .part_descriptors import part_descriptor_names, part_descriptors
 
 
@@ -25,6 +31,60 @@ class InputDescriptors:
     names: list
 
 
+def descriptor_batch(batch: MeshBatch) -> MeshBatch:
+    """The batch the descriptors solve on: ``batch`` with each decimated mesh decimated again
+    from its full-resolution mesh, to the same face count, in the surface's canonical frame
+    (:func:`~torchakvf.mesh.coarse.decimate` with ``canonical=True``), and each mesh at full
+    resolution renumbered from its surface (:func:`~torchakvf.mesh.coarse.canonical_numbering`,
+    coordinates kept), so that a moved or renumbered copy of a mesh solves on the same surface
+    in the same numbering. A mesh whose canonical decimation fails keeps the batch's own coarse
+    mesh. Segmentations never use it: their coarse mesh is ``batch``'s own.
+    :func:`pack_for_descriptors` makes the same batch from meshes, decimating once."""
+    coarse = list(batch.coarse)
+    for b, c in enumerate(coarse):
+        if c is not None and not c.canonical and c.faces_asked is not None:
+            coarse[b] = _canonical_coarse(c.fine, c.faces_asked) or c
+    return _pack([batch.input_mesh(b) for b in range(len(batch))], coarse, batch.device, batch.dtype)
+
+
+def pack_for_descriptors(meshes: Sequence[CleanMesh], coarse_faces: int | None = None, *,
+                         device: str | torch.device = "cpu", dtype: torch.dtype = torch.float64) -> MeshBatch:
+    """:func:`descriptor_batch` of ``MeshBatch.from_meshes(meshes, device, dtype,
+    coarse_faces)`` (cleaned meshes), each mesh decimated once, in its canonical frame (where
+    that fails, as the segmentations decimate it; where that fails too, at full resolution)."""
+    coarse = []
+    if coarse_faces is not None:
+        coarse = [_canonical_coarse(m, coarse_faces) for m in meshes]
+        for b, c in enumerate(coarse):
+            if c is None and len(meshes[b].faces) > DECIMATE_ABOVE * coarse_faces:
+                coarse[b] = MeshBatch.from_meshes([meshes[b]], coarse_faces=coarse_faces).coarse_of(0)
+    return _pack(list(meshes), coarse, device, dtype)
+
+
+def _canonical_coarse(fine: CleanMesh, faces: int) -> CoarseMesh | None:
+    try:
+        return coarse_mesh(fine, faces, canonical=True)
+    except TorchAKVFError:
+        return None
+
+
+def _pack(fine: list, coarse: list, device, dtype) -> MeshBatch:
+    """The batch of the input meshes ``fine``, each packed as its ``coarse`` mesh where it has
+    one, else renumbered from its surface."""
+    meshes = [_numbered_canonically(m) if not coarse or coarse[b] is None else coarse[b].coarse
+              for b, m in enumerate(fine)]
+    out = MeshBatch.from_meshes(meshes, device=device, dtype=dtype)
+    out.coarse = coarse
+    return out
+
+
+def _numbered_canonically(mesh: CleanMesh) -> CleanMesh:
+    order, faces, face_order, _ = canonical_numbering(mesh.vertices, mesh.faces)
+    return dataclasses.replace(mesh, vertices=np.ascontiguousarray(mesh.vertices[order]), faces=faces,
+                               face_index=mesh.face_index[face_order],
+                               face_component=mesh.face_component[face_order])
+
+
 def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
                            untangled: Mapping[int, UntangledFields] | None = None, seed: int = 0,
                            restarts: int = DEFAULT_RESTARTS, parts: bool = True) -> InputDescriptors:
@@ -34,7 +94,9 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     A decimated mesh's field columns are those of the coarse face under each input face; its
     part columns are computed where its parts are cut, on the full-resolution mesh.
     untangled, seed, restarts : :func:`~torchakvf.fields.descriptors.face_descriptors`'; the
-    part descriptors use their own seeds (:data:`~torchakvf.parts.part_descriptors.PART_SEEDS`).
+    seed is the descriptors' own (0 by default, whatever seed solved the fields: callers pass
+    ``untangled`` only when it was made with it); the part descriptors use their own seeds
+    (:data:`~torchakvf.parts.part_descriptors.PART_SEEDS`).
     """
     batch = fields.batch
     # one field has no membership to describe and too few fields to cut parts from
@@ -51,4 +113,4 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     return InputDescriptors(values=values, names=names)
 
 
-__all__ = ["InputDescriptors", "input_face_descriptors"]
+__all__ = ["InputDescriptors", "descriptor_batch", "input_face_descriptors", "pack_for_descriptors"]

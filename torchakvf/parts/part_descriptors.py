@@ -5,9 +5,9 @@ around a face; these describe what the whole method makes of them. The mesh is s
 the package's defaults (untangling, k-means, merge, graph cut) at each part count k of ``ks``
 and each seed of ``seeds``, from one AKVF solve, and each face is described by how close the
 cuts come to it. A part's labels have no order, so every column is a function of where the
-labels change, never of a label's value: the columns mean the same on every mesh. The seeds are averaged over, so the columns do not depend
-on one seed's k-means and untangling; they vary with another seed list only where the
-segmentation itself does.
+labels change, never of a label's value: the columns mean the same on every mesh. The seeds
+are averaged over, so the columns do not depend on one seed's k-means and untangling; they
+vary with another seed list only where the segmentation itself does.
 
 Lengths are measured in the unit-area frame (the mesh scaled to area 1) along the dual graph
 (face centroids joined across shared edges), so rigid motions, scale and renumbering do not
@@ -23,12 +23,20 @@ column                      meaning, range
                             face (r in :data:`NEAR_RADII`); [0, 1]
 ==========================  =====================================================================
 
+The segmentations read the fields with their canonical signs
+(:func:`~torchakvf.fields.canonical.canonical_signs`) and cut a decimated mesh's
+full-resolution mesh numbered from its surface
+(:func:`fine_meshes_numbered_canonically`), so another solver start, eigensolver, pose or
+numbering gives the same cuts wherever the fields repeat (a scaled copy does not: the merge
+reads absolute lengths).
+
 Cuts are those of the segmentation's own boundary step, which places them on concave creases
 (:mod:`torchakvf.parts.graphcut`): unlike the field descriptors, these columns are not purely
 intrinsic.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -37,7 +45,11 @@ from scipy.sparse.csgraph import dijkstra
 
 from ..errors import ParameterError
 from ..fields.akvf_result import AKVFResult
+from ..fields.canonical import canonical_signs
+from ..mesh.batch import MeshBatch
 from ..mesh.clean import face_areas
+from ..mesh.coarse import canonical_numbering
+from ..mesh.surface_map import SurfacePoints
 from ..options import SegmentOptions, segment_options
 from .field_counts import akvf_count
 from .topology import face_adjacency
@@ -107,6 +119,31 @@ def describe_labelings(vertices: np.ndarray, faces: np.ndarray, labelings: Seque
                            np.stack(share, axis=1) if share else np.zeros((dist.shape[1], 0))], axis=1)
 
 
+def fine_meshes_numbered_canonically(batch: MeshBatch) -> MeshBatch:
+    """``batch`` with the full-resolution mesh of each decimated mesh numbered and placed by
+    :func:`~torchakvf.mesh.coarse.canonical_numbering` (vertices and faces, in the principal
+    frame at the input's scale, rounded to its grid; the packed meshes, and so the fields, are
+    untouched). The cut's tie-breaks follow the numbering of the mesh it cuts and
+    round-off of its coordinates: numbered and placed from the surface, a moved or renumbered
+    copy of a mesh is cut where the mesh is. The size stays the input's because the merge reads
+    absolute lengths with weights fitted at the PSB's own scales (a scaled copy is cut
+    elsewhere). Results on the input's faces (through ``face_index``) mean the same either
+    way."""
+    coarse = []
+    for b in range(len(batch)):
+        c = batch.coarse_of(b)
+        if c is not None:
+            order, faces, face_order, frame = canonical_numbering(c.fine.vertices, c.fine.faces)
+            fine = dataclasses.replace(c.fine, vertices=frame, faces=faces,
+                                       face_index=c.fine.face_index[face_order],
+                                       face_component=c.fine.face_component[face_order])
+            at = lambda p, rows: SurfacePoints(p.face[rows], p.bary[rows], p.distance[rows])  # noqa: E731
+            c = dataclasses.replace(c, fine=fine, vertices_on_coarse=at(c.vertices_on_coarse, order),
+                                    faces_on_coarse=at(c.faces_on_coarse, face_order))
+        coarse.append(c)
+    return dataclasses.replace(batch, coarse=coarse) if batch.coarse else batch
+
+
 def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Sequence[int] = PART_SEEDS,
                      options: SegmentOptions | None = None, radii: Sequence[float] = NEAR_RADII
                      ) -> list[np.ndarray]:
@@ -131,9 +168,12 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     if not ks or ks[0] < 2 or not seeds:
         raise ParameterError(f"part descriptors need part counts >= 2 and a seed, got ks={list(ks)!r}, "
                              f"seeds={list(seeds)!r}")
+    # the segmentations' random starts act on the fields' coefficients: with the signs the
+    # surface fixes, each seed starts the same whatever solver, pose or numbering made the fields
+    batch = fields.batch              # the columns are on its input meshes' faces
+    fields = dataclasses.replace(canonical_signs(fields), batch=fine_meshes_numbered_canonically(batch))
     enough = fields.n >= akvf_count([ks], None, opts.method, opts.overseg.min_k)
     n_fields = None if enough else fields.n
-    batch = fields.batch
     # a segmentation asks for at most one part per face: a smaller mesh is segmented at its face count
     ks_of = [[min(k, len(batch.meshes[b].faces)) for k in ks] for b in range(len(batch))]
     labels = [[[] for _ in seeds] for _ in range(len(batch))]
@@ -150,4 +190,4 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
 
 
 __all__ = ["PART_KS", "PART_SEEDS", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII", "part_descriptor_names",
-           "dual_graph", "cut_distance", "describe_labelings", "part_descriptors"]
+           "dual_graph", "cut_distance", "fine_meshes_numbered_canonically", "describe_labelings", "part_descriptors"]

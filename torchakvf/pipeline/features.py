@@ -171,13 +171,13 @@ class FeaturesTask:
         check_fields_fit(str(item.path), item.clean.faces, self.n, fewer_hint="use a smaller --n")
 
     def process(self, items, device):
-        from ..mesh import MeshBatch
+        from ..parts.input_descriptors import pack_for_descriptors
 
         t0 = time.perf_counter()
-        batch = MeshBatch.from_meshes([it.clean for it in items], device=device,
-                                      coarse_faces=self.coarse_faces)
+        # decimated in each surface's canonical frame: a moved or renumbered file gets the same rows
+        batch = pack_for_descriptors([it.clean for it in items], self.coarse_faces, device=device)
         t_pack = time.perf_counter() - t0
-        outs, seconds = self.solve_prepared(batch)
+        outs, seconds = self.descriptors_of(batch)
         seconds["akvf"] += t_pack     # the manifest has no stage of its own for packing
         return outs, seconds
 
@@ -188,17 +188,35 @@ class FeaturesTask:
         return out
 
     def solve_prepared(self, batch):
-        """The AKVFs, their untangling and the descriptors of a packed batch: (one dict of
-        arrays per mesh, {"akvf": s, "untangle": s})."""
+        """The batched path's solve (:mod:`.batched_run`): :meth:`descriptors_of` the batch the
+        descriptors solve on (each decimated mesh decimated again in its canonical frame, as
+        :meth:`process` decimates it once: the same arrays)."""
+        from ..parts.input_descriptors import descriptor_batch
+
+        t0 = time.perf_counter()
+        batch = descriptor_batch(batch)
+        t_pack = time.perf_counter() - t0
+        outs, seconds = self.descriptors_of(batch)
+        seconds["akvf"] += t_pack
+        return outs, seconds
+
+    def descriptors_of(self, batch):
+        """The AKVFs, their untangling and the descriptors of a batch packed for descriptors:
+        (one dict of arrays per mesh, {"akvf": s, "untangle": s})."""
         from ..fields import akvf, untangle
+        from ..fields.canonical import canonical_signs
+        from ..fields.descriptors import DESCRIPTOR_SEED
         from ..parts.input_descriptors import input_face_descriptors
 
         t0 = time.perf_counter()
         fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol, batched=self.batched)
         t1 = time.perf_counter()
+        fields = canonical_signs(fields)
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
         counts = counts_for(self.n)
-        desc = input_face_descriptors(fields, counts, untangled={self.n: unt}, seed=self.seed,
+        # the descriptors untangle with their own seed, so that they do not depend on the solve's
+        desc = input_face_descriptors(fields, counts,
+                                      untangled={self.n: unt} if self.seed == DESCRIPTOR_SEED else None,
                                       restarts=self.untangle_restarts, parts=self.part_descriptors)
         names = np.array(desc.names)
         raw_norms = fields.face_vectors.norm(dim=-1)

@@ -1,0 +1,79 @@
+"""torchakvf.parts.input_descriptors: the batch the descriptors solve on, and the columns on the
+input's faces."""
+from __future__ import annotations
+
+import numpy as np
+
+from torchakvf import Mesh, MeshBatch, shapes
+from torchakvf.interop import face_features
+from torchakvf.mesh.coarse import canonical_numbering
+from torchakvf.parts.input_descriptors import descriptor_batch, pack_for_descriptors
+
+
+def _moved_renumbered(v: np.ndarray, f: np.ndarray, seed: int = 3):
+    """(a rotated, translated copy with vertices and faces renumbered, pf: its face i is the
+    input's face pf[i])."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    pv, pf = rng.permutation(len(v)), rng.permutation(len(f))
+    return Mesh((v @ q.T + np.array([1.0, -2.0, 0.5]))[pv], np.argsort(pv)[f][pf]), pf
+
+
+def test_a_decimated_mesh_is_decimated_again_canonically_and_the_batch_is_untouched():
+    s = shapes.fish()
+    batch = MeshBatch.from_meshes([Mesh(s.vertices, s.faces)], coarse_faces=2000)
+    own = batch.coarse_of(0)
+    faces_before = own.coarse.faces.copy()
+    d = descriptor_batch(batch)
+    c = d.coarse_of(0)
+    assert c.canonical and not own.canonical and c.faces_asked == own.faces_asked == 2000
+    assert c.fine is own.fine                              # results land on the same input faces
+    assert d.meshes[0] is c.coarse and batch.meshes[0] is own.coarse
+    np.testing.assert_array_equal(batch.coarse_of(0).coarse.faces, faces_before)
+    assert descriptor_batch(d).coarse_of(0) is c          # already canonical: kept
+
+
+def test_a_mesh_at_full_resolution_is_renumbered_from_its_surface():
+    s = shapes.table()                                     # 4,320 faces: not decimated at 4000
+    v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
+    batch = MeshBatch.from_meshes([Mesh(v, f)], coarse_faces=4000)
+    assert batch.coarse_of(0) is None
+    m = descriptor_batch(batch).meshes[0]
+    order, faces, face_order, _ = canonical_numbering(batch.meshes[0].vertices, batch.meshes[0].faces)
+    np.testing.assert_array_equal(m.faces, faces)
+    np.testing.assert_array_equal(m.vertices, batch.meshes[0].vertices[order])
+    # each renumbered face still names its input face: the same triangle
+    tri = lambda verts, fs: np.sort(verts[fs].reshape(len(fs), -1), axis=1)  # noqa: E731
+    np.testing.assert_array_equal(tri(m.vertices, m.faces), tri(v, f[m.face_index]))
+
+
+def test_a_moved_renumbered_copy_solved_as_it_is_gets_the_same_field_columns():
+    """The exactly symmetric table, solved undecimated: renumbered from the surface, a moved,
+    renumbered copy is solved and untangled in the same order, and its field columns repeat to
+    the solver's tolerance (its part columns need not: the cut reads the copy's coordinates,
+    whose round-off moves whole cuts at some k, see docs/descriptors.md)."""
+    s = shapes.table()
+    v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
+    moved, pf = _moved_renumbered(v, f)
+    run = lambda mesh: face_features(MeshBatch.from_meshes([mesh], coarse_faces=4000), 8,  # noqa: E731
+                                     part_descriptors=False)[0].descriptors
+    d0 = run(Mesh(v, f))
+    back = np.empty_like(d0)
+    back[pf] = run(moved)
+    np.testing.assert_allclose(back, d0, atol=1e-5)
+
+
+def test_pack_for_descriptors_decimates_once_as_descriptor_batch_does():
+    from torchakvf.mesh.clean import clean_mesh
+    s = shapes.fish()
+    clean = clean_mesh(Mesh(s.vertices, s.faces))
+    table = clean_mesh(Mesh(shapes.table().vertices, shapes.table().faces))
+    packed = pack_for_descriptors([clean, table], 2000)
+    again = descriptor_batch(MeshBatch.from_meshes([clean, table], coarse_faces=2000))
+    assert packed.coarse_of(0).canonical
+    np.testing.assert_array_equal(packed.meshes[0].faces, again.meshes[0].faces)
+    np.testing.assert_array_equal(packed.meshes[0].vertices, again.meshes[0].vertices)
+    np.testing.assert_array_equal(packed.coarse_of(0).faces_on_coarse.face, again.coarse_of(0).faces_on_coarse.face)
+    # the table (4,320 faces) is decimated too at 2000: both paths give the same canonical collapse
+    np.testing.assert_array_equal(packed.meshes[1].faces, again.meshes[1].faces)
+    assert packed.verts.shape == again.verts.shape
