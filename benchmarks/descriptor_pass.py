@@ -1,8 +1,10 @@
 """One pass over the PSB meshes computing, per mesh, everything the learning benchmarks
 (``learn_boundaries.py``, ``classify_descriptors.py``) need, cached as one .npz per mesh.
 
-Per mesh, on the mesh decimated as the eval does (``MeshBatch.from_meshes(coarse_faces=4000)``;
-a mesh whose decimated solve fails is solved at full resolution, as segmentation does):
+Per mesh, on the batch the descriptors solve on (:func:`torchakvf.parts.input_descriptors.pack_for_descriptors`:
+4000 faces, decimated in the surface's canonical frame; a mesh whose decimated solve fails is
+solved at full resolution, as segmentation does), with the fields' canonical signs and the
+descriptors' own untangling seed, as :func:`torchakvf.interop.face_features` computes them:
 
 * ``akvf`` [F, 33]: :func:`torchakvf.fields.descriptors.face_descriptors` at 8, 16 and 32
   fields (``akvf_names``); ``akvf_parts`` [F, 8]:
@@ -45,7 +47,7 @@ SEED = 0
 #: Geodesic radius (lengths at unit area) within which a face counts as on a person's cut:
 #: about one and a half face rings of a mesh decimated to 4000 faces.
 BOUNDARY_RADIUS = 0.02
-CACHE_VERSION = "4"
+CACHE_VERSION = "5"
 
 #: Per labelled category, the learned merge weights fitted without it: the part descriptors of
 #: a labelled mesh are cut with them, so no held-out category's labels shape its own columns.
@@ -114,18 +116,23 @@ def segment_options_for(entry):
 
 def one_mesh(entry) -> dict:
     """Everything of the module docstring for one PSB entry."""
-    from torchakvf import MeshBatch, load_mesh
+    from torchakvf import load_mesh
     from torchakvf.fields import untangle
     from torchakvf.fields.akvf import akvf_falling_back
-    from torchakvf.fields.descriptors import DEFAULT_COUNTS, descriptor_names, face_descriptors
+    from torchakvf.fields.canonical import canonical_signs
+    from torchakvf.fields.descriptors import DEFAULT_COUNTS, DESCRIPTOR_SEED, descriptor_names, face_descriptors
+    from torchakvf.mesh import clean_mesh
     from torchakvf.operators.killing import DEFAULT_REMEDY
+    from torchakvf.parts.input_descriptors import pack_for_descriptors
     from torchakvf.parts.part_descriptors import dual_graph, part_descriptor_names, part_descriptors
 
     mesh = load_mesh(entry.mesh_path)
     t0, c0 = time.perf_counter(), time.process_time()
-    batch = MeshBatch.from_meshes([mesh], coarse_faces=COARSE_FACES)
+    # the descriptors' own batch: decimated in the surface's canonical frame, as face_features does
+    batch = pack_for_descriptors([clean_mesh(mesh)], COARSE_FACES)
     fields, fell_back = akvf_falling_back(batch, n=N_FIELDS, seed=SEED, remedy=DEFAULT_REMEDY)
-    unt = {n: untangle(fields, n, seed=SEED) for n in DEFAULT_COUNTS}
+    fields = canonical_signs(fields)
+    unt = {n: untangle(fields, n, seed=DESCRIPTOR_SEED) for n in DEFAULT_COUNTS}
     desc = face_descriptors(fields, DEFAULT_COUNTS, untangled=unt)[0].numpy()
     t_parts, c_parts = time.perf_counter(), time.process_time()
     # cut on the full-resolution mesh; each decimated face takes the value of the fine face under it
@@ -206,7 +213,7 @@ def cache_parser(description: str) -> argparse.ArgumentParser:
 
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--psb", default=default_psb_root(),
-                    help="the PSB folder (default: $TORCHAKVF_PSB, else ../shared/psb)")
+                    help="the PSB folder (default: $TORCHAKVF_PSB)")
     ap.add_argument("--cache", required=True, help="folder of the cached per-mesh descriptors")
     ap.add_argument("--threads", type=int, default=1)
     return ap
