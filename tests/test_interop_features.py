@@ -41,7 +41,7 @@ def test_face_features_on_input_faces_of_a_decimated_mesh():
 
 def _relative_difference(a: np.ndarray, a0: np.ndarray, area: np.ndarray) -> np.ndarray:
     """[d] per column ||a - a0|| / ||a0||, norms over the faces weighted by area
-    (docs/descriptors.md, Stability; experiments/descriptor_stability.py)."""
+    (docs/descriptors.md, Stability; experiments/descriptors/descriptor_stability.py)."""
     w = area / area.sum()
     return np.sqrt(w @ (a - a0) ** 2) / np.sqrt(w @ a0 ** 2)
 

@@ -6,7 +6,7 @@ and prints a JSON line; run it alternately with PYTHONPATH at each checkout, sev
 compare per-mesh minima (BASE: an export of the other revision, e.g. ``git archive main``)::
 
     for r in 1 2 3; do for t in $BASE $PWD; do
-      PYTHONPATH=$t OMP_NUM_THREADS=1 nice python experiments/descriptor_cost.py --tag $t; done; done
+      PYTHONPATH=$t OMP_NUM_THREADS=1 nice python experiments/descriptors/descriptor_cost.py --tag $t; done; done
 
 ``--steps`` (this checkout only) times instead the steps stability adds, per mesh: the
 descriptors' own canonical decimation (``descriptor_batch``), the canonical signs and the

@@ -18,7 +18,7 @@ descriptor matrix's relative difference is the worst column's. We also report
 an additive offset (log columns) cannot hide.
 
     PYTHONPATH=. TORCHAKVF_PSB=/work/shared/psb OMP_NUM_THREADS=1 nice python \
-        experiments/descriptor_stability.py --out experiments/results/descriptor_stability.md
+        experiments/descriptors/descriptor_stability.py --out experiments/results/descriptor_stability.md
 
 Also records the process CPU seconds of each ``face_features`` call (one thread).
 
