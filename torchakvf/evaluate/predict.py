@@ -69,7 +69,7 @@ def predict_in_worker(batch, settings: PredictSettings):
     return meshes, note, timings
 
 
-def predict_batch(batch, settings: PredictSettings, *, timings=None):
+def predict_batch(batch, settings: PredictSettings, *, timings=None, loaded=None):
     """AKVFs once for the batch of :class:`~torchakvf.evaluate.plan.PredictionPlan` s, then every
     missing k; writes predictions and meta files (a round's predictions as soon as it is done).
 
@@ -77,14 +77,20 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None):
         "load", "pack" (clean + pack), "akvf", "segment" (with k auto: the scan) and, given k,
         "segment_by_k" ({k: seconds}, each round charged to its meshes' k's by face share),
         "write" (predictions + meta files). CUDA is synchronized before each reading.
+    loaded : {mesh id: (mesh as read, its :func:`~torchakvf.mesh.clean_mesh`)} where the
+        caller loaded them (the corpus runner's :class:`~torchakvf.evaluate.eval_task.EvalTask`);
+        None: loaded here
 
     Returns ({mesh_id: Mesh} (the loaded input meshes, for scoring), a one-line summary)."""
     opts = settings.options
     tick = stage_clock(timings, settings.device)
     t0 = time.perf_counter()
-    meshes = {p.mesh_id: load_mesh(p.entry.mesh_path) for p in batch}
+    if loaded is None:
+        loaded = {p.mesh_id: (m, m) for p in batch for m in [load_mesh(p.entry.mesh_path)]}
+    meshes = {i: m for i, (m, _) in loaded.items()}
     tick("load")
-    mb = MeshBatch.from_meshes([meshes[p.mesh_id] for p in batch], device=settings.device,
+    # packing cleans a mesh as read, and keeps one cleaned already
+    mb = MeshBatch.from_meshes([loaded[p.mesh_id][1] for p in batch], device=settings.device,
                                coarse_faces=settings.coarse_faces)
     tick("pack")
     faces = np.array([len(m.faces) for m in mb.meshes], dtype=np.float64)

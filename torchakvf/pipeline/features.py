@@ -187,7 +187,7 @@ class FeaturesTask:
         arrays are written as they come."""
         return out
 
-    def solve_prepared(self, batch):
+    def solve_prepared(self, batch, items=None):
         """The AKVFs, their untangling and the descriptors of a packed batch: (one dict of
         arrays per mesh, {"akvf": s, "untangle": s})."""
         from ..fields import akvf, untangle
