@@ -75,9 +75,12 @@ def prepare(paths: Sequence[Path], out_dir: Path, task, *, seed: int = 0, resume
         key = str(p.resolve())
         old = previous.get(key)
         own = getattr(task, "done_already", None)
-        done = own(Item(p, key, stem, None)) if own is not None else None
-        if resume and (done if own is not None else is_done(old, p, stem, out_dir, task, seed)):
-            skipped.append(Item(p, key, stem, old.get("faces")))
+        if own is not None:
+            done = own(Item(p, key, stem, None)) and resume
+        else:
+            done = resume and is_done(old, p, stem, out_dir, task, seed)
+        if done:
+            skipped.append(Item(p, key, stem, (old or {}).get("faces")))
         else:
             todo.append(Item(p, key, stem, None))
     return todo, skipped
