@@ -67,8 +67,13 @@ def _plain(value):
 
 
 def row_of_record(record: dict) -> MeshScore:
-    """The scores.csv row a manifest record of :class:`EvalTask` carries (``score``)."""
-    return MeshScore(**record["score"])
+    """The scores.csv row a manifest record of :class:`EvalTask` carries (``score``; the k's of
+    its k auto details are ints again where the record went through JSON)."""
+    row = MeshScore(**record["score"])
+    if row.k_auto is not None:
+        by_k = row.k_auto.get("rand_index_error_by_k", {})
+        row.k_auto = {**row.k_auto, "rand_index_error_by_k": {int(k): v for k, v in by_k.items()}}
+    return row
 
 
 class EvalTask:
