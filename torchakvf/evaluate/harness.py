@@ -31,6 +31,13 @@ with fewer k's than the round count is clustered with k = 1 in the later rounds 
 its parts are not cut. Rounds whose field counts agree share one untangling. The default
 budget is :func:`torchakvf.pipeline.batches.default_batch_faces` for the device.
 
+The run: the meshes still to predict are a corpus run
+(:func:`torchakvf.pipeline.runner.run_corpus`, or :func:`~torchakvf.pipeline.ray_runner.run_corpus_ray`
+with ``ray_workers``) of :class:`~torchakvf.evaluate.eval_task.EvalTask`, which plans the
+batches, writes the predictions and scores each mesh; the runner loads, runs the batches in
+turn, side by side (``workers``) or through the host/device overlap (``batched``), holds the
+folder's lock and appends one ``manifest.jsonl`` line per mesh (with its scores.csv row).
+
 Resume: a prediction file is written atomically as soon as its round is done; a re-run skips
 every (mesh, k) whose file exists, so an interrupted run loses at most one round of one batch.
 A mesh whose predictions all exist is only scored. ``settings.json`` guards against mixing
@@ -44,8 +51,8 @@ is scored and the reports are written; :attr:`EvalSummary.failed` then says some
 wrong (``torchakvf eval`` exits 1). A mesh whose eigensolve did not converge is scored and
 flagged (``converged`` in its meta file and scores.csv, a summary.md section).
 
-Modules: :mod:`~torchakvf.evaluate.plan` (selection, k's, batches),
-:mod:`~torchakvf.evaluate.predict` (one batch), :mod:`~torchakvf.evaluate.score` (one mesh),
+Modules: :mod:`~torchakvf.evaluate.plan` (selection, k's), :mod:`~torchakvf.evaluate.eval_task`
+(the runner's task), :mod:`~torchakvf.evaluate.predict` (one batch), :mod:`~torchakvf.evaluate.score` (one mesh),
 :mod:`~torchakvf.evaluate.report` (scores.csv, summary.md, rand_index.png); this one runs them.
 
 The ``seconds`` of a mesh are its share (by face count) of the AKVF solve of its batch and of
