@@ -24,18 +24,17 @@ Hooks the runner calls (see :mod:`torchakvf.pipeline.execute`):
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..io.outputs import atomic_write_bytes, write_seg
+from ..io.outputs import write_seg
 from ..parts.rounds import cut_mesh_rounds, mesh_cut_job, segment_rounds
-from ..parts.solve import solve_akvfs, solve_quality
+from ..parts.solve import solve_akvfs
 from ..pipeline.batches import MemoryBudget, batch_bytes_budget, prediction_batches
-from .predict import PredictSettings, eval_akvf_count, predict_batch
+from .predict import PredictSettings, eval_akvf_count, predict_batch, solve_meta, write_meta
 from .score import MeshScore, score_mesh
 
 __all__ = ["EvalTask", "EvalOutput", "row_of_record"]
@@ -179,24 +178,12 @@ class EvalTask:
         rounds = list(segment_rounds(fields, missing, s.options, n_fields=s.n_fields, cut=False))
         t2 = time.perf_counter()
         jobs = [mesh_cut_job(fields, rounds, b) for b in range(len(items))]
-        metas = [self._solve_meta(fields, b, fell_back, it) for b, it in enumerate(items)]
+        metas = [solve_meta(fields, b, fell_back, it.mesh.n_faces) for b, it in enumerate(items)]
         t3 = time.perf_counter()
         faces = np.array([len(m.faces) for m in fields.batch.meshes], dtype=np.float64)
         for b, it in enumerate(items):
             metas[b]["seconds"] = it.seconds.get("load", 0.0) + (t3 - t0) * faces[b] / faces.sum()
         return list(zip(jobs, metas)), {"akvf": t1 - t0, "rounds": t2 - t1, "jobs": t3 - t2}
-
-    @staticmethod
-    def _solve_meta(fields, b: int, fell_back: list, item) -> dict:
-        coarse = fields.batch.coarse_of(b)
-        meta = {"faces": int(item.mesh.n_faces),
-                "eigenvalues": fields.eigenvalues[b].detach().cpu().numpy().astype(float).tolist(),
-                "coarse_faces": None if coarse is None else len(coarse.coarse.faces)}
-        meta["converged"], meta["max_residual"] = solve_quality(fields, b)
-        why = [w for i, w in fell_back if i == b]
-        if why:
-            meta["full_resolution_because"] = why[0]
-        return meta
 
     def cut(self, cut_input) -> EvalOutput:
         """The batched path's host half for one mesh: its parts at each k."""
@@ -215,10 +202,7 @@ class EvalTask:
         if out.labels is not None:
             for k, labels in out.labels.items():
                 write_seg(plan.pred_path(k), labels)
-            old = plan.meta()
-            meta = {**old, **out.meta, "costs": {**old.get("costs", {}), **out.meta["costs"]}}
-            meta["seconds"] = float(old.get("seconds", 0.0)) + out.meta["seconds"]
-            atomic_write_bytes(plan.meta_path, json.dumps(meta, indent=1).encode())
+            write_meta(plan, out.meta)
         t0 = time.perf_counter()
         out.row = score_mesh(plan, item.mesh, self.protocol, self.groups, self.auto, None)
         dt = time.perf_counter() - t0

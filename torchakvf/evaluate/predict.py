@@ -21,7 +21,8 @@ from . import metrics as M
 from . import psb as P
 from .k_auto import RULES, pick_k, scan_k
 
-__all__ = ["PredictSettings", "predict_batch", "predict_in_worker", "stage_clock", "eval_akvf_count"]
+__all__ = ["PredictSettings", "predict_batch", "predict_in_worker", "stage_clock", "eval_akvf_count",
+           "solve_meta", "write_meta"]
 
 
 @dataclass(frozen=True)
@@ -97,11 +98,9 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None, loaded=None
     share = faces / faces.sum()
     seconds = np.zeros(len(batch))
     fields, fell_back = solve_akvfs(mb, eval_akvf_count(settings), opts)
-    mb = fields.batch
     tick("akvf")
     t_akvf = time.perf_counter() - t0
     seconds += t_akvf * share
-    eig = fields.eigenvalues.detach().cpu().numpy().astype(float)
     costs = [dict() for _ in batch]
     extra = [dict() for _ in batch]
     if settings.auto:
@@ -125,23 +124,35 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None, loaded=None
             seconds[rnd.active] += (t2 - t1) * act_faces / act_faces.sum()
             t1 = t2
     for b, p in enumerate(batch):
-        meta = p.meta()
-        meta["faces"] = int(meshes[p.mesh_id].n_faces)
-        meta["seconds"] = float(meta.get("seconds", 0.0)) + float(seconds[b])
-        meta["eigenvalues"] = eig[b].tolist()
-        meta["converged"], meta["max_residual"] = solve_quality(fields, b)
-        meta["remedy"] = fields.remedies[b]
-        meta.setdefault("costs", {}).update(costs[b])
-        meta.update(extra[b])
-        meta["coarse_faces"] = None if mb.coarse_of(b) is None else len(mb.coarse_of(b).coarse.faces)
-        fb = [why for i, why in fell_back if i == b]
-        if fb:
-            meta["full_resolution_because"] = fb[0]
-        atomic_write_bytes(p.meta_path, json.dumps(meta, indent=1).encode())
+        meta = solve_meta(fields, b, fell_back, meshes[p.mesh_id].n_faces)
+        write_meta(p, {**meta, **extra[b], "costs": costs[b], "seconds": float(seconds[b])})
     tick("write")
     note = (f"{len(batch)} meshes, {int(faces.sum())} faces, akvf {t_akvf:.1f}s, {n_rounds} "
             f"k-rounds {time.perf_counter() - t0 - t_akvf:.1f}s")
     return meshes, note
+
+
+def solve_meta(fields, b: int, fell_back: list, faces: int) -> dict:
+    """What the meta file records of mesh ``b``'s solve: its input faces, Killing eigenvalues,
+    convergence, remedy, decimation (and why it fell back to full resolution)."""
+    coarse = fields.batch.coarse_of(b)
+    meta = {"faces": int(faces), "eigenvalues": fields.eigenvalues[b].detach().cpu().numpy().astype(float).tolist()}
+    meta["converged"], meta["max_residual"] = solve_quality(fields, b)
+    meta["remedy"] = fields.remedies[b]
+    meta["coarse_faces"] = None if coarse is None else len(coarse.coarse.faces)
+    why = [w for i, w in fell_back if i == b]
+    if why:
+        meta["full_resolution_because"] = why[0]
+    return meta
+
+
+def write_meta(plan, meta: dict) -> None:
+    """Merge this run's ``meta`` into the mesh's meta file: its ``costs`` added to the earlier
+    runs', its ``seconds`` to theirs."""
+    old = plan.meta()
+    meta = {**old, **meta, "costs": {**old.get("costs", {}), **meta.get("costs", {})},
+            "seconds": float(old.get("seconds", 0.0)) + float(meta.get("seconds", 0.0))}
+    atomic_write_bytes(plan.meta_path, json.dumps(meta, indent=1).encode())
 
 
 def _scan_and_write(batch, fields, settings: PredictSettings, costs: list) -> list:
