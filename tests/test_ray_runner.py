@@ -176,3 +176,29 @@ def test_a_bad_file_fails_alone_on_ray(ray_local, tmp_path):
     assert (tmp_path / "out" / "a.txt").read_text() == "80"
     by_stem = {r["stem"]: r for r in read_manifest(tmp_path / "out").values()}
     assert by_stem["bad"]["status"] == "failed"
+
+
+def test_eval_on_ray_equal_the_plain_eval(ray_local, tmp_path):
+    """``evaluate_psb(ray_workers=2)``: the evaluation task on Ray actors writes the plain run's
+    prediction files (same bytes: each mesh alone, same calls) and scores; a re-run resumes."""
+    from helpers.meshfiles import write_off, write_seg
+
+    from torchakvf import shapes
+    from torchakvf.evaluate.harness import evaluate_psb
+
+    root = tmp_path / "psb"
+    for i, s in enumerate((shapes.dumbbell(n_around=16), shapes.three_blobs(n_around=16)), 1):
+        write_off(root / "meshes" / f"{i}.off", s.vertices, s.faces)
+        write_seg(root / "gt" / str(i) / f"{i}_0.seg", s.part_labels)
+    fast = dict(kmeans_restarts=2, untangle_restarts=1, n_fields=8, metrics="rand", plot=False, progress=False)
+    plain = evaluate_psb(root, tmp_path / "plain", workers=1, **fast)
+    on_ray = evaluate_psb(root, tmp_path / "ray", ray_workers=2, **fast)
+    seg = sorted(p.relative_to(tmp_path / "plain") for p in (tmp_path / "plain" / "pred").rglob("*.seg"))
+    assert len(seg) == 2
+    for rel in seg:
+        assert (tmp_path / "ray" / rel).read_bytes() == (tmp_path / "plain" / rel).read_bytes()
+    assert [r.metrics for r in on_ray.rows] == [r.metrics for r in plain.rows]
+    assert len(manifest_lines(tmp_path / "ray")) == 2
+    again = evaluate_psb(root, tmp_path / "ray", ray_workers=2, **fast)
+    assert [r.metrics for r in again.rows] == [r.metrics for r in plain.rows]
+    assert len(manifest_lines(tmp_path / "ray")) == 2          # nothing run again

@@ -260,3 +260,51 @@ def test_progress_lines_on_long_work(tmp_path, caplog, capsys, monkeypatch):
     assert "batch 1/2: 1 mesh(es), 80 faces" in err and "this can take minutes" in err
     lines = [r.getMessage() for r in caplog.records if r.name == "torchakvf.progress"]
     assert any("160/160 faces" in line for line in lines), lines
+
+
+# ---- a task's own planner and resume; batches side by side ---------------------------------
+
+class _PlannedTask(FakeTask):
+    """Each mesh a batch of its own, largest first; ``done_already``: any stem in ``done``."""
+
+    def __init__(self, done=()):
+        super().__init__()
+        self.done, self.asked = set(done), []
+
+    def plan_batches(self, items, batch_faces, *, device="cpu", workers=None):
+        return [[it] for it in sorted(items, key=lambda it: -it.cost)]
+
+    def done_already(self, item):
+        self.asked.append(item.stem)
+        return item.stem in self.done
+
+
+def test_a_task_plans_its_batches_and_says_what_is_done(corpus, tmp_path):
+    task = _PlannedTask(done={"ell"})
+    summary = run_corpus(discover_inputs([corpus]), tmp_path / "out", task, batch_faces=10 ** 6,
+                         progress=False)
+    assert sorted(task.asked) == ["broken", "dumb", "ell", "ico"]       # every input is asked
+    assert summary.skipped == 1 and not (tmp_path / "out" / "ell.txt").exists()
+    # the planner's batches, in its order (dumb 492 faces, ico 320), not one batch of the budget
+    assert task.batches == [["dumb"], ["ico"]]
+    # the hook, not the manifest, decides: a done mesh is skipped even with no manifest line
+    again = _PlannedTask(done={"ell", "ico", "dumb"})
+    assert run_corpus(discover_inputs([corpus]), tmp_path / "out", again, progress=False).skipped == 3
+
+
+def test_batches_side_by_side_give_the_in_turn_files(corpus, tmp_path):
+    """workers=2 on the in-turn path: the batches run in two processes; same files and records,
+    the broken mesh failing alone."""
+    runs = {}
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        s = run_corpus(discover_inputs([corpus]), out, FakeTask(), batch_faces=BUDGET, progress=False,
+                       workers=workers)
+        assert (s.ok, s.failed) == (3, 1)
+        runs[workers] = out
+    for stem in ("ico", "ell", "dumb"):
+        assert (runs[1] / f"{stem}.txt").read_bytes() == (runs[2] / f"{stem}.txt").read_bytes()
+    keep = ("status", "faces_seen", "outputs")
+    one, two = by_stem(runs[1]), by_stem(runs[2])
+    assert {s: {k: r.get(k) for k in keep} for s, r in one.items()} == \
+        {s: {k: r.get(k) for k in keep} for s, r in two.items()}

@@ -104,6 +104,9 @@ def add_eval_arguments(p) -> None:
                    help="with --batched: bytes a batch's padded solver arrays may take (default: "
                         "half the GPU's free memory; 268435456 on the CPU)")
     add_batched_argument(p)
+    p.add_argument("--ray-workers", type=int, default=0, metavar="N",
+                   help="run the batches on N Ray actors (pip install 'torchakvf[ray]'; with --device "
+                        "cuda one GPU each). Default 0: no Ray")
     p.add_argument("--default-k", type=positive_int, default=DEFAULT_K_NO_GT,
                    help=f"parts for meshes without human segmentations (default {DEFAULT_K_NO_GT})")
     add_solver_argument(p, default=None)
@@ -157,7 +160,13 @@ def run_eval(args) -> int:
                             per_category=args.per_category, k_mode=args.k, k_range=k_range,
                             default_k=args.default_k, n_fields=args.n_fields, coarse_faces=coarse or None,
                             metrics=args.metrics, batch_faces=args.batch_faces, batch_bytes=args.batch_bytes,
-                            workers=args.workers or default_workers(device, batched=batched), device=device)
+                            workers=args.workers or default_workers(device, batched=batched), device=device,
+                            ray_workers=args.ray_workers)
+    if args.ray_workers:
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            raise TorchAKVFError("--ray-workers needs ray: pip install 'torchakvf[ray]'")
     summary = evaluate_psb(psb_root, args.out, eval_segment_options(None, _segment_overrides(args), settings.auto),
                            settings, progress=not args.quiet)
     n_ok = sum(r.scored for r in summary.rows)

@@ -31,6 +31,13 @@ with fewer k's than the round count is clustered with k = 1 in the later rounds 
 its parts are not cut. Rounds whose field counts agree share one untangling. The default
 budget is :func:`torchakvf.pipeline.batches.default_batch_faces` for the device.
 
+The run: the meshes still to predict are a corpus run
+(:func:`torchakvf.pipeline.runner.run_corpus`, or :func:`~torchakvf.pipeline.ray_runner.run_corpus_ray`
+with ``ray_workers``) of :class:`~torchakvf.evaluate.eval_task.EvalTask`, which plans the
+batches, writes the predictions and scores each mesh; the runner loads, runs the batches in
+turn, side by side (``workers``) or through the host/device overlap (``batched``), holds the
+folder's lock and appends one ``manifest.jsonl`` line per mesh (with its scores.csv row).
+
 Resume: a prediction file is written atomically as soon as its round is done; a re-run skips
 every (mesh, k) whose file exists, so an interrupted run loses at most one round of one batch.
 A mesh whose predictions all exist is only scored. ``settings.json`` guards against mixing
@@ -44,8 +51,8 @@ is scored and the reports are written; :attr:`EvalSummary.failed` then says some
 wrong (``torchakvf eval`` exits 1). A mesh whose eigensolve did not converge is scored and
 flagged (``converged`` in its meta file and scores.csv, a summary.md section).
 
-Modules: :mod:`~torchakvf.evaluate.plan` (selection, k's, batches),
-:mod:`~torchakvf.evaluate.predict` (one batch), :mod:`~torchakvf.evaluate.score` (one mesh),
+Modules: :mod:`~torchakvf.evaluate.plan` (selection, k's), :mod:`~torchakvf.evaluate.eval_task`
+(the runner's task), :mod:`~torchakvf.evaluate.predict` (one batch), :mod:`~torchakvf.evaluate.score` (one mesh),
 :mod:`~torchakvf.evaluate.report` (scores.csv, summary.md, rand_index.png); this one runs them.
 
 The ``seconds`` of a mesh are its share (by face count) of the AKVF solve of its batch and of
@@ -60,15 +67,15 @@ from pathlib import Path
 
 from ..devices import resolve_device
 from ..errors import TorchAKVFError
-from ..io.outputs import OutputSpaceError, atomic_write_bytes
+from ..io.outputs import atomic_write_bytes
 from ..operators import REMEDIES
 from ..options import SegmentOptions
-from ..pipeline.batches import MemoryBudget, batch_bytes_budget, default_batch_faces, prediction_batches
-from ..pipeline.parallel import default_workers, map_batches
+from ..pipeline.batches import default_batch_faces
+from ..pipeline.runner import overlapped, run_corpus
 from ..progress import progress as progress_bar
-from ..solvers.akvf_solver import batched_by_default
+from .eval_task import EvalTask, row_of_record
 from .plan import DEFAULT_K_NO_GT, PROTOCOLS, find_entries, human_mode, plan_meshes, select_entries
-from .predict import PredictSettings, eval_akvf_count, predict_in_worker
+from .predict import PredictSettings
 from .report import REFERENCES, EvalSummary, write_reports
 from .score import METRIC_GROUPS, METRICS, MeshScore, parse_metrics, score_mesh, score_segmentation
 from .settings import EvalSettings, eval_segment_options, prediction_record, settings_guard, split_overrides
@@ -132,10 +139,19 @@ def evaluate_psb(psb_root, out_dir, options: SegmentOptions | None = None,
     plans = plan_meshes(entries, out, settings.protocol, settings.auto, settings.default_k)
     for p in plans:
         problems.extend(p.problems)
-    run = _EvalRun(out, plans, options, settings, groups, recorded, problems, progress, t_start)
+    task = EvalTask(plans, predict_settings(options, settings), protocol=settings.protocol, groups=groups,
+                    params=recorded["prediction"], batch_bytes=settings.batch_bytes)
+    run = _EvalRun(out, plans, task, settings, recorded, problems, progress, t_start)
     run.score_the_rest()
     run.predict()
     return run.finish()
+
+
+def predict_settings(options: SegmentOptions, settings: EvalSettings) -> PredictSettings:
+    """How each batch of an evaluation is predicted."""
+    s = settings
+    return PredictSettings(auto=s.auto, n_fields=s.n_fields, k_range=s.k_range, k_rule=s.k_rule,
+                           coarse_faces=s.coarse_faces, options=options, device=s.device)
 
 
 def _record_settings(out: Path, root: Path, entries, options, settings: EvalSettings, groups) -> dict:
@@ -159,27 +175,23 @@ REPORT_EVERY = 16
 
 
 class _EvalRun:
-    """One evaluation under way: its rows so far, its failures and its progress lines."""
+    """One evaluation under way: a corpus run of its :class:`~torchakvf.evaluate.eval_task.EvalTask`,
+    with its rows so far, its failures and its progress lines."""
 
-    def __init__(self, out, plans, options, settings: EvalSettings, groups, recorded, problems,
+    def __init__(self, out, plans, task: EvalTask, settings: EvalSettings, recorded, problems,
                  progress, t_start):
-        self.out, self.plans, self.options, self.settings = out, plans, options, settings
-        self.groups, self.recorded, self.problems, self.t_start = groups, recorded, problems, t_start
-        self.auto = settings.auto
-        self.todo = [p for p in plans if p.failure is None and p.missing(self.auto)]
-        self.faces_of = {p.mesh_id: p.faces for p in self.todo}
+        self.out, self.plans, self.task, self.settings = out, plans, task, settings
+        self.recorded, self.problems, self.t_start = recorded, problems, t_start
+        self.todo = task.todo()
         self.say = progress if callable(progress) else None
+        self.lines = progress_bar(0, "torchakvf eval", "faces", enabled=progress is True)
         self.progress = progress
-        self.bar = progress_bar(sum(self.faces_of.values()), "torchakvf eval", "faces",
-                                enabled=progress is True)
         self.rows: dict[int, MeshScore] = {}
-        self.failed: dict[int, str] = {}
         self.score_seconds = 0.0
         self.predict_seconds = 0.0
-        self.device_times = None
         self.tell(f"torchakvf eval: {len(plans)} meshes ({len(plans) - len(self.todo)} already "
-                  f"predicted or failed), protocol {settings.protocol}{', k auto' if self.auto else ''}, "
-                  f"remedy {options.remedy}, out {out}")
+                  f"predicted or failed), protocol {settings.protocol}{', k auto' if task.auto else ''}, "
+                  f"remedy {task.options.remedy}, out {out}")
         for line in problems:
             self.tell(f"problem: {line}")
 
@@ -187,12 +199,11 @@ class _EvalRun:
         if self.say is not None:
             self.say(line)
         elif self.progress:
-            self.bar.write(line)
+            self.lines.write(line)
 
-    def score(self, plan, mesh) -> None:
+    def score(self, plan, failure=None) -> None:
         t0 = time.perf_counter()
-        row = score_mesh(plan, mesh, self.settings.protocol, self.groups, self.auto,
-                         self.failed.get(plan.mesh_id))
+        row = score_mesh(plan, None, self.settings.protocol, self.task.groups, self.task.auto, failure)
         dt = time.perf_counter() - t0
         self.score_seconds += dt
         row.seconds += dt
@@ -203,107 +214,62 @@ class _EvalRun:
         todo_ids = {p.mesh_id for p in self.todo}
         for p in self.plans:
             if p.mesh_id not in todo_ids:
-                self.score(p, None)
+                self.score(p)
                 if p.failure is not None:
                     self.tell(f"mesh {p.mesh_id} failed: {p.failure}")
 
-    @property
-    def batched(self) -> bool:
-        """Whether batches are solved as one (the accelerator's path; the device's default)."""
-        b = self.options.batched
-        return batched_by_default(self.settings.device) if b is None else bool(b)
-
     def predict(self) -> None:
-        """Predict the missing (mesh, k)'s batch by batch, scoring each batch's meshes as it
-        finishes and rewriting the reports (without plots) after each. A batched run with given
-        k's goes through :func:`~torchakvf.evaluate.device_run.predict_on_device` (host workers
-        feed the solving process)."""
-        if self.batched and not self.auto:
-            return self.predict_on_device()
-        s = self.settings
-        t_pred = time.perf_counter()
-        score_before = self.score_seconds
-        n_missing = {p.mesh_id: len(p.missing(self.auto)) for p in self.todo}
-        workers = 1 if s.workers is None else int(s.workers)
-        batches = prediction_batches(self.todo, self.faces_of, n_missing, s.batch_faces,
-                                     coarse_faces=s.coarse_faces, workers=workers, device=s.device)
-        predict = PredictSettings(auto=self.auto, n_fields=s.n_fields, k_range=s.k_range,
-                                  k_rule=s.k_rule, coarse_faces=s.coarse_faces, options=self.options,
-                                  device=s.device)
-        n_batch = 0
-        # A full output disk ends the run (as in the corpus runner) instead of failing every mesh.
-        for res in map_batches(batches, predict_in_worker, (predict,), workers=workers,
-                               fatal=(OutputSpaceError,)):
-            if res.split:
-                self.tell(f"a batch of {len(res.batch)} meshes failed ({res.error}); retrying its halves")
-                continue
-            n_batch += 1
-            self._batch_done(res, n_batch)
-            write_reports(self.out, self.rows, self.plans, s, self.groups,
-                          time.perf_counter() - self.t_start, self.recorded, plot=False,
-                          problems=self.problems)
-        self.bar.close()
-        self.predict_seconds = time.perf_counter() - t_pred - (self.score_seconds - score_before)
+        """The missing (mesh, k)'s as a corpus run (:func:`~torchakvf.pipeline.runner.run_corpus`),
+        each mesh scored as it is written; the reports are rewritten (without plots) after each
+        batch (every :data:`REPORT_EVERY` meshes on the batched path)."""
+        s, task = self.settings, self.task
+        if not self.todo:
+            return
+        every = REPORT_EVERY if overlapped(task, s.device) else 1
+        plan_of = {p.mesh_id: p for p in self.plans}
+        seen = [0]
 
-    def predict_on_device(self) -> None:
-        from .device_run import predict_on_device
-
-        s = self.settings
-        t_pred = time.perf_counter()
-        workers = default_workers(s.device, batched=True) if s.workers is None else int(s.workers)
-        n_missing = {p.mesh_id: len(p.missing(self.auto)) for p in self.todo}
-        # one solving process: consecutive batches under the face and memory budgets
-        memory = MemoryBudget(batch_bytes_budget(s.device, s.batch_bytes), eval_akvf_count(s))
-        batches = prediction_batches(self.todo, self.faces_of, n_missing, s.batch_faces,
-                                     coarse_faces=s.coarse_faces, workers=1, device=s.device, memory=memory)
-        predict = PredictSettings(auto=False, n_fields=s.n_fields, k_range=s.k_range, k_rule=s.k_rule,
-                                  coarse_faces=s.coarse_faces, options=self.options, device=s.device)
-        done = [0]
-
-        def finish(plan, mesh, error, row):
-            if error is not None:
-                self.failed[plan.mesh_id] = error
-                self.tell(f"mesh {plan.mesh_id} failed: {error}")
-                self.score(plan, mesh)
-            else:
-                self.rows[plan.mesh_id] = row
-            self.bar.update(self.faces_of[plan.mesh_id], note=f"mesh {plan.mesh_id}")
-            done[0] += 1
-            if done[0] % REPORT_EVERY == 0:
+        def on_batch(_, records):
+            for rec in records:
+                plan = task.plans[rec["path"]]
+                if rec["status"] == "ok":
+                    self.rows[plan.mesh_id] = row_of_record(rec)
+                    self.score_seconds += rec["seconds"].get("score", 0.0)
+                else:
+                    self.tell(f"mesh {plan.mesh_id} failed: {rec['error']}")
+                    self.score(plan_of[plan.mesh_id], rec["error"])
+            seen[0] += 1
+            if self.say is not None and every == 1:
+                faces = sum(task.plans[r["path"]].faces for r in records)
+                self.say(f"batch {seen[0]}: {len(records)} meshes, {faces} faces")
+            if seen[0] % every == 0:
                 self.write_reports()
 
-        self.device_times = predict_on_device(batches, predict, workers,
-                                              (s.protocol, self.groups, False), finish, self.tell)
-        self.bar.close()
-        host_score = self.device_times.host.get("score", 0.0)     # in the host workers
-        self.score_seconds += host_score
-        self.predict_seconds = time.perf_counter() - t_pred - host_score
-        self.recorded["run"]["timings"] = self.device_times.record()
-        atomic_write_bytes(self.out / "settings.json", json.dumps(self.recorded, indent=2).encode())
-        self.tell(self.device_times.line())
+        paths = [p.entry.mesh_path for p in self.todo]
+        if s.ray_workers:
+            from ..pipeline.ray_runner import run_corpus_ray
+
+            cuda = str(s.device).startswith("cuda")     # Ray gives each actor its own GPU as "cuda"
+            summary = run_corpus_ray(paths, self.out, task, batch_faces=s.batch_faces,
+                                     device="cuda" if cuda else s.device, seed=task.seed,
+                                     workers=s.ray_workers, gpus_per_worker=1.0 if cuda else 0.0,
+                                     on_batch=on_batch)
+        else:
+            summary = run_corpus(paths, self.out, task, batch_faces=s.batch_faces, device=s.device,
+                                 seed=task.seed, progress=self.say is None and bool(self.progress),
+                                 on_batch=on_batch, workers=s.workers)
+        self.predict_seconds = summary.elapsed - self.score_seconds
+        if summary.timings is not None:
+            self.recorded["run"]["timings"] = summary.timings
+            atomic_write_bytes(self.out / "settings.json", json.dumps(self.recorded, indent=2).encode())
 
     def write_reports(self) -> None:
-        write_reports(self.out, self.rows, self.plans, self.settings, self.groups,
+        write_reports(self.out, self.rows, self.plans, self.settings, self.task.groups,
                       time.perf_counter() - self.t_start, self.recorded, plot=False, problems=self.problems)
-
-    def _batch_done(self, res, n_batch: int) -> None:
-        if res.error is not None:
-            p = res.batch[0]
-            self.failed[p.mesh_id] = res.error
-            self.tell(f"mesh {p.mesh_id} failed: {res.error}")
-            meshes = {}
-            self.bar.update(self.faces_of[p.mesh_id], note=f"mesh {p.mesh_id}: failed")
-        else:
-            meshes, msg, _ = res.result
-            self.bar.update(int(sum(self.faces_of[p.mesh_id] for p in res.batch)), note=msg)
-            if self.say is not None:
-                self.say(f"batch {n_batch}: {msg}")
-        for p in res.batch:
-            self.score(p, meshes.get(p.mesh_id))
 
     def finish(self) -> EvalSummary:
         wall = time.perf_counter() - self.t_start
-        summary = write_reports(self.out, self.rows, self.plans, self.settings, self.groups, wall,
+        summary = write_reports(self.out, self.rows, self.plans, self.settings, self.task.groups, wall,
                                 self.recorded, plot=self.settings.plot, problems=self.problems)
         summary.predict_seconds = self.predict_seconds
         summary.score_seconds = self.score_seconds

@@ -21,7 +21,8 @@ from . import metrics as M
 from . import psb as P
 from .k_auto import RULES, pick_k, scan_k
 
-__all__ = ["PredictSettings", "predict_batch", "predict_in_worker", "stage_clock", "eval_akvf_count"]
+__all__ = ["PredictSettings", "predict_batch", "predict_in_worker", "stage_clock", "eval_akvf_count",
+           "solve_meta", "write_meta"]
 
 
 @dataclass(frozen=True)
@@ -69,7 +70,7 @@ def predict_in_worker(batch, settings: PredictSettings):
     return meshes, note, timings
 
 
-def predict_batch(batch, settings: PredictSettings, *, timings=None):
+def predict_batch(batch, settings: PredictSettings, *, timings=None, loaded=None):
     """AKVFs once for the batch of :class:`~torchakvf.evaluate.plan.PredictionPlan` s, then every
     missing k; writes predictions and meta files (a round's predictions as soon as it is done).
 
@@ -77,25 +78,29 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None):
         "load", "pack" (clean + pack), "akvf", "segment" (with k auto: the scan) and, given k,
         "segment_by_k" ({k: seconds}, each round charged to its meshes' k's by face share),
         "write" (predictions + meta files). CUDA is synchronized before each reading.
+    loaded : {mesh id: (mesh as read, its :func:`~torchakvf.mesh.clean_mesh`)} where the
+        caller loaded them (the corpus runner's :class:`~torchakvf.evaluate.eval_task.EvalTask`);
+        None: loaded here
 
     Returns ({mesh_id: Mesh} (the loaded input meshes, for scoring), a one-line summary)."""
     opts = settings.options
     tick = stage_clock(timings, settings.device)
     t0 = time.perf_counter()
-    meshes = {p.mesh_id: load_mesh(p.entry.mesh_path) for p in batch}
+    if loaded is None:
+        loaded = {p.mesh_id: (m, m) for p in batch for m in [load_mesh(p.entry.mesh_path)]}
+    meshes = {i: m for i, (m, _) in loaded.items()}
     tick("load")
-    mb = MeshBatch.from_meshes([meshes[p.mesh_id] for p in batch], device=settings.device,
+    # packing cleans a mesh as read, and keeps one cleaned already
+    mb = MeshBatch.from_meshes([loaded[p.mesh_id][1] for p in batch], device=settings.device,
                                coarse_faces=settings.coarse_faces)
     tick("pack")
     faces = np.array([len(m.faces) for m in mb.meshes], dtype=np.float64)
     share = faces / faces.sum()
     seconds = np.zeros(len(batch))
     fields, fell_back = solve_akvfs(mb, eval_akvf_count(settings), opts)
-    mb = fields.batch
     tick("akvf")
     t_akvf = time.perf_counter() - t0
     seconds += t_akvf * share
-    eig = fields.eigenvalues.detach().cpu().numpy().astype(float)
     costs = [dict() for _ in batch]
     extra = [dict() for _ in batch]
     if settings.auto:
@@ -119,23 +124,35 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None):
             seconds[rnd.active] += (t2 - t1) * act_faces / act_faces.sum()
             t1 = t2
     for b, p in enumerate(batch):
-        meta = p.meta()
-        meta["faces"] = int(meshes[p.mesh_id].n_faces)
-        meta["seconds"] = float(meta.get("seconds", 0.0)) + float(seconds[b])
-        meta["eigenvalues"] = eig[b].tolist()
-        meta["converged"], meta["max_residual"] = solve_quality(fields, b)
-        meta["remedy"] = fields.remedies[b]
-        meta.setdefault("costs", {}).update(costs[b])
-        meta.update(extra[b])
-        meta["coarse_faces"] = None if mb.coarse_of(b) is None else len(mb.coarse_of(b).coarse.faces)
-        fb = [why for i, why in fell_back if i == b]
-        if fb:
-            meta["full_resolution_because"] = fb[0]
-        atomic_write_bytes(p.meta_path, json.dumps(meta, indent=1).encode())
+        meta = solve_meta(fields, b, fell_back, meshes[p.mesh_id].n_faces)
+        write_meta(p, {**meta, **extra[b], "costs": costs[b], "seconds": float(seconds[b])})
     tick("write")
     note = (f"{len(batch)} meshes, {int(faces.sum())} faces, akvf {t_akvf:.1f}s, {n_rounds} "
             f"k-rounds {time.perf_counter() - t0 - t_akvf:.1f}s")
     return meshes, note
+
+
+def solve_meta(fields, b: int, fell_back: list, faces: int) -> dict:
+    """What the meta file records of mesh ``b``'s solve: its input faces, Killing eigenvalues,
+    convergence, remedy, decimation (and why it fell back to full resolution)."""
+    coarse = fields.batch.coarse_of(b)
+    meta = {"faces": int(faces), "eigenvalues": fields.eigenvalues[b].detach().cpu().numpy().astype(float).tolist()}
+    meta["converged"], meta["max_residual"] = solve_quality(fields, b)
+    meta["remedy"] = fields.remedies[b]
+    meta["coarse_faces"] = None if coarse is None else len(coarse.coarse.faces)
+    why = [w for i, w in fell_back if i == b]
+    if why:
+        meta["full_resolution_because"] = why[0]
+    return meta
+
+
+def write_meta(plan, meta: dict) -> None:
+    """Merge this run's ``meta`` into the mesh's meta file: its ``costs`` added to the earlier
+    runs', its ``seconds`` to theirs."""
+    old = plan.meta()
+    meta = {**old, **meta, "costs": {**old.get("costs", {}), **meta.get("costs", {})},
+            "seconds": float(old.get("seconds", 0.0)) + float(meta.get("seconds", 0.0))}
+    atomic_write_bytes(plan.meta_path, json.dumps(meta, indent=1).encode())
 
 
 def _scan_and_write(batch, fields, settings: PredictSettings, costs: list) -> list:

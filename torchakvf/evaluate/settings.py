@@ -44,6 +44,8 @@ class EvalSettings:
         :func:`torchakvf.pipeline.batches.batch_bytes_budget`)
     workers : processes predicting batches side by side, one thread each (None: 1, this
         process); on the batched path the solving process and its host workers
+    ray_workers : run the batches on this many Ray actors (:mod:`torchakvf.pipeline.ray_runner`;
+        0: no Ray); with a cuda device one GPU each
     device : torch device of the predictions (use one worker on a GPU)
     plot : write rand_index.png and the galleries
     """
@@ -62,6 +64,7 @@ class EvalSettings:
     batch_faces: int | None = None
     batch_bytes: int | None = None
     workers: int | None = None
+    ray_workers: int = 0
     device: str = "cpu"
     plot: bool = True
 
@@ -79,6 +82,8 @@ class EvalSettings:
             raise TorchAKVFError(f"batch_faces must be positive, got {self.batch_faces}")
         if self.batch_bytes is not None and int(self.batch_bytes) < 1:
             raise TorchAKVFError(f"batch_bytes must be positive, got {self.batch_bytes}")
+        if not isinstance(self.ray_workers, (int, np.integer)) or self.ray_workers < 0:
+            raise TorchAKVFError(f"ray_workers must be an integer >= 0, got {self.ray_workers!r}")
         if not isinstance(self.default_k, (int, np.integer)) or self.default_k < 1:
             raise TorchAKVFError(f"default_k must be a positive integer, got {self.default_k!r}")
         n = self.n_fields

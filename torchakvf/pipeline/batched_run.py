@@ -4,8 +4,9 @@ a GPU by default).
 
 A task takes this path when it has the two halves of its ``process``:
 
-* ``solve_prepared(batch) -> (cut inputs, {stage: seconds})``: in the solving process, the
-  packed :class:`~torchakvf.mesh.MeshBatch`'s device work; one small picklable cut input per
+* ``solve_prepared(batch, items) -> (cut inputs, {stage: seconds})``: in the solving process,
+  the packed :class:`~torchakvf.mesh.MeshBatch`'s device work (``items``: its meshes' run
+  items, in batch order); one small picklable cut input per
   mesh; the stages are the task's ``stages`` plus ``rounds`` / ``jobs`` as it names them;
 * ``cut(cut input) -> output``: in a host worker, what ``process`` would have returned for that
   mesh (then written by the task's ``write`` there too).
@@ -76,7 +77,7 @@ class CorpusOverlap:
         t0 = time.perf_counter()
         batch = pack(preps, self.device, self.coarse_faces)
         t_pack = time.perf_counter() - t0
-        inputs, stage_s = self.task.solve_prepared(batch)
+        inputs, stage_s = self.task.solve_prepared(batch, [p.item for p in preps])
         times.add(times.stages, {"pack": t_pack, **stage_s})
         faces = np.array([len(p.clean.faces) for p in preps], dtype=np.float64)
         share = faces / faces.sum()

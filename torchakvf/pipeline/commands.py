@@ -47,7 +47,8 @@ def _common(p: argparse.ArgumentParser) -> None:
                         "one GPU each). Default 0: no Ray")
     p.add_argument("--workers", default=None, metavar="W",
                    help="with --batched (or on cuda): processes in all, one solving, the others loading, "
-                        "cutting and writing meshes meanwhile (default: one per CPU core, at most 16)")
+                        "cutting and writing meshes meanwhile (default: one per CPU core, at most 16); "
+                        "otherwise processes running batches side by side, one thread each (default 1)")
     add_batched_argument(p)
 
 

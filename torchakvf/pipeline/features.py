@@ -187,10 +187,10 @@ class FeaturesTask:
         arrays are written as they come."""
         return out
 
-    def solve_prepared(self, batch):
+    def solve_prepared(self, batch, items=None):
         """The batched path's solve (:mod:`.batched_run`): :meth:`descriptors_of` the batch the
         descriptors solve on (each decimated mesh decimated again in its canonical frame, as
-        :meth:`process` decimates it once: the same arrays)."""
+        :meth:`process` decimates it once: the same arrays); ``items`` unused."""
         from ..parts.input_descriptors import descriptor_batch
 
         t0 = time.perf_counter()

@@ -58,7 +58,7 @@ def _ship_task_class(task) -> None:
 
 def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, device: str = "cpu",
                    seed: int = 0, resume: bool = True, workers: int = 1, cpus_per_worker: float = 1.0,
-                   gpus_per_worker: float = 0.0) -> RunSummary:
+                   gpus_per_worker: float = 0.0, on_batch=None) -> RunSummary:
     """:func:`run_corpus` with the batches spread over ``workers`` Ray actors.
 
     ``ray.init()`` is called unless Ray is already initialized (it joins the cluster named by
@@ -66,7 +66,8 @@ def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, devi
     Each actor reserves ``cpus_per_worker`` CPUs (and runs torch with that many threads) and
     ``gpus_per_worker`` GPUs: set ``gpus_per_worker=1`` and ``device="cuda"`` for one actor per
     GPU (Ray gives each actor its own GPU as ``cuda``). Largest batches are submitted first, so
-    the workers finish together.
+    the workers finish together. ``on_batch(n, records)``, as for :func:`run_corpus`, after each
+    batch's manifest lines (its records as read back from JSON).
     """
     try:
         import ray
@@ -84,13 +85,14 @@ def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, devi
         batches = plan.batches[::-1]
         if batches:
             _run_on_ray(ray, batches, out_dir, task, summary, device=device, seed=seed,
-                        workers=workers, cpus_per_worker=cpus_per_worker, gpus_per_worker=gpus_per_worker)
+                        workers=workers, cpus_per_worker=cpus_per_worker, gpus_per_worker=gpus_per_worker,
+                        on_batch=on_batch)
     summary.elapsed = time.perf_counter() - t0
     return summary
 
 
 def _run_on_ray(ray, batches, out_dir: Path, task, summary: RunSummary, *, device, seed, workers,
-                cpus_per_worker, gpus_per_worker) -> None:
+                cpus_per_worker, gpus_per_worker, on_batch=None) -> None:
     if not ray.is_initialized():
         ray.init()
     _ship_task_class(task)
@@ -109,8 +111,12 @@ def _run_on_ray(ray, batches, out_dir: Path, task, summary: RunSummary, *, devic
         **resources)
     start_bar = lambda: progress(sum(len(b) for b in batches), f"torchakvf {task.name} (ray)",  # noqa: E731
                                  "meshes")
+    n_batch = 0
     with recording(out_dir, summary, start_bar) as (writer, bar):
         for row in ds.iter_rows():
             records = json.loads(str(row["records"]))
             record_batch(records, writer, summary, bar, task.name)
             bar.update(len(records))
+            if on_batch is not None:
+                n_batch += 1
+                on_batch(n_batch, records)

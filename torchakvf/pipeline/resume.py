@@ -58,7 +58,11 @@ def is_done(record: dict | None, path: Path, stem: str, out_dir: Path, task, see
 def prepare(paths: Sequence[Path], out_dir: Path, task, *, seed: int = 0, resume: bool = True
             ) -> tuple[list[Item], list[Item]]:
     """(items to run, items skipped as already done) for ``paths``; stems are resolved against
-    the folder's manifest whether or not ``resume`` (so no run overwrites another input's)."""
+    the folder's manifest whether or not ``resume`` (so no run overwrites another input's).
+
+    A task with a ``done_already(item) -> bool`` hook (called for every input, with its stem)
+    says itself which inputs are done, from its own output files, instead of the manifest:
+    evaluation, whose outputs accumulate per (mesh, k) across runs and protocols."""
     out_dir = Path(out_dir)
     previous = read_manifest(out_dir)
     unique: dict[str, Path] = {}
@@ -70,8 +74,13 @@ def prepare(paths: Sequence[Path], out_dir: Path, task, *, seed: int = 0, resume
     for p, stem in zip(paths, stems):
         key = str(p.resolve())
         old = previous.get(key)
-        if resume and is_done(old, p, stem, out_dir, task, seed):
-            skipped.append(Item(p, key, stem, old.get("faces")))
+        own = getattr(task, "done_already", None)
+        if own is not None:
+            done = own(Item(p, key, stem, None)) and resume
+        else:
+            done = resume and is_done(old, p, stem, out_dir, task, seed)
+        if done:
+            skipped.append(Item(p, key, stem, (old or {}).get("faces")))
         else:
             todo.append(Item(p, key, stem, None))
     return todo, skipped

@@ -125,9 +125,11 @@ class RunPlan:
 
 
 def plan_run(paths: Iterable, out_dir: Path, task, *, batch_faces: int | None, device, seed: int,
-             resume: bool) -> RunPlan:
+             resume: bool, workers: int | None = None) -> RunPlan:
     """Resume check, size peek and batches of a run into ``out_dir`` (created, writable; the
-    caller holds its :class:`OutputLock`)."""
+    caller holds its :class:`OutputLock`). A task with a ``plan_batches(items, batch_faces,
+    device=, workers=)`` hook cuts its own batches (evaluation: by how many k's a mesh needs);
+    otherwise :func:`~.batches.plan_batches`."""
     batch_faces = int(batch_faces) if batch_faces is not None else default_batch_faces(device)
     if batch_faces < 1:
         raise TorchAKVFError(f"--batch-faces must be a positive integer, got {batch_faces}")
@@ -137,7 +139,10 @@ def plan_run(paths: Iterable, out_dir: Path, task, *, batch_faces: int | None, d
         log.info("%s: %d meshes already done in %s, skipping them", task.name, len(skipped), out_dir)
     for it in todo:
         it.faces = peek_faces(it.path)
-    return RunPlan(out_dir, plan_batches(todo, batch_faces), summary)
+    planner = getattr(task, "plan_batches", None)
+    batches = (plan_batches(todo, batch_faces) if planner is None
+               else planner(todo, batch_faces, device=str(device), workers=workers))
+    return RunPlan(out_dir, batches, summary)
 
 
 @contextmanager
@@ -185,7 +190,9 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
         and its records (tests use it to interrupt a run); on the overlapped path after each
         mesh's line, with the count of meshes done
     workers : processes of a batched run (:func:`overlapped`): this one solves, the others
-        load, cut and write (default :func:`~.parallel.default_workers` of a batched run)
+        load, cut and write (default :func:`~.parallel.default_workers` of a batched run);
+        otherwise processes running whole batches side by side, one thread each (default 1:
+        this process; the task is pickled to them)
 
     Returns a :class:`RunSummary`; ``summary.exit_code`` is 0 when no mesh failed, else 1.
     KeyboardInterrupt propagates after the finished meshes are safely recorded; so does a
@@ -197,7 +204,7 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
     out_dir = check_output_dir(out_dir)
     with OutputLock(out_dir):
         plan = plan_run(paths, out_dir, task, batch_faces=batch_faces, device=device, seed=seed,
-                        resume=resume)
+                        resume=resume, workers=workers)
         summary = plan.summary
         total_faces = sum(it.cost for b in plan.batches for it in b)
         start_bar = lambda: progress_report(total_faces, f"torchakvf {task.name}", "faces",  # noqa: E731
@@ -206,6 +213,8 @@ def run_corpus(paths: Iterable, out_dir, task, *, batch_faces: int | None = None
             with recording(out_dir, summary, start_bar) as (writer, bar):
                 if overlapped(task, device):
                     _run_overlapped(plan, task, device, seed, workers, writer, bar, on_batch)
+                elif workers is not None and int(workers) > 1:
+                    _run_side_by_side(plan, task, device, seed, int(workers), writer, bar, on_batch)
                 else:
                     _run_in_turn(plan, task, device, seed, writer, bar, on_batch)
         finally:
@@ -239,6 +248,29 @@ def _run_in_turn(plan: RunPlan, task, device, seed: int, writer, bar, on_batch) 
         record_batch(records, writer, plan.summary, bar, task.name)
         done += len(batch)
         bar.update(faces, note=f"{done}/{n_meshes} meshes, {summary.failed} failed")
+        if on_batch is not None:
+            on_batch(bno, records)
+
+
+def _run_side_by_side(plan: RunPlan, task, device, seed: int, workers: int, writer, bar, on_batch) -> None:
+    """The batches on ``workers`` single-threaded processes (:func:`~.parallel.map_batches`),
+    each batch's lines written as it finishes; a failing batch is bisected as in turn."""
+    from ..io import OutputSpaceError
+    from .execute import failed_record
+    from .parallel import map_batches
+
+    summary, n_meshes, done, bno = plan.summary, sum(map(len, plan.batches)), 0, 0
+    for outcome in map_batches(plan.batches, process_batch, (task, plan.out_dir, device, seed),
+                               workers=workers, fatal=(OutputSpaceError,)):
+        if outcome.split:
+            bar.write(f"torchakvf {task.name}: a batch of {len(outcome.batch)} meshes failed "
+                      f"({outcome.error}); retrying its halves")
+            continue
+        records = (outcome.result if outcome.error is None
+                   else [failed_record(outcome.batch[0], task, seed, outcome.error)])
+        record_batch(records, writer, summary, bar, task.name)
+        bno, done = bno + 1, done + len(outcome.batch)
+        bar.update(sum(it.cost for it in outcome.batch), note=f"{done}/{n_meshes} meshes, {summary.failed} failed")
         if on_batch is not None:
             on_batch(bno, records)
 

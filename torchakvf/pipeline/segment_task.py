@@ -142,7 +142,7 @@ class SegmentTask:
         (it runs whole, by :meth:`process`)."""
         return not self.auto
 
-    def solve_prepared(self, batch):
+    def solve_prepared(self, batch, items=None):
         """The batched path's device half of :meth:`process` (:mod:`.batched_run`): the AKVFs,
         untangling and k-means of a packed batch, its parts not cut. Returns (one picklable cut
         input per mesh: its :class:`~torchakvf.parts.rounds.MeshCutJob` and PNG arrows,

@@ -1,7 +1,9 @@
-"""torchakvf.evaluate.device_run: the batched evaluation (host workers feed the solving process
-and cut its batches) gives the single-process batched path's files bit for bit, finishes every
-(mesh, k) on real PSB meshes (mesh 114, which no shift factors decimated, included) and scores
-as the per-mesh path does; a failing batch is bisected."""
+"""torchakvf.evaluate.eval_task: the evaluation as a corpus-runner task. On the batched path
+(host workers feed the solving process and cut its batches) it gives the single-process
+batched path's files bit for bit, finishes every (mesh, k) on real PSB meshes (mesh 114, which
+no shift factors decimated, included) and scores as the per-mesh path does; a failing batch is
+bisected. Resume: a re-run predicts nothing that is there, an interrupted run is finished by
+the next, and a folder written before the runner held evaluations (no manifest) resumes."""
 from __future__ import annotations
 
 import csv
@@ -61,10 +63,10 @@ def test_host_workers_give_the_single_process_files(shapes_psb, tmp_path):
 def test_a_batch_that_fails_is_bisected(shapes_psb, tmp_path, monkeypatch):
     """Mesh 2 makes any batch holding it raise: it fails alone, meshes 1 and 3 are predicted,
     and no mesh is solved alone beside it more than the bisection needs."""
-    from torchakvf.evaluate import device_run
+    from torchakvf.evaluate import eval_task
 
     solved = []
-    real = device_run.solve_akvfs
+    real = eval_task.solve_akvfs
 
     def poisoned(batch, n, opts):
         names = [m.name for m in batch.meshes]
@@ -73,7 +75,7 @@ def test_a_batch_that_fails_is_bisected(shapes_psb, tmp_path, monkeypatch):
             raise RuntimeError("cholespy: factorization failed")
         return real(batch, n, opts)
 
-    monkeypatch.setattr(device_run, "solve_akvfs", poisoned)
+    monkeypatch.setattr(eval_task, "solve_akvfs", poisoned)
     out = tmp_path / "out"
     summary = evaluate_psb(shapes_psb, out, progress=False, batched=True, workers=1, **FAST)
     rows = {r.mesh_id: r for r in summary.rows}
@@ -137,3 +139,53 @@ def test_eval_command_batched(shapes_psb, tmp_path, capsys):
     rec = json.loads((out / "settings.json").read_text())
     assert rec["prediction"]["options"]["batched"] is True
     assert rec["run"]["timings"]["batches"] == 3 and rec["run"]["batch_faces"] > 10 ** 5
+
+
+def _mtimes(out) -> dict:
+    return {p.relative_to(out).as_posix(): p.stat().st_mtime_ns for p in sorted((out / "pred").rglob("*.seg"))}
+
+
+def test_interrupted_run_is_finished_by_the_next(shapes_psb, tmp_path):
+    """Ctrl-C after the first mesh: its predictions stay, the re-run predicts only the other two,
+    and the folder ends as a straight run's (same bytes, same scores); a third run solves nothing."""
+    straight = tmp_path / "straight"
+    evaluate_psb(shapes_psb, straight, progress=False, workers=1, batch_faces=1, **FAST)
+    out = tmp_path / "out"
+
+    def stop(line):
+        if line.startswith("batch 1:"):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        evaluate_psb(shapes_psb, out, progress=stop, workers=1, batch_faces=1, **FAST)
+    first = _mtimes(out)
+    assert len(first) == 1
+    lines = []
+    evaluate_psb(shapes_psb, out, progress=lines.append, workers=1, batch_faces=1, **FAST)
+    assert sum(ln.startswith("batch ") for ln in lines) == 2
+    assert {k: v for k, v in _mtimes(out).items() if k in first} == first
+    assert _predictions(out) == _predictions(straight)
+    assert {i: r["rand_index_error"] for i, r in _scores(out).items()} == \
+        {i: r["rand_index_error"] for i, r in _scores(straight).items()}
+    lines.clear()
+    evaluate_psb(shapes_psb, out, progress=lines.append, workers=1, batch_faces=1, **FAST)
+    assert not any(ln.startswith("batch ") for ln in lines)
+
+
+def test_a_folder_without_manifest_resumes_and_the_manifest_carries_the_rows(shapes_psb, tmp_path):
+    """Resume reads the prediction files, not the manifest: a folder written before evaluations
+    had one is resumed, nothing solved; each manifest line of a run carries its mesh's row."""
+    out = tmp_path / "out"
+    first = evaluate_psb(shapes_psb, out, progress=False, workers=1, **FAST)
+    records = [json.loads(ln) for ln in (out / "manifest.jsonl").read_text().splitlines()]
+    assert sorted(r["score"]["mesh_id"] for r in records) == [1, 2, 3]
+    for r in records:
+        assert r["task"] == "eval" and r["status"] == "ok"
+        assert r["score"]["metrics"] == pytest.approx(first.row(r["score"]["mesh_id"]).metrics)
+        assert set(r["outputs"]) == {f"{r['stem']}_k{r['score']['ks'][0]}.seg", f"{r['stem']}_meta.json"}
+    before = _mtimes(out)
+    (out / "manifest.jsonl").unlink()
+    lines = []
+    again = evaluate_psb(shapes_psb, out, progress=lines.append, workers=1, **FAST)
+    assert not any(ln.startswith("batch ") for ln in lines) and _mtimes(out) == before
+    assert [r.metrics for r in again.rows] == [r.metrics for r in first.rows]
