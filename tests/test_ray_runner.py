@@ -202,3 +202,10 @@ def test_eval_on_ray_equal_the_plain_eval(ray_local, tmp_path):
     again = evaluate_psb(root, tmp_path / "ray", ray_workers=2, **fast)
     assert [r.metrics for r in again.rows] == [r.metrics for r in plain.rows]
     assert len(manifest_lines(tmp_path / "ray")) == 2          # nothing run again
+
+
+def test_gpus_per_worker_is_gone_with_a_line_saying_why(tmp_path):
+    """A CUDA device reserves one GPU per actor; the removed keyword fails naming that."""
+    from torchakvf.errors import TorchAKVFError
+    with pytest.raises(TorchAKVFError, match="gpus_per_worker.*each actor reserves one GPU"):
+        run_corpus_ray([], tmp_path / "out", FakeTask(), gpus_per_worker=1.0)

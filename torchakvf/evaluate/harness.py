@@ -249,11 +249,8 @@ class _EvalRun:
         if s.ray_workers:
             from ..pipeline.ray_runner import run_corpus_ray
 
-            cuda = str(s.device).startswith("cuda")     # Ray gives each actor its own GPU as "cuda"
-            summary = run_corpus_ray(paths, self.out, task, batch_faces=s.batch_faces,
-                                     device="cuda" if cuda else s.device, seed=task.seed,
-                                     workers=s.ray_workers, gpus_per_worker=1.0 if cuda else 0.0,
-                                     on_batch=on_batch)
+            summary = run_corpus_ray(paths, self.out, task, batch_faces=s.batch_faces, device=s.device,
+                                     seed=task.seed, workers=s.ray_workers, on_batch=on_batch)
         else:
             summary = run_corpus(paths, self.out, task, batch_faces=s.batch_faces, device=s.device,
                                  seed=task.seed, progress=self.say is None and bool(self.progress),

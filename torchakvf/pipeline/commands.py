@@ -82,12 +82,8 @@ def _run(args, task, device: str) -> int:
     if ray_workers:
         from .ray_runner import run_corpus_ray
 
-        # Ray gives each actor its own GPU, visible there as "cuda".
-        cuda = device.startswith("cuda")
-        summary = run_corpus_ray(paths, out, task, batch_faces=batch_faces,
-                                 device="cuda" if cuda else device, seed=task.seed,
-                                 resume=not args.force, workers=ray_workers,
-                                 gpus_per_worker=1.0 if cuda else 0.0)
+        summary = run_corpus_ray(paths, out, task, batch_faces=batch_faces, device=device, seed=task.seed,
+                                 resume=not args.force, workers=ray_workers)
     else:
         summary = run_corpus(paths, out, task, batch_faces=batch_faces, device=device,
                              seed=task.seed, resume=not args.force, workers=_workers(args))

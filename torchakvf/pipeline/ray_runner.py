@@ -58,17 +58,24 @@ def _ship_task_class(task) -> None:
 
 def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, device: str = "cpu",
                    seed: int = 0, resume: bool = True, workers: int = 1, cpus_per_worker: float = 1.0,
-                   gpus_per_worker: float = 0.0, on_batch=None) -> RunSummary:
+                   on_batch=None, **removed) -> RunSummary:
     """:func:`run_corpus` with the batches spread over ``workers`` Ray actors.
 
     ``ray.init()`` is called unless Ray is already initialized (it joins the cluster named by
     ``RAY_ADDRESS`` or started on this machine with ``ray start``, else starts a local one).
-    Each actor reserves ``cpus_per_worker`` CPUs (and runs torch with that many threads) and
-    ``gpus_per_worker`` GPUs: set ``gpus_per_worker=1`` and ``device="cuda"`` for one actor per
-    GPU (Ray gives each actor its own GPU as ``cuda``). Largest batches are submitted first, so
+    Each actor reserves ``cpus_per_worker`` CPUs (and runs torch with that many threads) and,
+    with a CUDA ``device``, one GPU: one actor per GPU (Ray gives each actor its own GPU, seen
+    there as ``cuda``). Largest batches are submitted first, so
     the workers finish together. ``on_batch(n, records)``, as for :func:`run_corpus`, after each
     batch's manifest lines (its records as read back from JSON).
     """
+    if removed:
+        name = next(iter(removed))
+        hint = (": with device='cuda' each actor reserves one GPU" if name == "gpus_per_worker"
+                else "")
+        raise TorchAKVFError(f"run_corpus_ray got an unknown argument {name!r}{hint}")
+    cuda = str(device).startswith("cuda")
+    device = "cuda" if cuda else device          # each actor's own GPU is its "cuda"
     try:
         import ray
     except ImportError:
@@ -85,7 +92,7 @@ def run_corpus_ray(paths, out_dir, task, *, batch_faces: int | None = None, devi
         batches = plan.batches[::-1]
         if batches:
             _run_on_ray(ray, batches, out_dir, task, summary, device=device, seed=seed,
-                        workers=workers, cpus_per_worker=cpus_per_worker, gpus_per_worker=gpus_per_worker,
+                        workers=workers, cpus_per_worker=cpus_per_worker, gpus_per_worker=1.0 if cuda else 0.0,
                         on_batch=on_batch)
     summary.elapsed = time.perf_counter() - t0
     return summary
