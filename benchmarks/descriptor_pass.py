@@ -123,14 +123,15 @@ def one_mesh(entry) -> dict:
     from torchakvf.fields.descriptors import DEFAULT_COUNTS, DESCRIPTOR_SEED, descriptor_names, face_descriptors
     from torchakvf.mesh import clean_mesh
     from torchakvf.operators.killing import DEFAULT_REMEDY
-    from torchakvf.parts.input_descriptors import pack_for_descriptors
+    from torchakvf.parts.input_descriptors import pack_for_descriptors, solve_descriptor_batch
     from torchakvf.parts.part_descriptors import dual_graph, part_descriptor_names, part_descriptors
 
     mesh = load_mesh(entry.mesh_path)
     t0, c0 = time.perf_counter(), time.process_time()
     # the descriptors' own batch: decimated in the surface's canonical frame, as face_features does
     batch = pack_for_descriptors([clean_mesh(mesh)], COARSE_FACES)
-    fields, fell_back = akvf_falling_back(batch, n=N_FIELDS, seed=SEED, remedy=DEFAULT_REMEDY)
+    fields, fell_back = solve_descriptor_batch(
+        batch, lambda mb: akvf_falling_back(mb, n=N_FIELDS, seed=SEED, remedy=DEFAULT_REMEDY))
     fields = canonical_signs(fields)
     unt = {n: untangle(fields, n, seed=DESCRIPTOR_SEED) for n in DEFAULT_COUNTS}
     desc = face_descriptors(fields, DEFAULT_COUNTS, untangled=unt)[0].numpy()

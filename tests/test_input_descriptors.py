@@ -77,3 +77,38 @@ def test_pack_for_descriptors_decimates_once_as_descriptor_batch_does():
     # the table (4,320 faces) is decimated too at 2000: both paths give the same canonical collapse
     np.testing.assert_array_equal(packed.meshes[1].faces, again.meshes[1].faces)
     assert packed.verts.shape == again.verts.shape
+
+
+def test_a_canonical_decimation_that_cannot_be_solved_gives_way_to_the_segmentations():
+    """Where the solve fails on a mesh's canonical coarse mesh (a SolverError naming it), that
+    mesh is solved on the segmentations' decimation instead; its mates keep theirs."""
+    import pytest
+
+    from torchakvf.errors import SolverError
+    from torchakvf.mesh import clean_mesh
+    from torchakvf.parts.input_descriptors import solve_descriptor_batch
+
+    meshes = [clean_mesh(Mesh(s.vertices, s.faces)) for s in (shapes.quadruped(0.06), shapes.fish(0.05))]
+    batch = pack_for_descriptors(meshes, 1500)
+    assert all(batch.coarse_of(b).canonical for b in range(2))
+    seen = []
+
+    def solve(mb):
+        seen.append([mb.coarse_of(b).canonical for b in range(2)])
+        if mb.coarse_of(1).canonical:
+            exc = SolverError("fish: no shift made R - σS1 positive definite")
+            exc.failed_meshes = [1]
+            raise exc
+        return mb
+
+    out = solve_descriptor_batch(batch, solve)
+    assert seen == [[True, True], [True, False]]
+    ordinary = MeshBatch.from_meshes([meshes[1]], coarse_faces=1500).coarse_of(0).coarse
+    assert np.array_equal(out.meshes[1].vertices, ordinary.vertices) and np.array_equal(out.meshes[0].vertices,
+                                                                                        batch.meshes[0].vertices)
+
+    def fails_elsewhere(mb):
+        raise SolverError("no mesh named")
+
+    with pytest.raises(SolverError, match="no mesh named"):
+        solve_descriptor_batch(batch, fails_elsewhere)

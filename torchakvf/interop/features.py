@@ -54,10 +54,11 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
     from ..fields.canonical import canonical_signs
     from ..fields.descriptors import DESCRIPTOR_SEED, counts_for
     from ..operators.killing import DEFAULT_REMEDY
-    from ..parts.input_descriptors import descriptor_batch, input_face_descriptors
+    from ..parts.input_descriptors import descriptor_batch, input_face_descriptors, solve_descriptor_batch
 
-    fields, _ = akvf_falling_back(descriptor_batch(batch), n=n, seed=seed, tol=tol,
-                                  remedy=DEFAULT_REMEDY if remedy is None else remedy)
+    remedy = DEFAULT_REMEDY if remedy is None else remedy
+    fields, _ = solve_descriptor_batch(descriptor_batch(batch),
+                                       lambda mb: akvf_falling_back(mb, n=n, seed=seed, tol=tol, remedy=remedy))
     fields = canonical_signs(fields)
     unt = untangle(fields, seed=seed, restarts=restarts)
     counts = counts_for(n) if descriptors else ()

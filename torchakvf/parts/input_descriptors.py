@@ -5,13 +5,14 @@ and the PyG transform hand them out (docs/descriptors.md)."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import torch
 
-from ..errors import TorchAKVFError
+from ..errors import SolverError, TorchAKVFError
 from ..fields.akvf_result import AKVFResult
 from ..fields.descriptors import descriptor_names, face_descriptors
 from ..fields.untangle import DEFAULT_RESTARTS, UntangledFields
@@ -59,6 +60,30 @@ def pack_for_descriptors(meshes: Sequence[CleanMesh], coarse_faces: int | None =
             if c is None and len(meshes[b].faces) > DECIMATE_ABOVE * coarse_faces:
                 coarse[b] = MeshBatch.from_meshes([meshes[b]], coarse_faces=coarse_faces).coarse_of(0)
     return _pack(list(meshes), coarse, device, dtype)
+
+
+Solved = TypeVar("Solved")
+
+
+def solve_descriptor_batch(batch: MeshBatch, solve: Callable[[MeshBatch], Solved]) -> Solved:
+    """``solve(batch)`` on a batch from :func:`descriptor_batch` or :func:`pack_for_descriptors`;
+    where a mesh's canonical decimation cannot be solved (a :class:`SolverError` naming it in
+    ``failed_meshes``: no shift makes its operator definite, at that decimation nor at full
+    resolution), that mesh takes the segmentations' decimation instead and the batch is solved
+    again, so the descriptors fail only where a segmentation would (PSB 226 and 227: their
+    canonical coarse meshes cannot be factored, the eval's can)."""
+    try:
+        return solve(batch)
+    except SolverError as exc:
+        failed = [b for b in getattr(exc, "failed_meshes", None) or []
+                  if batch.coarse_of(b) is not None and batch.coarse_of(b).canonical]
+        if not failed:
+            raise
+        coarse = list(batch.coarse)
+        for b in failed:
+            c = coarse[b]
+            coarse[b] = MeshBatch.from_meshes([c.fine], coarse_faces=c.faces_asked).coarse_of(0)
+        return solve(_pack([batch.input_mesh(b) for b in range(len(batch))], coarse, batch.device, batch.dtype))
 
 
 def _canonical_coarse(fine: CleanMesh, faces: int) -> CoarseMesh | None:
@@ -113,4 +138,5 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     return InputDescriptors(values=values, names=names)
 
 
-__all__ = ["InputDescriptors", "descriptor_batch", "input_face_descriptors", "pack_for_descriptors"]
+__all__ = ["InputDescriptors", "descriptor_batch", "input_face_descriptors", "pack_for_descriptors",
+           "solve_descriptor_batch"]

@@ -206,10 +206,12 @@ class FeaturesTask:
         from ..fields import akvf, untangle
         from ..fields.canonical import canonical_signs
         from ..fields.descriptors import DESCRIPTOR_SEED
-        from ..parts.input_descriptors import input_face_descriptors
+        from ..parts.input_descriptors import input_face_descriptors, solve_descriptor_batch
 
         t0 = time.perf_counter()
-        fields = akvf(batch, n=self.n, seed=self.seed, remedy=self.remedy, tol=self.tol, batched=self.batched)
+        fields = solve_descriptor_batch(batch, lambda mb: akvf(mb, n=self.n, seed=self.seed, remedy=self.remedy,
+                                                               tol=self.tol, batched=self.batched))
+        batch = fields.batch        # a mesh whose canonical decimation failed is packed as segmentations pack it
         t1 = time.perf_counter()
         fields = canonical_signs(fields)
         unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
