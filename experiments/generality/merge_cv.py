@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import pickle
+import sys
 import time
 from multiprocessing import get_context
 from pathlib import Path
@@ -31,9 +32,13 @@ from scipy.optimize import minimize
 
 from torchakvf.evaluate.metrics import rand_index_error as rand_error
 from torchakvf.options import MergeWeights
-from torchakvf.parts.concavity import dual_edges
-from torchakvf.parts.merge import FIELD_OF_TERM, boundary_bends, region_graph, term_weights
-from torchakvf.parts.merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
+from torchakvf.parts.merge import FIELD_OF_TERM, term_weights
+from torchakvf.parts.merge_terms import TERM_NAMES, face_thickness
+
+# the capture preparation, merge state and pair recorder of the PSB sweep, shared
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "segmentation"))
+from merge_learned_cv import Recorder as PairRecorder  # noqa: E402
+from merge_learned_cv import greedy, merged_errors, new_state, over_graphs, truth_rows  # noqa: E402
 
 T = len(TERM_NAMES)
 PREP: dict = {}
@@ -48,29 +53,9 @@ def prepare(args) -> str:
         return f"{cap_file.stem} cached"
     rec = pickle.load(open(cap_file, "rb"))
     mesh = rec["mesh"]
-    dual = dual_edges(mesh.vertices, mesh.faces)
-    bends = boundary_bends(dual)
-    cent = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)].mean(axis=1)
-    thick = face_thickness(mesh.vertices, mesh.faces)
-    overs = []
-    for o in rec["overs"]:
-        unit = o["unit"].astype(np.float64)
-        g = region_graph(o["labels"], dual, unit, o["area"], unit=unit, bends=bends)
-        sums = part_sums(g.labels, g.n_parts, o["area"], cent, thick)
-        overs.append(dict(graph=(g.area, g.mean, g.length, g.concave, g.convex), sums=sums,
-                          lab_in=mesh.labels_to_input_faces(g.labels)))
-    gts = []
-    for gt in rec["gts"]:
-        gt = gt.astype(np.int64)
-        k = int(gt.max()) + 1
-        oi = rec["k_over"][k]
-        lab_in = overs[oi]["lab_in"]
-        K = len(overs[oi]["graph"][0])
-        ok = lab_in >= 0
-        counts = np.bincount(lab_in[ok] * k + gt[ok], minlength=K * k).reshape(K, k).astype(np.float64)
-        final = rec["final"][k].astype(np.int64)
-        gts.append(dict(k=k, over=oi, gt=gt, counts=counts, final_err=rand_error(np.maximum(final, 0), gt)))
-    data = dict(key=rec["key"], group=rec["group"], kind=rec["kind"], overs=overs, gts=gts)
+    overs = over_graphs(rec, face_thickness(mesh.vertices, mesh.faces))
+    data = dict(key=rec["key"], group=rec["group"], kind=rec["kind"], overs=overs,
+                gts=truth_rows(rec, overs, rand_error))
     with open(out, "wb") as fh:
         pickle.dump(data, fh, protocol=pickle.HIGHEST_PROTOCOL)
     return f"{rec['key']} prepared"
@@ -82,14 +67,6 @@ def load_prep(prep: Path, keep=None) -> None:
         d = pickle.load(open(f, "rb"))
         if keep is None or keep(d):
             PREP[d["key"]] = d
-
-
-def new_state(over: dict) -> MergeState:
-    area, mean, length, concave, convex = over["graph"]
-    s = over["sums"]
-    return MergeState(area.copy(), mean.copy(), length.copy(), concave.copy(), convex.copy(),
-                      thick=s["thick"].copy(), thick_area=s["thick_area"].copy(), centroid=s["centroid"].copy(),
-                      center=s["center"], radius=s["radius"], thick_median=s["thick_median"])
 
 
 # ---------------------------------------------------------------- the merge under a cost
@@ -113,48 +90,9 @@ class Cost:
         return np.outer(a[rows], a) ** self.gamma * np.tanh(0.5 * (s - self.b))
 
 
-def greedy(state: MergeState, k: int, cost: Cost, record=None) -> np.ndarray:
-    """Merge the cheapest adjacent pair until k parts remain; the owner [K] of each part.
-    record(terms, adjacent, rows): each new row of terms; record.merge(i, j): each merge."""
-    K = len(state.area)
-    rows = np.arange(K)
-    terms, adj = pair_terms(state, rows, k)
-    if record is not None:
-        record(terms, adj, rows)
-    c = np.where(adj, cost(terms, state, rows), np.inf)
-    np.fill_diagonal(c, np.inf)
-    owner = np.arange(K)
-    for _ in range(K - k):
-        i, j = divmod(int(np.argmin(c)), K)
-        if not np.isfinite(c[i, j]):
-            break
-        i, j = min(i, j), max(i, j)
-        state.merge(i, j)
-        if record is not None:
-            record.merge(i, j)
-        owner[owner == j] = i
-        c[j, :] = c[:, j] = np.inf
-        t, a = pair_terms(state, np.array([i]), k)
-        if record is not None:
-            record(t, a, np.array([i]))
-        row = np.where(a[0], cost(t, state, np.array([i]))[0], np.inf)
-        row[i] = np.inf
-        c[i, :] = c[:, i] = row
-    return owner
-
-
 def shape_error(key: str, cost: Cost) -> float:
     """Mean 1-RI over the shape's truths of its merged labels."""
-    d = PREP[key]
-    errs, memo = [], {}
-    for g in d["gts"]:
-        mk = (g["over"], g["k"])
-        if mk not in memo:
-            owner = greedy(new_state(d["overs"][g["over"]]), g["k"], cost)
-            lab = d["overs"][g["over"]]["lab_in"]
-            memo[mk] = np.where(lab >= 0, owner[np.maximum(lab, 0)], owner.max() + 1)
-        errs.append(rand_error(memo[mk], g["gt"]))
-    return float(np.mean(errs))
+    return float(np.mean(merged_errors(PREP[key], cost, rand_error)))
 
 
 def final_error(key: str) -> float:
@@ -163,17 +101,9 @@ def final_error(key: str) -> float:
 
 # ---------------------------------------------------------------- training rows
 
-class Recorder:
-    """(terms, soft target, Rand stake) of each adjacent pair as the merge meets it."""
-
-    def __init__(self, counts: np.ndarray, n_faces: int):
-        self.counts = counts.copy()
-        self.n2 = float(n_faces) ** 2
-        self.X, self.y, self.wt = [], [], []
-
-    def merge(self, i, j):
-        self.counts[i] += self.counts[j]
-        self.counts[j] = 0.0
+class Recorder(PairRecorder):
+    """(terms, soft target, Rand stake) of each adjacent pair as the merge meets it; its
+    ``__call__`` takes no merge state (this file's :func:`greedy` passes none)."""
 
     def __call__(self, terms, adj, rows):
         n = self.counts.sum(axis=1)

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import pickle
 import time
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -65,19 +66,14 @@ def default_vector(w: MergeWeights | None = None) -> np.ndarray:
 
 # ---------------------------------------------------------------- preparation (once per mesh)
 
-def prepare(args) -> str:
-    cap, prep, mid = args
-    out = Path(prep) / f"{mid}.pkl"
-    if out.exists():
-        return f"{mid} cached"
-    rec = pickle.load(open(Path(cap) / f"{mid}.pkl", "rb"))
+def over_graphs(rec: dict, thick: np.ndarray) -> list[dict]:
+    """Per over-segmentation of a capture (merge_capture.py's record): its region graph's arrays,
+    its parts' sums (``thick`` [F] the face thickness) and its labels on the input faces. Shared
+    with experiments/generality/merge_cv.py."""
     mesh = rec["mesh"]
     dual = dual_edges(mesh.vertices, mesh.faces)
     bends = boundary_bends(dual)
     cent = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)].mean(axis=1)
-    t0 = time.perf_counter()
-    thick = face_thickness(mesh.vertices, mesh.faces)
-    t_thick = time.perf_counter() - t0
     overs = []
     for o in rec["overs"]:
         unit = o["unit"].astype(np.float64)
@@ -85,6 +81,12 @@ def prepare(args) -> str:
         sums = part_sums(g.labels, g.n_parts, o["area"], cent, thick)
         lab_in = mesh.labels_to_input_faces(g.labels)
         overs.append(dict(graph=(g.area, g.mean, g.length, g.concave, g.convex), sums=sums, lab_in=lab_in))
+    return overs
+
+
+def truth_rows(rec: dict, overs: list[dict], error) -> list[dict]:
+    """Per truth of a capture: its k, the over-segmentation merged to it, the faces of each part
+    in each truth segment [K, k] and the captured final labels' ``error`` against it."""
     gts = []
     for gt in rec["gts"]:
         gt = gt.astype(np.int64)
@@ -95,7 +97,22 @@ def prepare(args) -> str:
         ok = lab_in >= 0
         counts = np.bincount(lab_in[ok] * k + gt[ok], minlength=K * k).reshape(K, k).astype(np.float64)
         final = rec["final"][k].astype(np.int64)
-        gts.append(dict(k=k, over=oi, gt=gt, counts=counts, final_err=rand_error(np.maximum(final, 0), gt)))
+        gts.append(dict(k=k, over=oi, gt=gt, counts=counts, final_err=error(np.maximum(final, 0), gt)))
+    return gts
+
+
+def prepare(args) -> str:
+    cap, prep, mid = args
+    out = Path(prep) / f"{mid}.pkl"
+    if out.exists():
+        return f"{mid} cached"
+    rec = pickle.load(open(Path(cap) / f"{mid}.pkl", "rb"))
+    mesh = rec["mesh"]
+    t0 = time.perf_counter()
+    thick = face_thickness(mesh.vertices, mesh.faces)
+    t_thick = time.perf_counter() - t0
+    overs = over_graphs(rec, thick)
+    gts = truth_rows(rec, overs, rand_error)
     data = dict(mid=mid, category=rec["category"], overs=overs, gts=gts, t_thick=t_thick, faces=len(mesh.faces))
     with open(out, "wb") as fh:
         pickle.dump(data, fh, protocol=pickle.HIGHEST_PROTOCOL)
@@ -129,54 +146,56 @@ def pair_cost(w, terms, state, rows):
     return terms @ w
 
 
-def greedy(state: MergeState, k: int, w, record=None) -> np.ndarray:
-    """Merge the cheapest adjacent pair (:func:`pair_cost`) until k parts remain; returns the
-    owner [K] of each part. record(rows_terms, adjacent, rows, owner): called with each new row
-    of terms (every pair at the start, the merged part's after each merge)."""
+def greedy(state: MergeState, k: int, cost, record=None) -> np.ndarray:
+    """Merge the cheapest adjacent pair until k parts remain; the owner [K] of each part.
+    cost(terms, state, rows) -> [len(rows), K] merge costs (``partial(pair_cost, w)``, or
+    experiments/generality/merge_cv.py's Cost); record(terms, adjacent, rows): each new row of
+    terms (every pair at the start, the merged part's after each merge); record.merge(i, j):
+    each merge."""
     K = len(state.area)
     rows = np.arange(K)
     terms, adj = pair_terms(state, rows, k)
     if record is not None:
-        record(terms, adj, rows, state)
-    cost = np.where(adj, pair_cost(w, terms, state, rows), np.inf)
-    np.fill_diagonal(cost, np.inf)
+        record(terms, adj, rows)
+    c = np.where(adj, cost(terms, state, rows), np.inf)
+    np.fill_diagonal(c, np.inf)
     owner = np.arange(K)
     for _ in range(K - k):
-        flat = int(np.argmin(cost))
-        i, j = divmod(flat, K)
-        if not np.isfinite(cost[i, j]):
+        i, j = divmod(int(np.argmin(c)), K)
+        if not np.isfinite(c[i, j]):
             break
         i, j = min(i, j), max(i, j)
         state.merge(i, j)
         if record is not None:
-            record_merge(record, state, i, j)
+            record.merge(i, j)
         owner[owner == j] = i
-        cost[j, :] = cost[:, j] = np.inf
+        c[j, :] = c[:, j] = np.inf
         t, a = pair_terms(state, np.array([i]), k)
         if record is not None:
-            record(t, a, np.array([i]), state)
-        row = np.where(a[0], pair_cost(w, t, state, np.array([i]))[0], np.inf)
+            record(t, a, np.array([i]))
+        row = np.where(a[0], cost(t, state, np.array([i]))[0], np.inf)
         row[i] = np.inf
-        cost[i, :] = cost[:, i] = row
+        c[i, :] = c[:, i] = row
     return owner
 
 
-def record_merge(record, state, i, j):
-    record.merge(i, j)
-
-
-def mesh_errors(mid: int, w: np.ndarray) -> list[float]:
-    d = PREP[mid]
-    errs = []
-    memo = {}
+def merged_errors(d: dict, cost, error) -> list[float]:
+    """``error`` of the merged labels against each truth of a prepared shape ``d`` (the input
+    faces): each over-segmentation merged to each truth's k once, by :func:`greedy` under
+    ``cost``. Shared with experiments/generality/merge_cv.py."""
+    errs, memo = [], {}
     for g in d["gts"]:
         key = (g["over"], g["k"])
         if key not in memo:
-            owner = greedy(new_state(d["overs"][g["over"]]), g["k"], w)
+            owner = greedy(new_state(d["overs"][g["over"]]), g["k"], cost)
             lab = d["overs"][g["over"]]["lab_in"]
             memo[key] = np.where(lab >= 0, owner[np.maximum(lab, 0)], owner.max() + 1)
-        errs.append(rand_error(memo[key], g["gt"]))
+        errs.append(error(memo[key], g["gt"]))
     return errs
+
+
+def mesh_errors(mid: int, w: np.ndarray) -> list[float]:
+    return merged_errors(PREP[mid], partial(pair_cost, w), rand_error)
 
 
 def category_scores(w: np.ndarray, pool=None) -> dict:
@@ -202,7 +221,7 @@ class Recorder:
         self.counts[i] += self.counts[j]
         self.counts[j] = 0.0
 
-    def __call__(self, terms, adj, rows, state):
+    def __call__(self, terms, adj, rows):
         n = self.counts.sum(axis=1)
         for r_i, r in enumerate(rows):
             js = np.flatnonzero(adj[r_i])
@@ -224,7 +243,7 @@ def mesh_rows(mid: int, w: np.ndarray):
     n_gt = len(d["gts"])
     for g in d["gts"]:
         rec = Recorder(g["counts"], len(g["gt"]))
-        greedy(new_state(d["overs"][g["over"]]), g["k"], w, record=rec)
+        greedy(new_state(d["overs"][g["over"]]), g["k"], partial(pair_cost, w), record=rec)
         if rec.X:
             X.append(np.concatenate(rec.X))
             y.append(np.concatenate(rec.y))

@@ -51,7 +51,7 @@ def main():
     try:
         import merge_learned_cv as cv
     except ImportError:
-        from experiments import merge_learned_cv as cv
+        from experiments.segmentation import merge_learned_cv as cv
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--capture", required=True)
     ap.add_argument("--prep", required=True)
