@@ -105,3 +105,21 @@ def test_which_tasks_overlap():
     assert not runner.overlapped(SegmentTask(2), "cpu")            # the CPU's default: in turn
     assert not runner.overlapped(SegmentTask(2, batched=False), "cuda")
     assert runner.overlapped(FeaturesTask(8, batched=True), "cpu") and not runner.overlapped(FeaturesTask(8), "cpu")
+
+
+def test_features_overlap_decimates_as_the_in_turn_path(corpus, tmp_path, monkeypatch):
+    """With decimation, the overlap's host workers decimate each mesh as the descriptors' own
+    batch does (canonically): the in-turn path's arrays."""
+    def run(out, workers):
+        task = FeaturesTask(8, batched=True, part_descriptors=False, coarse_faces=200)
+        return runner.run_corpus(corpus, out, task, workers=workers, progress=False)
+
+    over = run(tmp_path / "over", 2)
+    with monkeypatch.context() as m:
+        m.setattr(runner, "overlapped", lambda task, device: False)
+        run(tmp_path / "turn", 1)
+    assert (over.ok, over.failed) == (3, 1)
+    for stem in "abc":
+        a, b = np.load(tmp_path / "over" / f"{stem}.npz"), np.load(tmp_path / "turn" / f"{stem}.npz")
+        for key in ("features", "akvf_norms", "eigenvalues", "descriptors"):
+            assert np.array_equal(a[key], b[key]), (stem, key)

@@ -16,7 +16,7 @@ from ..errors import SolverError, TorchAKVFError
 from ..fields.akvf_result import AKVFResult
 from ..fields.descriptors import descriptor_names, face_descriptors
 from ..fields.untangle import DEFAULT_RESTARTS, UntangledFields
-from ..mesh.batch import MeshBatch
+from ..mesh.batch import MeshBatch, coarse_or_none
 from ..mesh.clean import CleanMesh
 from ..mesh.coarse import DECIMATE_ABOVE, CoarseMesh, canonical_numbering, coarse_mesh
 from .part_descriptors import part_descriptor_names, part_descriptors
@@ -48,17 +48,23 @@ def descriptor_batch(batch: MeshBatch) -> MeshBatch:
     return _pack([batch.input_mesh(b) for b in range(len(batch))], coarse, batch.device, batch.dtype)
 
 
+def descriptor_coarse(mesh: CleanMesh, coarse_faces: int | None) -> CoarseMesh | None:
+    """The coarse mesh the descriptors solve ``mesh`` on: decimated to about ``coarse_faces``
+    faces in its canonical frame; where that fails, as the segmentations decimate it
+    (:func:`~torchakvf.mesh.batch.coarse_or_none`); None where the mesh is solved as it is."""
+    if coarse_faces is None:
+        return None
+    found = _canonical_coarse(mesh, coarse_faces)
+    if found is None and len(mesh.faces) > DECIMATE_ABOVE * coarse_faces:
+        found = coarse_or_none(mesh, coarse_faces)
+    return found
+
+
 def pack_for_descriptors(meshes: Sequence[CleanMesh], coarse_faces: int | None = None, *,
                          device: str | torch.device = "cpu", dtype: torch.dtype = torch.float64) -> MeshBatch:
     """:func:`descriptor_batch` of ``MeshBatch.from_meshes(meshes, device, dtype,
-    coarse_faces)`` (cleaned meshes), each mesh decimated once, in its canonical frame (where
-    that fails, as the segmentations decimate it; where that fails too, at full resolution)."""
-    coarse = []
-    if coarse_faces is not None:
-        coarse = [_canonical_coarse(m, coarse_faces) for m in meshes]
-        for b, c in enumerate(coarse):
-            if c is None and len(meshes[b].faces) > DECIMATE_ABOVE * coarse_faces:
-                coarse[b] = MeshBatch.from_meshes([meshes[b]], coarse_faces=coarse_faces).coarse_of(0)
+    coarse_faces)`` (cleaned meshes), each mesh decimated once (:func:`descriptor_coarse`)."""
+    coarse = [descriptor_coarse(m, coarse_faces) for m in meshes] if coarse_faces is not None else []
     return _pack(list(meshes), coarse, device, dtype)
 
 
@@ -82,7 +88,7 @@ def solve_descriptor_batch(batch: MeshBatch, solve: Callable[[MeshBatch], Solved
         coarse = list(batch.coarse)
         for b in failed:
             c = coarse[b]
-            coarse[b] = MeshBatch.from_meshes([c.fine], coarse_faces=c.faces_asked).coarse_of(0)
+            coarse[b] = coarse_or_none(c.fine, c.faces_asked)
         return solve(_pack([batch.input_mesh(b) for b in range(len(batch))], coarse, batch.device, batch.dtype))
 
 
@@ -138,5 +144,5 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     return InputDescriptors(values=values, names=names)
 
 
-__all__ = ["InputDescriptors", "descriptor_batch", "input_face_descriptors", "pack_for_descriptors",
-           "solve_descriptor_batch"]
+__all__ = ["InputDescriptors", "descriptor_batch", "descriptor_coarse", "input_face_descriptors",
+           "pack_for_descriptors", "solve_descriptor_batch"]

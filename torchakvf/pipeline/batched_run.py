@@ -53,13 +53,14 @@ class CorpusOverlap:
 
     def prepare(self, item: Item) -> PreparedMesh:
         """In a host worker: load, clean, check and decimate one mesh (its ``item`` comes back
-        with the load's seconds and the input's fingerprint)."""
+        with the load's seconds and the input's fingerprint); decimated as the task's
+        ``coarse_mesh(clean, faces)`` says where it has one, else as segmentations are."""
         from ..mesh.batch import coarse_or_none
 
         t0 = time.perf_counter()
         if not load_item(item, self.task, self.out_dir):      # copied from the task's cache
             return PreparedMesh(None, None, None, time.perf_counter() - t0, item=item)
-        coarse = coarse_or_none(item.clean, self.coarse_faces)
+        coarse = getattr(self.task, "coarse_mesh", coarse_or_none)(item.clean, self.coarse_faces)
         item.seconds["load"] = time.perf_counter() - t0
         return PreparedMesh(item.mesh, item.clean, coarse, time.perf_counter() - t0, item=item)
 

@@ -187,10 +187,19 @@ class FeaturesTask:
         arrays are written as they come."""
         return out
 
+    @staticmethod
+    def coarse_mesh(clean, coarse_faces):
+        """How the batched path's host workers decimate a mesh for this task (:mod:`.batched_run`):
+        in its canonical frame, as :meth:`process` packs it."""
+        from ..parts.input_descriptors import descriptor_coarse
+
+        return descriptor_coarse(clean, coarse_faces)
+
     def solve_prepared(self, batch, items=None):
         """The batched path's solve (:mod:`.batched_run`): :meth:`descriptors_of` the batch the
-        descriptors solve on (each decimated mesh decimated again in its canonical frame, as
-        :meth:`process` decimates it once: the same arrays); ``items`` unused."""
+        descriptors solve on (its meshes decimated by :meth:`coarse_mesh` in the host workers;
+        :func:`~torchakvf.parts.input_descriptors.descriptor_batch` renumbers those at full
+        resolution, as :meth:`process` packs them: the same arrays); ``items`` unused."""
         from ..parts.input_descriptors import descriptor_batch
 
         t0 = time.perf_counter()
