@@ -135,6 +135,8 @@ def test_find_psb_meshes_layout(tmp_path):
 
     with pytest.raises(FileNotFoundError, match="no_such_root"):
         find_psb_meshes(tmp_path / "no_such_root")
+    with pytest.raises(FileNotFoundError, match="no PSB folder given: .*TORCHAKVF_PSB"):
+        find_psb_meshes(None)                 # what default_psb_root() gives without the variable
     (tmp_path / "empty_root").mkdir()
     with pytest.raises(FileNotFoundError, match="meshes"):
         find_psb_meshes(tmp_path / "empty_root")

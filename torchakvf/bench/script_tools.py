@@ -15,7 +15,9 @@ def psb_parser(description: str, ids, out: Path):
     from torchakvf.evaluate.psb import default_psb_root
 
     p = argparse.ArgumentParser(description=description)
-    p.add_argument("--psb", type=Path, default=default_psb_root())
+    root = default_psb_root()
+    p.add_argument("--psb", type=Path, default=root, required=root is None,
+                   help="the PSB folder (default: $TORCHAKVF_PSB)")
     p.add_argument("--ids", type=int, nargs="+", default=list(ids))
     p.add_argument("--n", type=int, default=32)
     p.add_argument("--repeat", type=int, default=2, help="rounds, best kept (default 2)")

@@ -140,11 +140,14 @@ def find_psb_meshes(root, problems: list | None = None) -> list[PSBEntry]:
     Raises
     ------
     FileNotFoundError
-        If ``root`` or ``root/meshes`` does not exist.
+        If ``root`` is None (no folder given: :func:`default_psb_root` found none) or
+        ``root`` or ``root/meshes`` does not exist.
     ParameterError (a ValueError)
         Without ``problems``: if a mesh file name has an id outside 1..400, or a segmentation
         file belongs to another mesh.
     """
+    if root is None:
+        raise FileNotFoundError(f"no PSB folder given: pass its folder (--psb DIR) or set {PSB_ENV}")
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"PSB root {str(root)!r} does not exist or is not a folder")
