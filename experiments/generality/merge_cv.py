@@ -28,7 +28,6 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import minimize
 
 from torchakvf.evaluate.metrics import rand_index_error as rand_error
 from torchakvf.options import MergeWeights
@@ -38,7 +37,7 @@ from torchakvf.parts.merge_terms import TERM_NAMES, face_thickness
 # the capture preparation, merge state and pair recorder of the PSB sweep, shared
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "segmentation"))
 from merge_learned_cv import Recorder as PairRecorder  # noqa: E402
-from merge_learned_cv import greedy, merged_errors, new_state, over_graphs, truth_rows  # noqa: E402
+from merge_learned_cv import fit_logistic, greedy, merged_errors, new_state, over_graphs, truth_rows  # noqa: E402
 
 T = len(TERM_NAMES)
 PREP: dict = {}
@@ -134,29 +133,6 @@ def shape_rows(key: str, policy: Cost):
         return np.zeros((0, T)), np.zeros(0), np.zeros(0)
     wt = np.concatenate(wt)
     return np.concatenate(X), np.concatenate(y), wt / max(wt.sum(), 1e-300)
-
-
-def fit_logistic(X, y, wt, l2=1e-3, cols=None):
-    """(w [T] cost weights = -beta, intercept b): weighted cross-entropy of sigmoid(c + X beta)
-    against the soft targets y, + l2 |beta|^2 on standardized columns; b = -c (the cost reads
-    p = sigmoid(b - X w))."""
-    cols = list(range(X.shape[1])) if cols is None else list(cols)
-    Xc = X[:, cols]
-    mu, sd = Xc.mean(axis=0), Xc.std(axis=0) + 1e-12
-    Z = (Xc - mu) / sd
-    wt = wt / wt.sum()
-
-    def f(p):
-        z = Z @ p[1:] + p[0]
-        loss = np.sum(wt * (np.logaddexp(0, z) - y * z)) + l2 * p[1:] @ p[1:]
-        r = wt * (1 / (1 + np.exp(-z)) - y)
-        return loss, np.r_[r.sum(), Z.T @ r + 2 * l2 * p[1:]]
-
-    p = minimize(f, np.zeros(len(cols) + 1), jac=True, method="L-BFGS-B").x
-    beta = np.zeros(X.shape[1])
-    beta[cols] = p[1:] / sd
-    c = p[0] - mu @ beta[cols]
-    return -beta, c
 
 
 ROWS: dict = {}

@@ -251,23 +251,28 @@ def mesh_rows(mid: int, w: np.ndarray):
     return np.concatenate(X), np.concatenate(y), np.concatenate(wt)
 
 
-def fit_logistic(X, y, wt, l2=1e-3):
-    """Weights (on standardized terms, returned in raw units) and intercept minimizing the
-    weighted cross-entropy of sigmoid(b + X beta) against the soft targets y, + l2 |beta|^2."""
-    mu, sd = X.mean(axis=0), X.std(axis=0) + 1e-12
-    Z = (X - mu) / sd
+def fit_logistic(X, y, wt, l2=1e-3, cols=None):
+    """(w = -beta [T] cost weights, c): the weights (on standardized columns ``cols`` of X, the
+    others 0, returned in raw units) and intercept minimizing the weighted cross-entropy of
+    sigmoid(c + X beta) against the soft targets y, + l2 |beta|^2. The cost reads
+    p = sigmoid(c - X w). Shared with experiments/generality/merge_cv.py."""
+    cols = list(range(X.shape[1])) if cols is None else list(cols)
+    Xc = X[:, cols]
+    mu, sd = Xc.mean(axis=0), Xc.std(axis=0) + 1e-12
+    Z = (Xc - mu) / sd
     wt = wt / wt.sum()
 
     def f(p):
         z = Z @ p[1:] + p[0]
-        lse = np.logaddexp(0, z)
-        loss = np.sum(wt * (lse - y * z)) + l2 * p[1:] @ p[1:]
+        loss = np.sum(wt * (np.logaddexp(0, z) - y * z)) + l2 * p[1:] @ p[1:]
         r = wt * (1 / (1 + np.exp(-z)) - y)
         return loss, np.r_[r.sum(), Z.T @ r + 2 * l2 * p[1:]]
 
-    p = minimize(f, np.zeros(X.shape[1] + 1), jac=True, method="L-BFGS-B").x
-    beta = p[1:] / sd
-    return beta, p[0] - mu @ beta
+    p = minimize(f, np.zeros(len(cols) + 1), jac=True, method="L-BFGS-B").x
+    beta = np.zeros(X.shape[1])
+    beta[cols] = p[1:] / sd
+    c = p[0] - mu @ beta[cols]
+    return -beta, c
 
 
 ROWS: dict = {}
@@ -289,10 +294,7 @@ def learned_weights(train_mids, policy_w, pool, rounds=1, cols=tuple(range(T))):
             Xs += [x[0] for x in rows]
             ys += [x[1] for x in rows]
             ws += [x[2] for x in rows]
-        beta_c, b0 = fit_logistic(np.concatenate(Xs)[:, cols], np.concatenate(ys), np.concatenate(ws))
-        beta = np.zeros(T)
-        beta[cols] = beta_c
-        w = -beta
+        w, b0 = fit_logistic(np.concatenate(Xs), np.concatenate(ys), np.concatenate(ws), cols=cols)
     return w, b0
 
 
