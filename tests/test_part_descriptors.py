@@ -101,6 +101,20 @@ def test_cut_distance_is_zero_exactly_where_the_segmentation_cuts(blobs):
     assert (d[:, 1] == d[:, 1].min()).sum() > (d[:, 0] == d[:, 0].min()).sum()
 
 
+def test_seeds_share_the_meshs_cut_arrays_and_average_their_columns(blobs, monkeypatch):
+    """Two seeds make the mesh's crease patches once, and the distance columns are the mean of
+    each seed's own."""
+    from torchakvf.parts import cut
+
+    _, fields, d0 = blobs
+    d1 = part_descriptors(fields, ks=KS, seeds=(1,))[0]
+    made, real = [], cut.crease_patches
+    monkeypatch.setattr(cut, "crease_patches", lambda *a, **kw: made.append(1) or real(*a, **kw))
+    both = part_descriptors(fields, ks=KS, seeds=(0, 1))[0]
+    assert len(made) == 1
+    np.testing.assert_allclose(both[:, :len(KS)], (d0[:, :len(KS)] + d1[:, :len(KS)]) / 2, rtol=1e-14, atol=1e-14)
+
+
 def test_rigid_motion_renumbering_and_batching_leave_the_descriptors(blobs):
     mesh, _, d0 = blobs
     rng = np.random.default_rng(5)

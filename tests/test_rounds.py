@@ -200,6 +200,33 @@ def test_segment_rounds_drops_an_over_segmentation_no_later_k_shares(monkeypatch
     assert km_ks[0] == rounds.cluster_count(2, len(s.faces), opts)      # k = 3 clusters as k = 2
 
 
+def test_mesh_caches_kept_across_calls_make_the_mesh_arrays_once_and_the_same_labels(monkeypatch):
+    """Caches passed to two calls (another seed, other k's) make each mesh's crease patches and
+    thickness once, and every label and cost is the one a call with fresh caches gives; caches
+    for another batch size fail in one line."""
+    s = shapes.three_blobs(n_around=20)
+    batch = ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="a"), ta.Mesh(s.vertices, s.faces, name="b")])
+    fields = ta.akvf(batch, n=24, remedy="smooth")
+    opts = SegmentOptions(refine=False)
+    made, real = [], cut.crease_patches
+    monkeypatch.setattr(cut, "crease_patches", lambda *a, **kw: made.append(1) or real(*a, **kw))
+    caches = [cut.MeshCache() for _ in range(2)]
+    runs = [(opts, [[3], [2, 4]]), (opts.replace(seed=7), [[5], [3]])]
+    kept = [[(r.ks, [m and m.labels for m in r.meshes], [m and m.cost for m in r.meshes])
+             for r in segment_rounds(fields, ks, o, mesh_caches=caches)] for o, ks in runs]
+    assert len(made) == 2                     # one per mesh, over both calls
+    assert all(c.patches and c.sums_inputs is not None and c.over is None for c in caches)
+    for (o, ks), got in zip(runs, kept):
+        fresh = [(r.ks, [m and m.labels for m in r.meshes], [m and m.cost for m in r.meshes])
+                 for r in segment_rounds(fields, ks, o)]
+        for (ks_a, lab_a, cost_a), (ks_b, lab_b, cost_b) in zip(got, fresh):
+            assert ks_a == ks_b and cost_a == cost_b
+            for a, b in zip(lab_a, lab_b):
+                assert (a is None and b is None) or np.array_equal(a, b)
+    with pytest.raises(ta.ParameterError, match="mesh_caches has 1 entries for a batch of 2"):
+        next(iter(segment_rounds(fields, 3, opts, mesh_caches=caches[:1])))
+
+
 rounds_mod = importlib.import_module("torchakvf.parts.rounds")
 
 

@@ -63,6 +63,22 @@ def test_a_second_k_reuses_the_solve_and_the_untangling(small, counted):
     assert counted["solve"] == 3
 
 
+def test_the_cuts_mesh_arrays_are_made_once_across_calls(small, monkeypatch):
+    """The crease patches and thickness of a mesh (what the cut makes of the mesh alone) are
+    made by the first call and read by the next; labels as the plain function's."""
+    from torchakvf.parts import cut
+
+    made, real = [], cut.crease_patches
+    monkeypatch.setattr(cut, "crease_patches", lambda *a, **kw: made.append(1) or real(*a, **kw))
+    m = mesh_of(small, "torus_chain")
+    sg = ta.Segmenter(m, **FAST)
+    got = {k: sg.segment(k) for k in (3, 4)}
+    assert len(made) == 1
+    for k in (3, 4):
+        np.testing.assert_array_equal(got[k][0].labels, ta.segment(m, k, **FAST)[0].labels)
+    assert len(made) == 3                     # each plain call made its own
+
+
 def test_a_k_that_needs_more_akvfs_solves_again_with_the_kept_solver(small, counted):
     m = mesh_of(small, "three_blobs")
     sg = ta.Segmenter(m, **FAST)

@@ -159,7 +159,8 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     are cut on: those of ``fields.batch.input_mesh(b)`` (the full-resolution cleaned mesh of a
     decimated one; ``input_mesh(b).to_input_faces`` puts them on the file's faces).
     """
-    from .segment import segment_each_k
+    from .cut import MeshCache
+    from .rounds import segment_rounds
 
     opts = segment_options(options)
     if opts.eps != 0:
@@ -177,11 +178,18 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     # a segmentation asks for at most one part per face: a smaller mesh is segmented at its face count
     ks_of = [[min(k, len(batch.meshes[b].faces)) for k in ks] for b in range(len(batch))]
     labels = [[[] for _ in seeds] for _ in range(len(batch))]
+    # what the cut makes of each mesh alone (crease patches, thickness, dual edges) is made once
+    # for all the seeds: the same arrays each seed's own call would make
+    caches = [MeshCache() for _ in range(len(batch))]
     for s, seed in enumerate(seeds):
-        each = segment_each_k(fields, [sorted(set(kb)) for kb in ks_of], opts, n_fields=n_fields, seed=int(seed))
+        each = [{} for _ in range(len(batch))]
+        for rnd in segment_rounds(fields, [sorted(set(kb)) for kb in ks_of], segment_options(opts, seed=int(seed)),
+                                  n_fields=n_fields, mesh_caches=caches):
+            for b in rnd.active:
+                each[b][rnd.ks[b]] = rnd.meshes[b].labels
         for b in range(len(batch)):
             index = batch.input_mesh(b).face_index       # the input face of each cleaned face
-            labels[b][s] = [np.asarray(each.meshes[b][k].labels)[index] for k in ks_of[b]]
+            labels[b][s] = [np.asarray(each[b][k])[index] for k in ks_of[b]]
     out = []
     for b in range(len(batch)):
         mesh = batch.input_mesh(b)

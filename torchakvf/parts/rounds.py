@@ -58,7 +58,8 @@ class KRound:
 
 
 def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=None,
-                   untangled: UntangledFields | None = None, cut: bool = True):
+                   untangled: UntangledFields | None = None, cut: bool = True,
+                   mesh_caches: list[MeshCache] | None = None):
     """Yields one :class:`KRound` per round: round r segments every mesh with its r-th k.
 
     ks : one list of k's per mesh (or one int, or one int per mesh); meshes with fewer k's sit
@@ -68,11 +69,18 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         need): rounds whose counts agree share one untangling either way
     cut : False: the rounds' parts are not cut (``meshes`` all None; cut them with
         :func:`mesh_cut_job` and :func:`cut_mesh_rounds`)
+    mesh_caches : [B] a :class:`~torchakvf.parts.cut.MeshCache` per mesh of ``fields.batch``, to
+        keep what the cut makes of each mesh alone (crease patches, thickness, dual edges) for
+        later calls on the same batch (other seeds or k's); None: made for this call
     """
     batch = fields.batch
     ks = check_ks(batch, ks)
     nb = len(batch)
-    state = _RoundsState(mesh_caches=[MeshCache() for _ in range(nb)], prev_labels=[None] * nb)
+    if mesh_caches is None:
+        mesh_caches = [MeshCache() for _ in range(nb)]
+    elif len(mesh_caches) != nb:
+        raise ParameterError(f"mesh_caches has {len(mesh_caches)} entries for a batch of {nb} meshes")
+    state = _RoundsState(mesh_caches=list(mesh_caches), prev_labels=[None] * nb)
     if untangled is not None:
         state.assembled[tuple(int(v) for v in untangled.n_fields)] = untangled
     plans = {}          # round -> its round_plan, made once: read by the round and the one before

@@ -2,8 +2,9 @@
 
 :class:`Segmenter` keeps a batch's AKVFs (and the :class:`~torchakvf.solvers.AKVFSolver` with
 its factors) and its untanglings, as the solver keeps its factors: ``segment(3)`` then
-``segment(5)`` solve the AKVFs once, and a k whose field counts an earlier call untangled reuses
-that untangling. :func:`~torchakvf.parts.segment.segment` and
+``segment(5)`` solve the AKVFs once, a k whose field counts an earlier call untangled reuses
+that untangling, and what the cut makes of each mesh alone (crease patches, thickness, dual
+edges: :class:`~torchakvf.parts.cut.MeshCache`) is made once. :func:`~torchakvf.parts.segment.segment` and
 :func:`~torchakvf.parts.segment.segment_each_k` are a Segmenter used once.
 
 Every call gives the labels the plain functions give on these AKVFs: a mesh's untangling and
@@ -23,6 +24,7 @@ from ..mesh import MeshBatch
 from ..mesh.size_check import check_fields_fit
 from ..options import SegmentOptions, segment_options
 from ..solvers.akvf_solver import AKVFSolver
+from .cut import MeshCache
 from .field_counts import akvf_count, check_ks, per_mesh
 from .k_auto import (
     DEFAULT_K_RANGE,
@@ -109,6 +111,8 @@ class Segmenter:
         self.solves = 0
         self._solver: AKVFSolver | None = None
         self._untangled: dict[tuple, UntangledFields] = {}      # per-mesh counts -> untangling of ``fields``
+        # per mesh of ``fields.batch``, what the cut makes of the mesh alone, kept across calls
+        self._mesh_caches: list[MeshCache] | None = None
         if isinstance(meshes, AKVFResult):
             self.fields: AKVFResult | None = meshes
             self.batch = meshes.batch
@@ -148,6 +152,7 @@ class Segmenter:
         self.fell_back = list(self._solver.fell_back)
         self.solves += 1
         self._untangled.clear()             # untanglings of the AKVFs replaced
+        self._mesh_caches = None            # a fallback may have re-packed a mesh at full resolution
         seconds = time.perf_counter() - t0
         self.seconds["akvf"] += seconds
         self._unreported += seconds
@@ -184,7 +189,10 @@ class Segmenter:
             untangled = self._kept_for(check_ks(fields.batch, ks), opts)
         out = SegmentEachK(fields=fields, fell_back=list(self.fell_back), meshes=[{} for _ in range(len(fields.batch))],
                            seconds={"akvf": self._akvf_seconds(), "untangle": 0.0, "cluster": 0.0})
-        for rnd in segment_rounds(fields, ks, opts, n_fields=self.n_fields, untangled=untangled):
+        if self._mesh_caches is None:
+            self._mesh_caches = [MeshCache() for _ in range(len(fields.batch))]
+        for rnd in segment_rounds(fields, ks, opts, n_fields=self.n_fields, untangled=untangled,
+                                  mesh_caches=self._mesh_caches):
             out.rounds.append(rnd)
             if len(rnd.active) == len(fields.batch):
                 self._keep(rnd.untangled)
