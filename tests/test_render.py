@@ -12,8 +12,10 @@ from torchakvf.io.render import (
     best_view,
     contact_sheet,
     generator_streamlines,
+    paint,
     principal_axes,
     projected_area,
+    raster_view,
     rasterize,
     render_png,
     render_view,
@@ -143,6 +145,23 @@ def test_sphere_fills_its_picture(tmp_path):
     # shading: the lit side is brighter than the side away from the key light
     img = pic.image.sum(axis=2)
     assert img[100, 100] > img[200, 200] + 0.2
+
+
+def test_labellings_of_one_view_share_its_raster():
+    """Two labellings painted on one raster are the pictures each renders alone; the part border
+    between the dumbbell's halves darkens pixels that one colour leaves plain."""
+    s = shapes.dumbbell(n_around=24)
+    view = best_view(s.vertices, s.faces)
+    one = np.zeros(len(s.faces), dtype=np.int64)
+    raster = raster_view(s.vertices, s.faces, view, 120, 80)
+    pics = [paint(raster, lab) for lab in (s.part_labels, one)]
+    for pic, lab in zip(pics, (s.part_labels, one)):
+        alone = render_view(s.vertices, s.faces, lab, view, 120, 80)
+        np.testing.assert_array_equal(pic.image, alone.image)
+        np.testing.assert_array_equal(pic.face_ids, alone.face_ids)
+    assert pics[0].image.shape == (80, 120, 3)
+    grey = lambda img: img.sum(axis=2)  # noqa: E731
+    assert (grey(pics[0].image) < grey(pics[1].image) - 0.1).any()     # the border line
 
 
 def test_render_png_default_size_pixels_and_views(tmp_path):

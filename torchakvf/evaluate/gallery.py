@@ -73,7 +73,7 @@ def write_gallery(path, items: Sequence[tuple], title: str | None = None,
 
     Both pictures of a mesh use the same camera (:func:`~torchakvf.io.render.best_view`).
     """
-    from ..io.render import best_view, render_view
+    from ..io.render import best_view, paint, raster_view
     from ..io.render import new_figure as _figure
     from ..io.render import save_figure as _save
     from ..io.render import view_aspect as _aspect
@@ -96,10 +96,11 @@ def write_gallery(path, items: Sequence[tuple], title: str | None = None,
         human = match_labels(pred, np.asarray(human).astype(np.int64))
         r, c = divmod(i, columns)
         top = head_h + r * cell_h
+        raster = raster_view(v, f, view, pixels, img_h)          # one camera: rasterized once
         for j, (lab, what) in enumerate(((pred, "prediction"), (human, "human"))):
             x0 = c * cell_w + j * (pixels + gap)
             ax = fig.add_axes([x0 / W, 1 - (top + label_h + img_h) / H, pixels / W, img_h / H])
-            pic = render_view(v, f, lab, view, pixels, img_h)
+            pic = paint(raster, lab)
             ax.imshow(pic.image, interpolation="antialiased")
             ax.set_axis_off()
             fig.text((x0 + pixels / 2) / W, 1 - (top + label_h - 10) / H, what, ha="center",

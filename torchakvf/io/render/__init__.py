@@ -17,9 +17,21 @@ Every public name is importable from ``torchakvf.io.render``.
 from .camera import View, best_view, face_geometry, opposite_view, principal_axes, projected_area, view_aspect
 from .figures import DEFAULT_PIXELS, FLOW_COLOR, contact_sheet, new_figure, render_png, save_figure
 from .flow import generator_arrows, generator_streamlines
-from .raster import FILL_LIGHT, KEY_LIGHT, SUPERSAMPLE, Picture, rasterize, render_view, shade_faces
+from .raster import (
+    FILL_LIGHT,
+    KEY_LIGHT,
+    SUPERSAMPLE,
+    Picture,
+    Raster,
+    paint,
+    raster_view,
+    rasterize,
+    render_view,
+    shade_faces,
+)
 
 __all__ = ["render_png", "contact_sheet", "generator_streamlines", "generator_arrows", "best_view",
-           "principal_axes", "projected_area", "render_view", "rasterize", "View", "Picture",
+           "principal_axes", "projected_area", "render_view", "raster_view", "paint", "Raster", "rasterize", "View",
+           "Picture",
            "DEFAULT_PIXELS", "opposite_view", "view_aspect", "face_geometry", "shade_faces",
            "new_figure", "save_figure", "SUPERSAMPLE", "KEY_LIGHT", "FILL_LIGHT", "FLOW_COLOR"]

@@ -134,12 +134,26 @@ class Picture:
         return xy / self.ss, visible
 
 
-def render_view(vertices, faces, labels, view: View, width: int, height: int,
-                margin: float = 0.04, colors: np.ndarray | None = None) -> Picture:
-    """Rasterize one view of a mesh coloured by part into a width x height picture."""
+@dataclass
+class Raster:
+    """One view of a mesh rasterized (supersampled), before it is coloured: what every
+    labelling of the mesh seen from that view shares (:func:`raster_view`, :func:`paint`)."""
+
+    view: View
+    width: int               # final-resolution pixels
+    height: int
+    scale: float             # pixels (supersampled) per world unit
+    offset: np.ndarray       # [2] pixel position of camera (0, 0), supersampled
+    face_ids: np.ndarray     # [H·ss, W·ss] face per pixel, -1 = background
+    zbuf: np.ndarray         # [H·ss, W·ss] depth, -inf = none
+    normals_cam: np.ndarray  # [F, 3] unit face normals in camera coordinates
+    extent: float            # world units of the larger side of the projected mesh
+
+
+def raster_view(vertices, faces, view: View, width: int, height: int, margin: float = 0.04) -> Raster:
+    """Rasterize one view of a mesh into a width x height picture (supersampled), uncoloured."""
     v, f = np.asarray(vertices, float), np.asarray(faces)
-    ss = SUPERSAMPLE
-    W, H = width * ss, height * ss
+    W, H = width * SUPERSAMPLE, height * SUPERSAMPLE
     p = view.apply(v)
     lo, hi = p[:, :2].min(axis=0), p[:, :2].max(axis=0)
     ext = np.maximum(hi - lo, 1e-12)
@@ -149,15 +163,24 @@ def render_view(vertices, faces, labels, view: View, width: int, height: int,
     xy = np.stack([p[:, 0], -p[:, 1]], axis=1) * scale + offset
     ids, zbuf = rasterize(xy, p[:, 2], f, W, H)
     _, normals, _ = face_geometry(v, f)
+    return Raster(view, int(width), int(height), scale, offset, ids, zbuf, normals @ view.rotation.T, float(max(ext)))
+
+
+def paint(raster: Raster, labels, colors: np.ndarray | None = None) -> Picture:
+    """The picture of a rasterized view coloured by part: shading, silhouettes and part borders.
+
+    labels : [F] part per face; colors : optional [F, 3] RGB in [0, 1] instead of the parts'."""
+    ss, ids, zbuf = SUPERSAMPLE, raster.face_ids, raster.zbuf
+    H, W = ids.shape
     base = (label_colors(labels)[:, :3] / 255.0) if colors is None else colors
-    rgb = shade_faces(normals @ view.rotation.T, base)
+    rgb = shade_faces(raster.normals_cam, base)
     img = np.ones((H, W, 3))
     hit = ids >= 0
     img[hit] = rgb[ids[hit]]
     # outlines: silhouettes / depth jumps, and borders between parts
     lab = np.where(hit, np.asarray(labels)[np.maximum(ids, 0)], -2)
     zf = np.where(hit, zbuf, np.nan)
-    jump = 0.02 * float(max(ext))            # world units, like zbuf
+    jump = 0.02 * raster.extent              # world units, like zbuf
     edge = np.zeros((H, W), dtype=bool)
     border = np.zeros((H, W), dtype=bool)
     for a, b in (((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
@@ -171,8 +194,16 @@ def render_view(vertices, faces, labels, view: View, width: int, height: int,
         border[b] |= bd
     img[edge] = img[edge] * 0.25
     img[border] = img[border] * 0.55
-    small = img.reshape(height, ss, width, ss, 3).mean(axis=(1, 3))
-    return Picture(small, view, scale, offset, zbuf, ss, ids)
+    small = img.reshape(raster.height, ss, raster.width, ss, 3).mean(axis=(1, 3))
+    return Picture(small, raster.view, raster.scale, raster.offset, zbuf, ss, ids)
 
 
-__all__ = ["rasterize", "shade_faces", "Picture", "render_view", "SUPERSAMPLE", "KEY_LIGHT", "FILL_LIGHT"]
+def render_view(vertices, faces, labels, view: View, width: int, height: int,
+                margin: float = 0.04, colors: np.ndarray | None = None) -> Picture:
+    """Rasterize one view of a mesh coloured by part into a width x height picture
+    (:func:`raster_view` then :func:`paint`; several labellings of one view share the first)."""
+    return paint(raster_view(vertices, faces, view, width, height, margin), labels, colors)
+
+
+__all__ = ["rasterize", "shade_faces", "Picture", "Raster", "raster_view", "paint", "render_view",
+           "SUPERSAMPLE", "KEY_LIGHT", "FILL_LIGHT"]
