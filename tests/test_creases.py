@@ -44,6 +44,37 @@ def test_only_a_valley_is_a_concave_band(fold, concave):
     assert got.tolist() == [concave, concave]
 
 
+@pytest.mark.parametrize("rings", [1, 2, 3])
+@pytest.mark.parametrize("concave", [False, True])
+def test_band_against_every_pair_within_the_rings(rings, concave):
+    """The band against a face-by-face reference: each face against every face at most ``rings``
+    dual hops away (scipy's unweighted shortest paths), in float64; faces whose least cosine
+    lies within 1e-4 of the threshold are left out (the band tests in float32)."""
+    from scipy.sparse.csgraph import shortest_path
+
+    from torchakvf.parts.creases import dual_ball, dual_graph
+
+    s = shapes.table(0.1)
+    v, f = np.asarray(s.vertices, float), np.asarray(s.faces)
+    v = v + 0.01 * np.sin(7.0 * v[:, [1, 2, 0]])         # bent a little: cosines of every size
+    adjacency = face_adjacency(f)
+    normals, centroids = unit_face_normals(v, f), v[f].mean(axis=1)
+    hops = shortest_path(dual_graph(adjacency, len(f)), unweighted=True)
+    within = hops <= rings
+    ball = dual_ball(adjacency, len(f), rings).toarray() > 0
+    np.testing.assert_array_equal(ball, within)
+    cos = normals @ normals.T
+    if concave:
+        bend = np.einsum("fgk,fgk->fg", centroids[None] - centroids[:, None], normals[None] - normals[:, None])
+        cos = np.where(bend < 0, cos, 1.0)
+    least = np.where(within, cos, 1.0).min(axis=1)
+    angle = math.radians(30)
+    got = crease_band(normals, adjacency, angle, rings, centroids if concave else None)
+    clear = np.abs(least - math.cos(angle)) > 1e-4
+    assert got.any() and (~got).any()
+    np.testing.assert_array_equal(got[clear], (least < math.cos(angle))[clear])
+
+
 def test_concave_creases_cut_a_table_into_its_parts_and_leave_a_box_whole():
     # the legs meet the slab in concave creases; every other crease of the table and of a box is
     # convex, the edge of one part

@@ -48,17 +48,22 @@ def dual_graph(adjacency: np.ndarray, n_faces: int) -> sp.csr_matrix:
     return sp.coo_matrix((np.ones(2 * len(a)), (np.r_[a, b], np.r_[b, a])), shape=(n_faces, n_faces)).tocsr()
 
 
-def neighbour_table(adjacency: np.ndarray, n_faces: int) -> np.ndarray:
-    """[F, D] the faces sharing an edge with each face, D its largest count (3 on a closed
-    manifold mesh), rows padded with the face itself."""
-    a, b = np.r_[adjacency[:, 0], adjacency[:, 1]], np.r_[adjacency[:, 1], adjacency[:, 0]]
-    order = np.argsort(a, kind="stable")
-    a, b = a[order], b[order]
-    degree = np.bincount(a, minlength=n_faces)
-    table = np.repeat(np.arange(n_faces)[:, None], max(int(degree.max(initial=0)), 1), axis=1)
-    slot = np.arange(len(a)) - np.repeat(np.cumsum(degree) - degree, degree)
-    table[a, slot] = b
-    return table
+def dual_ball(adjacency: np.ndarray, n_faces: int, rings: int) -> sp.csr_matrix:
+    """[F, F] 0/1 pattern (CSR, sorted) of the face pairs at most ``rings`` dual hops apart,
+    each face with itself included: the pattern of (I + A)^rings, A the dual adjacency of
+    ``adjacency`` [P, 2]."""
+    a, b = adjacency[:, 0], adjacency[:, 1]
+    self_loops = np.arange(n_faces)
+    step = sp.csr_matrix((np.ones(2 * len(a) + n_faces, dtype=np.int32),
+                          (np.r_[a, b, self_loops], np.r_[b, a, self_loops])), shape=(n_faces, n_faces))
+    step.data[:] = 1
+    ball = step
+    for _ in range(int(rings) - 1):
+        ball = ball @ step
+        ball.data[:] = 1                 # a pattern, not path counts
+    ball.sum_duplicates()
+    ball.sort_indices()
+    return ball
 
 
 def crease_band(normals: np.ndarray, adjacency: np.ndarray, angle: float = CREASE_SPLIT_ANGLE,
@@ -69,22 +74,27 @@ def crease_band(normals: np.ndarray, adjacency: np.ndarray, angle: float = CREAS
     concave bends count: faces f, g bend concavely where ``(c_g - c_f)·(n_g - n_f) < 0`` (each
     lies on the normal side of the other's plane; > 0 on a convex sphere).
 
-    Ring r is gathered as the neighbours of ring r - 1 (:func:`neighbour_table`, repeats kept:
-    they do not change a minimum), D^r faces per face, in float32 (the test is far from its
-    round-off)."""
+    Each pair of faces at most ``rings`` hops apart is compared once (the upper triangle of
+    :func:`dual_ball`; the test is symmetric in f and g, to the bit), in float32 (the test is far
+    from its round-off), and the least cosine taken at both faces."""
     n_faces = len(normals)
-    table = neighbour_table(adjacency, n_faces)
+    if n_faces == 0:
+        return np.zeros(0, dtype=bool)
+    pairs = sp.triu(dual_ball(adjacency, n_faces, rings), k=1, format="csr")
+    counts = np.diff(pairs.indptr)
+    cols = pairs.indices
     unit = np.asarray(normals, dtype=np.float32)
-    centers = None if centroids is None else np.asarray(centroids, dtype=np.float32)
+    u_row, u_col = np.repeat(unit, counts, axis=0), unit[cols]
+    dots = np.einsum("pk,pk->p", u_row, u_col)
+    if centroids is not None:
+        centers = np.asarray(centroids, dtype=np.float32)
+        bend = np.einsum("pk,pk->p", centers[cols] - np.repeat(centers, counts, axis=0), u_col - u_row)
+        dots = np.where(bend < 0, dots, np.float32(1.0))
     least = np.ones(n_faces, dtype=np.float32)
-    ring = np.arange(n_faces)[:, None]
-    for _ in range(int(rings)):
-        ring = table[ring].reshape(n_faces, -1)
-        dots = np.einsum("fk,fjk->fj", unit, unit[ring])
-        if centers is not None:
-            bend = np.einsum("fjk,fjk->fj", centers[ring] - centers[:, None], unit[ring] - unit[:, None])
-            dots = np.where(bend < 0, dots, np.float32(1.0))
-        least = np.minimum(least, dots.min(axis=1))
+    rows = counts > 0
+    if len(dots):
+        least[rows] = np.minimum.reduceat(dots, pairs.indptr[:-1][rows])
+        np.minimum.at(least, cols, dots)
     return least < math.cos(angle)
 
 
@@ -134,5 +144,5 @@ def split_by_patches(labels: np.ndarray, patches: np.ndarray) -> tuple[np.ndarra
     return np.asarray(labels, dtype=np.int64) * n_patches + patches, n_patches
 
 
-__all__ = ["CREASE_SPLIT_ANGLE", "CREASE_RINGS", "unit_face_normals", "dual_graph", "neighbour_table", "crease_band",
+__all__ = ["CREASE_SPLIT_ANGLE", "CREASE_RINGS", "unit_face_normals", "dual_graph", "dual_ball", "crease_band",
            "crease_patches", "split_by_patches"]
