@@ -133,10 +133,10 @@ def one_mesh(entry) -> dict:
     from torchakvf.fields.descriptors import DEFAULT_COUNTS, DESCRIPTOR_SEED, descriptor_names, face_descriptors
     from torchakvf.mesh import clean_mesh
     from torchakvf.operators.killing import DEFAULT_REMEDY
-    from torchakvf.parts.input_descriptors import pack_for_descriptors, solve_descriptor_batch
-    from torchakvf.parts.part_descriptors import dual_graph, part_descriptor_names, part_descriptors
     from torchakvf.parts.boundary_cues import CUE_NAMES, crease_cues
     from torchakvf.parts.boundary_probability import boundary_probability
+    from torchakvf.parts.input_descriptors import pack_for_descriptors, solve_descriptor_batch
+    from torchakvf.parts.part_descriptors import dual_graph, part_descriptor_names, part_descriptors
 
     mesh = load_mesh(entry.mesh_path)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -166,7 +166,8 @@ def one_mesh(entry) -> dict:
                seconds_parts=np.float64(t1 - t_parts),
                phi32=unt[N_FIELDS].mesh_features(0).numpy().astype(np.float32),
                eigenvalues=fields.eigenvalues[0].numpy(), energies32=unt[N_FIELDS].energies[0].numpy(),
-               area=area, packed_vertices=v, packed_faces=f.astype(np.int32), trivial=trivial(mesh), fell_back=np.bool_(bool(fell_back)),
+               area=area, packed_vertices=v, packed_faces=f.astype(np.int32), trivial=trivial(mesh),
+               fell_back=np.bool_(bool(fell_back)),
                seconds_akvf=np.float64(t1 - t0), seconds_classical=np.float64(t2 - t1),
                cpu_seconds=np.array([c_parts - c0, c1 - c_parts, c2 - c1]))
     if entry.seg_paths:
@@ -187,6 +188,7 @@ def packed_mesh_of(entry, area: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     decimation; a mesh solved at full resolution, canonically numbered or as cleaned) and
     recognised by its unit-area face areas ``area`` [F] from the cache."""
     import torch
+
     from torchakvf import MeshBatch, load_mesh
     from torchakvf.mesh import clean_mesh
     from torchakvf.mesh.batch import coarse_or_none
@@ -219,7 +221,8 @@ def upgrade_from_v5(entry, old: Path) -> dict:
     cues = crease_cues(v, f)
     columns = np.concatenate([d["akvf"], d["akvf_parts"]], axis=1).astype(np.float64)
     d.update(packed_vertices=v, packed_faces=f.astype(np.int32), cues=cues.astype(np.float32),
-             cue_names=np.array(CUE_NAMES), akvf_boundary=boundary_probability(columns, cues)[:, None].astype(np.float32))
+             cue_names=np.array(CUE_NAMES),
+             akvf_boundary=boundary_probability(columns, cues)[:, None].astype(np.float32))
     return d
 
 

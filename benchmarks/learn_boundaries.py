@@ -176,13 +176,15 @@ def report(result: dict) -> list[str]:
             lines.append(f"| {with_} − {without} | {g.mean():+.3f} ± {g.std():.3f} | {(g > 0).sum()} of {len(g)} |")
     shown = [n for n in SINGLE_CLASSICAL + (CLASSICAL_ROW, AKVF_ROW, PACKAGE_ROW, BOTH_ROW, ALL_ROW) if n in rows]
     gain = ALL_ROW in rows and CLASSICAL_ROW in rows
-    lines += ["", "Per held-out category, AP majority" + (" (last column: the first pair's gain)" if gain else "") + ":",
+    title = "Per held-out category, AP majority" + (" (last column: the first pair's gain)" if gain else "")
+    lines += ["", title + ":",
               "", "| category | chance | " + " | ".join(shown) + (" | gain |" if gain else " |"),
               "|---|" + "---:|" * (1 + len(shown) + gain)]
     for c in cats:
         cells = [f"{rows[n]['per_category'][c]['majority']:.3f}" for n in shown]
         if gain:
-            cells.append(f"{rows[ALL_ROW]['per_category'][c]['majority'] - rows[CLASSICAL_ROW]['per_category'][c]['majority']:+.3f}")
+            g = rows[ALL_ROW]["per_category"][c]["majority"] - rows[CLASSICAL_ROW]["per_category"][c]["majority"]
+            cells.append(f"{g:+.3f}")
         lines.append(f"| {c} | {result['chance_per_category'][c]:.3f} | " + " | ".join(cells) + " |")
     return lines
 

@@ -127,8 +127,8 @@ def test_the_boundary_columns_are_the_coarse_faces_cues_and_the_model_of_each_ro
     assert ff.descriptor_names[40:] == ["cut_share_0.06"] + list(CUE_NAMES) + ["boundary_probability"]
     d = descriptor_batch(batch)
     packed = d.meshes[0]
-    np.testing.assert_allclose(ff.descriptors[:, 41:47], d.to_input_faces(0, crease_cues(packed.vertices, packed.faces)),
-                               atol=1e-12)
+    cues = d.to_input_faces(0, crease_cues(packed.vertices, packed.faces))
+    np.testing.assert_allclose(ff.descriptors[:, 41:47], cues, atol=1e-12)
     p = boundary_probability(ff.descriptors[:, :41], ff.descriptors[:, 41:47])
     np.testing.assert_array_equal(ff.descriptors[:, 47], p)
     assert 0.0 < p.min() and p.max() < 1.0 and p.std() > 0.01
