@@ -12,7 +12,11 @@ descriptors' own untangling seed, as :func:`torchakvf.interop.face_features` com
   full-resolution mesh, each decimated face given the value of the fine face under its
   barycenter; a labelled mesh is segmented with the merge weights fitted without its category
   (:data:`FOLD_WEIGHTS`); ``phi32`` [F, 32] the raw untangled norms at 32 (for the older
-  histogram descriptor), ``eigenvalues`` [32], ``energies32`` [32];
+  histogram descriptor), ``eigenvalues`` [32], ``energies32`` [32]; ``cues`` [F, 6]
+  (:func:`torchakvf.parts.boundary_cues.crease_cues` of the packed mesh, ``cue_names``) and
+  ``akvf_boundary`` [F, 1] (:func:`torchakvf.parts.boundary_probability.boundary_probability`
+  of the row's 41 columns and cues: the same function of the same columns as the package's
+  ``boundary_probability`` column); ``packed_vertices``, ``packed_faces``: the mesh solved on;
 * the classical groups of ``classical_descriptors.py`` and ``shapedna`` [32];
 * ``target`` [F]: for meshes with human segmentations, the fraction of the people whose cut
   passes within :data:`BOUNDARY_RADIUS` (geodesic, on the dual graph, unit-area lengths) of the
@@ -20,7 +24,13 @@ descriptors' own untangling seed, as :func:`torchakvf.interop.face_features` com
   each decimated face's barycenter;
 * ``area`` [F] (unit total), ``trivial`` [5], ``seconds_akvf`` (with the part descriptors'
   ``seconds_parts``) / ``seconds_classical`` (wall), ``cpu_seconds`` [3] (this process's CPU
-  time: field descriptors with the solve, part descriptors, classical).
+  time: field descriptors with the solve, part descriptors with the cues and probability,
+  classical).
+
+Cache version 6 adds the cues, the probability and the packed mesh to version 5;
+``--upgrade-from`` completes a version 5 cache instead of computing every mesh again
+(:func:`upgrade_from_v5`: the packed mesh made again and recognised by its face areas, the
+probability from the cached float32 columns).
 
 Meshes with human segmentations are visited first, category-interleaved (1st mesh of every
 category, then the 2nd, ...), so a pass stopped early covers every category about equally. Run::
@@ -47,7 +57,7 @@ SEED = 0
 #: Geodesic radius (lengths at unit area) within which a face counts as on a person's cut:
 #: about one and a half face rings of a mesh decimated to 4000 faces.
 BOUNDARY_RADIUS = 0.02
-CACHE_VERSION = "5"
+CACHE_VERSION = "6"
 
 #: Per labelled category, the learned merge weights fitted without it: the part descriptors of
 #: a labelled mesh are cut with them, so no held-out category's labels shape its own columns.
@@ -123,6 +133,8 @@ def one_mesh(entry) -> dict:
     from torchakvf.fields.descriptors import DEFAULT_COUNTS, DESCRIPTOR_SEED, descriptor_names, face_descriptors
     from torchakvf.mesh import clean_mesh
     from torchakvf.operators.killing import DEFAULT_REMEDY
+    from torchakvf.parts.boundary_cues import CUE_NAMES, crease_cues
+    from torchakvf.parts.boundary_probability import boundary_probability
     from torchakvf.parts.input_descriptors import pack_for_descriptors, solve_descriptor_batch
     from torchakvf.parts.part_descriptors import dual_graph, part_descriptor_names, part_descriptors
 
@@ -139,18 +151,23 @@ def one_mesh(entry) -> dict:
     # cut on the full-resolution mesh; each decimated face takes the value of the fine face under it
     parts = fields.batch.input_mesh(0).to_input_faces(part_descriptors(fields, options=segment_options_for(entry))[0])
     parts = parts[packed_input_faces(fields.batch)]
-    t1, c1 = time.perf_counter(), time.process_time()
     packed = fields.batch.meshes[0]
     v, f = np.asarray(packed.vertices, dtype=np.float64), np.asarray(packed.faces, dtype=np.int64)
+    cues = crease_cues(v, f)
+    boundary = boundary_probability(np.concatenate([desc.astype(np.float64), parts], axis=1), cues)
+    t1, c1 = time.perf_counter(), time.process_time()
     out = classical.classical_descriptors(v, f)
     t2, c2 = time.perf_counter(), time.process_time()
     _, area = classical.unit_area(v, f)
     out.update(akvf=desc.astype(np.float32), akvf_names=np.array(descriptor_names()),
                akvf_parts=parts.astype(np.float32), akvf_parts_names=np.array(part_descriptor_names()),
+               akvf_boundary=boundary[:, None].astype(np.float32), cues=cues.astype(np.float32),
+               cue_names=np.array(CUE_NAMES),
                seconds_parts=np.float64(t1 - t_parts),
                phi32=unt[N_FIELDS].mesh_features(0).numpy().astype(np.float32),
                eigenvalues=fields.eigenvalues[0].numpy(), energies32=unt[N_FIELDS].energies[0].numpy(),
-               area=area, trivial=trivial(mesh), fell_back=np.bool_(bool(fell_back)),
+               area=area, packed_vertices=v, packed_faces=f.astype(np.int32), trivial=trivial(mesh),
+               fell_back=np.bool_(bool(fell_back)),
                seconds_akvf=np.float64(t1 - t0), seconds_classical=np.float64(t2 - t1),
                cpu_seconds=np.array([c_parts - c0, c1 - c_parts, c2 - c1]))
     if entry.seg_paths:
@@ -158,11 +175,55 @@ def one_mesh(entry) -> dict:
     return out
 
 
-def cache_path(cache: Path, entry) -> Path:
+def cache_path(cache: Path, entry, version: str = CACHE_VERSION) -> Path:
     h = hashlib.sha256(entry.mesh_path.read_bytes())
     h.update(json.dumps({"coarse": COARSE_FACES, "n": N_FIELDS, "seed": SEED, "r": BOUNDARY_RADIUS,
-                         "v": CACHE_VERSION}).encode())
+                         "v": version}).encode())
     return cache / f"{entry.mesh_id}_{h.hexdigest()[:16]}.npz"
+
+
+def packed_mesh_of(entry, area: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices [V, 3], faces [F, 3]) of the mesh :func:`one_mesh` solved ``entry`` on, made again
+    (the descriptors' canonical decimation; where that did not solve, the segmentations'
+    decimation; a mesh solved at full resolution, canonically numbered or as cleaned) and
+    recognised by its unit-area face areas ``area`` [F] from the cache."""
+    import torch
+
+    from torchakvf import MeshBatch, load_mesh
+    from torchakvf.mesh import clean_mesh
+    from torchakvf.mesh.batch import coarse_or_none
+    from torchakvf.parts.input_descriptors import _pack, pack_for_descriptors
+
+    mesh = clean_mesh(load_mesh(entry.mesh_path))
+    first = pack_for_descriptors([mesh], COARSE_FACES)
+    coarse = first.coarse_of(0)
+    makers = [lambda: first, lambda: _pack([mesh], [None], "cpu", torch.float64),
+              lambda: MeshBatch.from_meshes([mesh])]
+    if coarse is not None:
+        makers.insert(1, lambda: _pack([mesh], [coarse_or_none(coarse.fine, coarse.faces_asked)], "cpu", torch.float64))
+    for make in makers:
+        packed = make().meshes[0]
+        v, f = np.asarray(packed.vertices, dtype=np.float64), np.asarray(packed.faces, dtype=np.int64)
+        if len(f) == len(area) and np.allclose(classical.unit_area(v, f)[1], area, rtol=1e-9, atol=1e-15):
+            return v, f
+    raise ValueError(f"mesh {entry.mesh_id}: no packed mesh has the cached face areas")
+
+
+def upgrade_from_v5(entry, old: Path) -> dict:
+    """The cache version 5 entry of ``entry`` in ``old`` with what version 6 adds: the packed mesh,
+    its crease cues and the boundary probability, computed from the cached (float32) columns."""
+    from torchakvf.parts.boundary_cues import CUE_NAMES, crease_cues
+    from torchakvf.parts.boundary_probability import boundary_probability
+
+    with np.load(cache_path(old, entry, "5")) as z:
+        d = {k: z[k] for k in z.files}
+    v, f = packed_mesh_of(entry, d["area"])
+    cues = crease_cues(v, f)
+    columns = np.concatenate([d["akvf"], d["akvf_parts"]], axis=1).astype(np.float64)
+    d.update(packed_vertices=v, packed_faces=f.astype(np.int32), cues=cues.astype(np.float32),
+             cue_names=np.array(CUE_NAMES),
+             akvf_boundary=boundary_probability(columns, cues)[:, None].astype(np.float32))
+    return d
 
 
 def ordered_entries(psb: str, reverse: bool = False) -> list:
@@ -176,9 +237,11 @@ def ordered_entries(psb: str, reverse: bool = False) -> list:
     return [e for g in groups for e in (g[::-1] if reverse else g)]
 
 
-def load_all(psb: str, cache: Path, compute: bool = True,
-             reverse: bool = False) -> tuple[list[dict], list[int]]:
-    """(one dict per mesh with mesh_id and category added, ids that failed or are not cached)."""
+def load_all(psb: str, cache: Path, compute: bool = True, reverse: bool = False,
+             upgrade: Path | None = None) -> tuple[list[dict], list[int]]:
+    """(one dict per mesh with mesh_id and category added, ids that failed or are not cached);
+    ``upgrade``: a version 5 cache whose entries are completed (:func:`upgrade_from_v5`) instead
+    of computed."""
     from torchakvf import TorchAKVFError
 
     cache.mkdir(parents=True, exist_ok=True)
@@ -188,7 +251,7 @@ def load_all(psb: str, cache: Path, compute: bool = True,
         if not path.exists() and compute:
             t = time.perf_counter()
             try:
-                d = one_mesh(e)
+                d = one_mesh(e) if upgrade is None else upgrade_from_v5(e, upgrade)
             except (TorchAKVFError, RuntimeError, ValueError) as exc:
                 log.warning("mesh %d: %s (left out)", e.mesh_id, exc)
                 missing.append(e.mesh_id)
@@ -239,6 +302,8 @@ def main(argv=None) -> int:
     ap = cache_parser(__doc__.split("\n")[0])
     ap.add_argument("--reverse", action="store_true",
                     help="visit the meshes in the opposite order (a second worker on the same cache)")
+    ap.add_argument("--upgrade-from", default=None,
+                    help="a cache of version 5: complete its entries with the version 6 columns instead of computing")
     ap.add_argument("--cpu-sample", action="store_true",
                     help="only time the first mesh of each category in CPU seconds (nothing cached)")
     args = ap.parse_args(argv)
@@ -250,7 +315,8 @@ def main(argv=None) -> int:
         cpu_sample(args.psb)
         return 0
     t = time.perf_counter()
-    data, missing = load_all(args.psb, Path(args.cache), reverse=args.reverse)
+    data, missing = load_all(args.psb, Path(args.cache), reverse=args.reverse,
+                             upgrade=None if args.upgrade_from is None else Path(args.upgrade_from))
     log.info("%d meshes in %.0f s; left out: %s", len(data), time.perf_counter() - t, missing)
     return 0
 

@@ -66,14 +66,28 @@ ROWS = {
     "classical + AKVF field descriptors": _columns(*CLASSICAL, "akvf"),
     "curvature + AKVF descriptors": _columns("curvature", *AKVF),
     "raw untangled norms φ at 32 fields (column order as solved)": _columns("phi32"),
+    "boundary probability alone (1)": _columns("akvf_boundary"),
+    "crease cues (6)": _columns("cues"),
+    "AKVF descriptors + boundary probability (41 + 1)": _columns(*AKVF, "akvf_boundary"),
+    "AKVF descriptors + crease cues (41 + 6)": _columns(*AKVF, "cues"),
+    "package descriptors (AKVF 41 + crease cues 6 + boundary probability 1)": _columns(*AKVF, "cues", "akvf_boundary"),
+    "classical + crease cues": _columns(*CLASSICAL, "cues"),
+    "classical + AKVF descriptors + crease cues": _columns(*CLASSICAL, *AKVF, "cues"),
+    "classical + package descriptors": _columns(*CLASSICAL, *AKVF, "cues", "akvf_boundary"),
 }
 SINGLE_CLASSICAL = ("curvature (k1, k2 at 3 radii)", "HKS (8 times)", "WKS (8 energies)", "SDF (2)")
 AKVF_ROW = "AKVF descriptors (fields 33 + parts 8)"
 CLASSICAL_ROW = "classical (curvature + HKS + WKS + SDF)"
 BOTH_ROW = "classical + AKVF descriptors"
-#: (with AKVF, without): the gains reported per held-out category
-PAIRS = ((BOTH_ROW, CLASSICAL_ROW), ("classical + AKVF field descriptors", CLASSICAL_ROW),
-         ("curvature + AKVF descriptors", SINGLE_CLASSICAL[0]))
+PACKAGE_ROW = "package descriptors (AKVF 41 + crease cues 6 + boundary probability 1)"
+ALL_ROW = "classical + package descriptors"
+#: (with, without): the gains reported per held-out category
+PAIRS = ((ALL_ROW, CLASSICAL_ROW), (BOTH_ROW, CLASSICAL_ROW), ("classical + AKVF field descriptors", CLASSICAL_ROW),
+         ("classical + AKVF descriptors + crease cues", CLASSICAL_ROW), ("classical + crease cues", CLASSICAL_ROW),
+         ("curvature + AKVF descriptors", SINGLE_CLASSICAL[0]), (ALL_ROW, BOTH_ROW),
+         (ALL_ROW, "classical + AKVF descriptors + crease cues"),
+         ("AKVF descriptors + boundary probability (41 + 1)", AKVF_ROW), (PACKAGE_ROW, AKVF_ROW),
+         (PACKAGE_ROW, "AKVF descriptors + crease cues (41 + 6)"))
 
 
 def average_precision(score: np.ndarray, positive: np.ndarray) -> float:
@@ -153,18 +167,24 @@ def report(result: dict) -> list[str]:
         m = summary(r["per_category"], "majority")
         a = summary(r["per_category"], "any")
         lines.append(f"| {name} | {r['dims']} | {m[0]:.3f} ± {m[1]:.3f} | {a[0]:.3f} ± {a[1]:.3f} |")
-    lines += ["", "What adding the AKVF descriptors changes, per held-out category (paired, AP majority):", "",
+    lines += ["", "What adding columns changes, per held-out category (paired, AP majority):", "",
               "| rows | mean gain ± std over categories | categories improved |", "|---|---:|---:|"]
     for with_, without in PAIRS:
         if with_ in rows and without in rows:
             g = np.array([rows[with_]["per_category"][c]["majority"] - rows[without]["per_category"][c]["majority"]
                           for c in cats])
             lines.append(f"| {with_} − {without} | {g.mean():+.3f} ± {g.std():.3f} | {(g > 0).sum()} of {len(g)} |")
-    shown = [n for n in SINGLE_CLASSICAL + (CLASSICAL_ROW, AKVF_ROW, BOTH_ROW) if n in rows]
-    lines += ["", "Per held-out category, AP majority:", "",
-              "| category | chance | " + " | ".join(shown) + " |", "|---|" + "---:|" * (1 + len(shown))]
+    shown = [n for n in SINGLE_CLASSICAL + (CLASSICAL_ROW, AKVF_ROW, PACKAGE_ROW, BOTH_ROW, ALL_ROW) if n in rows]
+    gain = ALL_ROW in rows and CLASSICAL_ROW in rows
+    title = "Per held-out category, AP majority" + (" (last column: the first pair's gain)" if gain else "")
+    lines += ["", title + ":",
+              "", "| category | chance | " + " | ".join(shown) + (" | gain |" if gain else " |"),
+              "|---|" + "---:|" * (1 + len(shown) + gain)]
     for c in cats:
         cells = [f"{rows[n]['per_category'][c]['majority']:.3f}" for n in shown]
+        if gain:
+            g = rows[ALL_ROW]["per_category"][c]["majority"] - rows[CLASSICAL_ROW]["per_category"][c]["majority"]
+            cells.append(f"{g:+.3f}")
         lines.append(f"| {c} | {result['chance_per_category'][c]:.3f} | " + " | ".join(cells) + " |")
     return lines
 

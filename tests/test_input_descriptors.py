@@ -112,3 +112,24 @@ def test_a_canonical_decimation_that_cannot_be_solved_gives_way_to_the_segmentat
 
     with pytest.raises(SolverError, match="no mesh named"):
         solve_descriptor_batch(batch, fails_elsewhere)
+
+
+def test_the_boundary_columns_are_the_coarse_faces_cues_and_the_model_of_each_row():
+    """At the default counts the descriptors end with the crease cues of the coarse face under
+    each input face and the package's boundary probability of the row's 41 columns and cues;
+    other counts have neither."""
+    from torchakvf.parts.boundary_cues import CUE_NAMES, crease_cues
+    from torchakvf.parts.boundary_probability import boundary_probability
+    s = shapes.fish()
+    batch = MeshBatch.from_meshes([Mesh(s.vertices, s.faces)], coarse_faces=2000)
+    ff = face_features(batch, 32)[0]
+    assert ff.descriptors.shape == (len(s.faces), 48)
+    assert ff.descriptor_names[40:] == ["cut_share_0.06"] + list(CUE_NAMES) + ["boundary_probability"]
+    d = descriptor_batch(batch)
+    packed = d.meshes[0]
+    cues = d.to_input_faces(0, crease_cues(packed.vertices, packed.faces))
+    np.testing.assert_allclose(ff.descriptors[:, 41:47], cues, atol=1e-12)
+    p = boundary_probability(ff.descriptors[:, :41], ff.descriptors[:, 41:47])
+    np.testing.assert_array_equal(ff.descriptors[:, 47], p)
+    assert 0.0 < p.min() and p.max() < 1.0 and p.std() > 0.01
+    assert "boundary_probability" not in face_features(batch, 16)[0].descriptor_names

@@ -21,7 +21,9 @@ class FaceFeatures:
     energies : [n] Killing energy λ·area of each untangled field
     descriptors : [F, d] per-face descriptors that mean the same on every mesh (invariant to
         the fields' order and sign): the field descriptors (:mod:`torchakvf.fields.descriptors`)
-        then the part descriptors (:mod:`torchakvf.parts.part_descriptors`), docs/descriptors.md;
+        then the part descriptors (:mod:`torchakvf.parts.part_descriptors`), then, at the
+        default counts (n ≥ 32), the crease cues and the boundary probability
+        (:mod:`torchakvf.parts.boundary_probability`), docs/descriptors.md;
         None when asked for without them
     descriptor_names : the d column names, e.g. ``"share1@8"``, ``"cut_distance@2"`` (empty
         without descriptors)

@@ -3,7 +3,7 @@
     from torch_geometric.datasets import FAUST            # any dataset with pos and face
     from torchakvf.interop.pyg import AKVFFeatures
     ds = FAUST(root, pre_transform=AKVFFeatures(n=32, coarse_faces=4000))
-    data = ds[0]; data.akvf_descriptors                   # [F, 41], the same columns on every mesh
+    data = ds[0]; data.akvf_descriptors                   # [F, 48], the same columns on every mesh
 
 Needs ``torch_geometric`` (``pip install torchakvf[pyg]``). Used as a ``pre_transform``, the
 features are computed once and stored with the processed dataset.
@@ -31,7 +31,8 @@ class AKVFFeatures(BaseTransform):
       sign, comparable across meshes (the columns a per-face model should take): the field
       descriptors (:func:`torchakvf.fields.descriptors.descriptor_names`) then the part
       descriptors (:func:`torchakvf.parts.part_descriptors.part_descriptor_names`; not with
-      ``part_descriptors=False``), docs/descriptors.md;
+      ``part_descriptors=False``), then, at the default counts (n ≥ 32), the crease cues and
+      the boundary probability (:mod:`torchakvf.parts.boundary_probability`), docs/descriptors.md;
     * ``akvf_eigenvalues`` [1, n]: Killing eigenvalues λ·area, ascending (graph-level, so a
       ``Batch`` of B meshes holds [B, n]);
     * with ``raw_norms=True`` also ``akvf_norms`` [F, n], the raw AKVFs' norms.

@@ -14,11 +14,13 @@ import torch
 
 from ..errors import SolverError, TorchAKVFError
 from ..fields.akvf_result import AKVFResult
-from ..fields.descriptors import descriptor_names, face_descriptors
+from ..fields.descriptors import DEFAULT_COUNTS, descriptor_names, face_descriptors
 from ..fields.untangle import DEFAULT_RESTARTS, UntangledFields
 from ..mesh.batch import MeshBatch, coarse_or_none
 from ..mesh.clean import CleanMesh
 from ..mesh.coarse import DECIMATE_ABOVE, CoarseMesh, canonical_numbering, coarse_mesh
+from .boundary_cues import CUE_NAMES, crease_cues
+from .boundary_probability import PROBABILITY_NAME, boundary_probability
 from .part_descriptors import part_descriptor_names, part_descriptors
 
 
@@ -123,7 +125,11 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     the part descriptors of every mesh of ``fields.batch``, on the input's faces.
 
     A decimated mesh's field columns are those of the coarse face under each input face; its
-    part columns are computed where its parts are cut, on the full-resolution mesh.
+    part columns are computed where its parts are cut, on the full-resolution mesh. With the
+    part columns at the default counts (8, 16, 32) the boundary columns follow: the crease cues
+    (:mod:`~torchakvf.parts.boundary_cues`) of the coarse face under each input face, then
+    ``boundary_probability`` (:func:`~torchakvf.parts.boundary_probability.boundary_probability`)
+    of the face's columns and cues (0 on faces dropped as degenerate).
     untangled, seed, restarts : :func:`~torchakvf.fields.descriptors.face_descriptors`'; the
     seed is the descriptors' own (0 by default, whatever seed solved the fields: callers pass
     ``untangled`` only when it was made with it); the part descriptors use their own seeds
@@ -134,14 +140,29 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     parts = parts and len(counts) > 0
     field_values = face_descriptors(fields, counts, untangled=untangled, seed=seed, restarts=restarts)
     part_values = part_descriptors(fields) if parts else None
+    # the probability's model reads the default columns: other counts have no column for it
+    probability = parts and tuple(counts) == DEFAULT_COUNTS
     values = []
     for b in range(len(batch)):
         v = batch.to_input_faces(b, field_values[b].detach().cpu().numpy().astype(np.float64))
         if part_values is not None:
             v = np.concatenate([v, batch.input_mesh(b).to_input_faces(part_values[b])], axis=1)
+        if probability:
+            v = np.concatenate([v, _boundary_columns(batch, b, v)], axis=1)
         values.append(v)
     names = descriptor_names(counts) + (part_descriptor_names() if parts else [])
-    return InputDescriptors(values=values, names=names)
+    return InputDescriptors(values=values, names=names + (list(CUE_NAMES) + [PROBABILITY_NAME] if probability else []))
+
+
+def _boundary_columns(batch: MeshBatch, b: int, columns: np.ndarray) -> np.ndarray:
+    """[F_input, 7] the crease cues of the packed (solved) mesh b carried to its input faces, and
+    the boundary probability of those faces from their field and part ``columns`` [F_input, 41]
+    and cues (all 0 on faces dropped as degenerate)."""
+    packed = batch.meshes[b]
+    cues = batch.to_input_faces(b, crease_cues(packed.vertices, packed.faces))
+    kept = np.zeros(len(columns), dtype=bool)
+    kept[batch.input_mesh(b).face_index] = True
+    return np.concatenate([cues, np.where(kept, boundary_probability(columns, cues), 0.0)[:, None]], axis=1)
 
 
 __all__ = ["InputDescriptors", "descriptor_batch", "descriptor_coarse", "input_face_descriptors",
