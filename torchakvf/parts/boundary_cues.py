@@ -32,7 +32,7 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
 from .concavity import dual_edges
-from .creases import neighbour_table, unit_face_normals
+from .creases import least_cosine, unit_face_normals
 from .part_descriptors import DISTANCE_CAP, DISTANCE_FLOOR, dual_graph
 
 #: Dual rings of the ring columns.
@@ -47,22 +47,12 @@ def concave_ring_change(vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarr
                         rings=CUE_RINGS) -> np.ndarray:
     """[F, len(rings)] float64: 1 − the least normal dot product of each face with the faces within
     r dual rings that bend concavely against it (``(c_g − c_f)·(n_g − n_f) < 0``), for r in
-    ``rings`` (ascending); 0 where none does. pairs : [P, 2] faces sharing an edge."""
-    n_faces = len(faces)
-    table = neighbour_table(pairs, n_faces)
+    ``rings`` (:func:`~torchakvf.parts.creases.least_cosine`); 0 where none does. pairs : [P, 2]
+    faces sharing an edge."""
     unit = unit_face_normals(vertices, faces)
     centers = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)].mean(axis=1)
-    least = np.ones(n_faces)
-    ring = np.arange(n_faces)[:, None]
-    out = np.zeros((n_faces, len(rings)))
-    for r in range(1, max(rings) + 1):
-        ring = np.unique(table[ring].reshape(n_faces, -1), axis=1) if r > 1 else table[ring].reshape(n_faces, -1)
-        dots = np.einsum("fk,fjk->fj", unit, unit[ring])
-        bend = np.einsum("fjk,fjk->fj", centers[ring] - centers[:, None], unit[ring] - unit[:, None])
-        least = np.minimum(least, np.where(bend < 0, dots, 1.0).min(axis=1))
-        if r in rings:
-            out[:, list(rings).index(r)] = 1.0 - least
-    return out
+    return np.column_stack([1.0 - least_cosine(unit, pairs, r, centers, np.float64) for r in rings]) \
+        if len(rings) else np.zeros((len(faces), 0))
 
 
 def crease_cues(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

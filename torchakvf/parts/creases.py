@@ -66,36 +66,45 @@ def dual_ball(adjacency: np.ndarray, n_faces: int, rings: int) -> sp.csr_matrix:
     return ball
 
 
-def crease_band(normals: np.ndarray, adjacency: np.ndarray, angle: float = CREASE_SPLIT_ANGLE,
-                rings: int = CREASE_RINGS, centroids: np.ndarray | None = None) -> np.ndarray:
-    """[F] whether a face lies within ``rings`` dual rings of a face whose normal differs from its
-    own by more than ``angle`` radians. normals : [F, 3] unit face normals; adjacency : [P, 2]
-    face pairs sharing an edge; centroids : [F, 3] face centroids, or None. With centroids only
-    concave bends count: faces f, g bend concavely where ``(c_g - c_f)·(n_g - n_f) < 0`` (each
-    lies on the normal side of the other's plane; > 0 on a convex sphere).
+def least_cosine(normals: np.ndarray, adjacency: np.ndarray, rings: int, centroids: np.ndarray | None = None,
+                 dtype=np.float32) -> np.ndarray:
+    """[F] the least n_f·n_g of each face f over the faces g at most ``rings`` dual hops away,
+    1 where none is less (f itself counts: n_f·n_f = 1). normals : [F, 3] unit face normals;
+    adjacency : [P, 2] face pairs sharing an edge; centroids : [F, 3] face centroids, or None.
+    With centroids only concave bends count: faces f, g bend concavely where
+    ``(c_g - c_f)·(n_g - n_f) < 0`` (each lies on the normal side of the other's plane; > 0 on a
+    convex sphere). dtype : the arithmetic's float type.
 
     Each pair of faces at most ``rings`` hops apart is compared once (the upper triangle of
-    :func:`dual_ball`; the test is symmetric in f and g, to the bit), in float32 (the test is far
-    from its round-off), and the least cosine taken at both faces."""
+    :func:`dual_ball`; the test is symmetric in f and g, to the bit) and the least taken at both
+    faces."""
     n_faces = len(normals)
+    least = np.ones(n_faces, dtype=dtype)
     if n_faces == 0:
-        return np.zeros(0, dtype=bool)
+        return least
     pairs = sp.triu(dual_ball(adjacency, n_faces, rings), k=1, format="csr")
     counts = np.diff(pairs.indptr)
     cols = pairs.indices
-    unit = np.asarray(normals, dtype=np.float32)
+    unit = np.asarray(normals, dtype=dtype)
     u_row, u_col = np.repeat(unit, counts, axis=0), unit[cols]
     dots = np.einsum("pk,pk->p", u_row, u_col)
     if centroids is not None:
-        centers = np.asarray(centroids, dtype=np.float32)
+        centers = np.asarray(centroids, dtype=dtype)
         bend = np.einsum("pk,pk->p", centers[cols] - np.repeat(centers, counts, axis=0), u_col - u_row)
-        dots = np.where(bend < 0, dots, np.float32(1.0))
-    least = np.ones(n_faces, dtype=np.float32)
+        dots = np.where(bend < 0, dots, dtype(1.0))
     rows = counts > 0
     if len(dots):
-        least[rows] = np.minimum.reduceat(dots, pairs.indptr[:-1][rows])
+        least[rows] = np.minimum(np.minimum.reduceat(dots, pairs.indptr[:-1][rows]), dtype(1.0))
         np.minimum.at(least, cols, dots)
-    return least < math.cos(angle)
+    return least
+
+
+def crease_band(normals: np.ndarray, adjacency: np.ndarray, angle: float = CREASE_SPLIT_ANGLE,
+                rings: int = CREASE_RINGS, centroids: np.ndarray | None = None) -> np.ndarray:
+    """[F] whether a face lies within ``rings`` dual rings of a face whose normal differs from its
+    own by more than ``angle`` radians (:func:`least_cosine`; with centroids, concave bends
+    only), tested in float32 (far from its round-off)."""
+    return least_cosine(normals, adjacency, rings, centroids, np.float32) < math.cos(angle)
 
 
 def crease_patches(vertices: np.ndarray, faces: np.ndarray, dual: DualEdges,
@@ -144,5 +153,5 @@ def split_by_patches(labels: np.ndarray, patches: np.ndarray) -> tuple[np.ndarra
     return np.asarray(labels, dtype=np.int64) * n_patches + patches, n_patches
 
 
-__all__ = ["CREASE_SPLIT_ANGLE", "CREASE_RINGS", "unit_face_normals", "dual_graph", "dual_ball", "crease_band",
-           "crease_patches", "split_by_patches"]
+__all__ = ["CREASE_SPLIT_ANGLE", "CREASE_RINGS", "unit_face_normals", "dual_graph", "dual_ball", "least_cosine",
+           "crease_band", "crease_patches", "split_by_patches"]
