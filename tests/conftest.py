@@ -64,8 +64,9 @@ def device(request) -> torch.device:
 #: loaded 2-core machine (about 2.5 min of the 6.5 on a quiet one). Left out: the PSB, command,
 #: runner, rendering and surface-map files (I/O and exact geometry, minutes between them).
 NUMERICAL_TEST_FILES = frozenset({
-    "test_akvf.py", "test_akvf_solver.py", "test_alpha_expansion.py", "test_boundaries.py", "test_canonical.py",
-    "test_cholmod.py", "test_concavity.py", "test_dec.py", "test_descriptors.py", "test_discovery.py", "test_factor.py",
+    "test_akvf.py", "test_akvf_solver.py", "test_alpha_expansion.py", "test_boundaries.py", "test_boundary_cues.py",
+    "test_boundary_probability.py", "test_canonical.py", "test_cholmod.py", "test_concavity.py", "test_creases.py",
+    "test_dec.py", "test_descriptors.py", "test_discovery.py", "test_factor.py",
     "test_field_counts.py", "test_fourth_moments.py", "test_generators.py", "test_graphcut.py",
     "test_grouping.py", "test_horst.py", "test_k_auto.py", "test_killing.py", "test_kmeanspp.py", "test_krylov.py",
     "test_lobpcg.py", "test_merge.py", "test_merge_terms.py", "test_metrics.py", "test_part_descriptors.py",
