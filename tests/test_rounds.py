@@ -227,6 +227,26 @@ def test_mesh_caches_kept_across_calls_make_the_mesh_arrays_once_and_the_same_la
         next(iter(segment_rounds(fields, 3, opts, mesh_caches=caches[:1])))
 
 
+def test_mesh_caches_shared_by_merge_weights_that_read_more_give_each_its_own_labels():
+    """Caches made under merge weights that read no thickness, then passed to weights that do,
+    give the labels fresh caches give: the thickness is added, not left out."""
+    from torchakvf.options import MergeWeights
+    from torchakvf.parts.merge import needs_part_sums, needs_thickness
+
+    s = shapes.three_blobs(n_around=20)
+    fields = ta.akvf(ta.MeshBatch.from_meshes([ta.Mesh(s.vertices, s.faces, name="a")]), n=24, remedy="smooth")
+    thin_free = MergeWeights(thickness=0.0, thin=0.0)
+    assert needs_part_sums(thin_free) and not needs_thickness(thin_free) and needs_thickness(MergeWeights())
+    caches = [cut.MeshCache()]
+    for weights in (thin_free, MergeWeights()):
+        opts = SegmentOptions(refine=False, merge=weights)
+        shared = next(iter(segment_rounds(fields, 4, opts, mesh_caches=caches))).meshes[0]
+        fresh = next(iter(segment_rounds(fields, 4, opts))).meshes[0]
+        np.testing.assert_array_equal(shared.labels, fresh.labels)
+        assert shared.cost == fresh.cost
+    assert caches[0].sums_inputs[1] is not None
+
+
 rounds_mod = importlib.import_module("torchakvf.parts.rounds")
 
 

@@ -30,6 +30,7 @@ from .merge import (
     merged_distances,
     mesh_sums_inputs,
     needs_part_sums,
+    needs_thickness,
     next_merge_cost,
     partition_cost,
     region_graph,
@@ -264,9 +265,15 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
     if crease not in cache.bends:
         cache.bends[crease] = boundary_bends(dual, crease)
     bends = cache.bends[crease]
-    if cache.sums_inputs is None and needs_part_sums(opts.merge):
-        cache.sums_inputs = mesh_sums_inputs(clean.vertices, clean.faces, opts.merge)
-    centroids, thickness = cache.sums_inputs if needs_part_sums(opts.merge) else (None, None)
+    centroids = thickness = None
+    if needs_part_sums(opts.merge):
+        have = cache.sums_inputs
+        if have is None or (needs_thickness(opts.merge) and have[1] is None):
+            # made once per mesh; weights that read the thickness where earlier ones did not add it
+            cache.sums_inputs = mesh_sums_inputs(clean.vertices, clean.faces, opts.merge,
+                                                 thickness=None if have is None else have[1])
+        centroids, thickness = cache.sums_inputs
+        thickness = thickness if needs_thickness(opts.merge) else None
     if opts.merges_parts:
         if crease not in over.graphs:
             over.graphs[crease] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
