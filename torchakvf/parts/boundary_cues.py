@@ -29,11 +29,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.sparse.csgraph import dijkstra
 
 from .concavity import dual_edges
 from .creases import least_cosine, unit_face_normals
-from .part_descriptors import DISTANCE_CAP, DISTANCE_FLOOR, dual_graph
+from .part_descriptors import DISTANCE_FLOOR, distance_to_faces, dual_graph
 
 #: Dual rings of the ring columns.
 CUE_RINGS = (1, 2, 3)
@@ -71,9 +70,7 @@ def crease_cues(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     dist = []
     for a in CUE_ANGLES:
         crease = np.flatnonzero(rings[:, list(CUE_RINGS).index(2)] > 1.0 - math.cos(math.radians(a)))
-        d = dijkstra(graph, directed=False, indices=crease, min_only=True, limit=DISTANCE_CAP) if len(crease) \
-            else np.full(n_faces, DISTANCE_CAP)
-        dist.append(np.log(np.minimum(d, DISTANCE_CAP) + DISTANCE_FLOOR))
+        dist.append(np.log(distance_to_faces(graph, crease) + DISTANCE_FLOOR))
     return np.column_stack([edge, rings] + dist)
 
 

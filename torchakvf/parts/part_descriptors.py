@@ -97,10 +97,15 @@ def cut_distance(graph: sp.csr_matrix, labels: np.ndarray, cap: float = DISTANCE
     coo = graph.tocoo()
     lab = np.asarray(labels)
     differ = lab[coo.row] != lab[coo.col]
-    on_cut = np.unique(coo.row[differ])
-    if len(on_cut) == 0:
+    return distance_to_faces(graph, np.unique(coo.row[differ]), cap)
+
+
+def distance_to_faces(graph: sp.csr_matrix, sources: np.ndarray, cap: float = DISTANCE_CAP) -> np.ndarray:
+    """[F] distance along ``graph`` from each face to the nearest of the faces ``sources`` (0 on
+    them), capped at ``cap``; ``cap`` everywhere when there is none."""
+    if len(sources) == 0:
         return np.full(graph.shape[0], float(cap))
-    d = dijkstra(graph, directed=False, indices=on_cut, min_only=True, limit=cap)
+    d = dijkstra(graph, directed=False, indices=sources, min_only=True, limit=cap)
     return np.minimum(d, cap)
 
 
@@ -198,4 +203,5 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
 
 
 __all__ = ["PART_KS", "PART_SEEDS", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII", "part_descriptor_names",
-           "dual_graph", "cut_distance", "fine_meshes_numbered_canonically", "describe_labelings", "part_descriptors"]
+           "dual_graph", "cut_distance", "distance_to_faces", "fine_meshes_numbered_canonically", "describe_labelings",
+           "part_descriptors"]
