@@ -28,6 +28,11 @@ REACH_STEP = 1.25
 #: The AABB search measures the faces around a closest point whose smallest barycentric
 #: coordinate is at most this (on an edge or corner, or within round-off of one).
 TIE_BARY = 1e-9
+#: Distances within this fraction of the mesh's bounding-box diagonal count as equal. A point
+#: whose closest point lies on an edge is exactly as near both faces of that edge; which of the
+#: two computed distances comes out smaller is round-off, and a rigid motion of the input
+#: changes it, so such ties are settled by geometry instead (:meth:`SurfaceIndex._nearest_pairs`).
+TIE_DISTANCE = 1e-10
 
 
 @dataclass(frozen=True)
@@ -63,7 +68,8 @@ class SurfacePoints:
 class SurfaceIndex:
     """Exact closest points on a triangle mesh (vertices [V, 3], faces [F, 3]).
 
-    Two searches give the closest face (among faces at the same distance the lowest index),
+    Two searches give the closest face (faces equally near up to round-off: the one the point
+    lies most squarely above, see :meth:`_nearest_pairs`),
     with the barycentric coordinates and distance of :meth:`_closest`; they give the same bits
     except where two faces are equally near, within round-off, at two different points of the
     surface (a symmetric configuration), which each may settle its own way:
@@ -71,7 +77,7 @@ class SurfaceIndex:
     * **AABB** (``search="aabb"``, the default where libigl imports): libigl's
       ``point_mesh_squared_distance`` (a bounding-box tree in C++) finds a closest face; a
       point whose closest point lies on an edge or corner of that face is as close to the faces
-      around it, so those are measured too and the lowest index among the nearest kept.
+      around it, so those are measured too and their tie settled as the sample search does.
       About 3x faster than the sample search on meshes decimated to 4000 faces, with the same
       bits at all but a few points in a million (see docs/design.md).
     * **samples** (``search="samples"``; the fallback without libigl, and the reference the
@@ -100,6 +106,8 @@ class SurfaceIndex:
         self.ab, self.ac = self.tri[:, 1] - self.a, self.tri[:, 2] - self.a
         self.gram = np.stack([(self.ab * self.ab).sum(1), (self.ab * self.ac).sum(1),
                               (self.ac * self.ac).sum(1)], axis=1)          # [F, 3]
+        span = self.vertices.max(axis=0) - self.vertices.min(axis=0) if len(self.vertices) else np.ones(3)
+        self.tie_distance = TIE_DISTANCE * max(float(np.linalg.norm(span)), 1e-300)
         if self.search == "samples":
             self._build_samples()
 
@@ -132,7 +140,7 @@ class SurfaceIndex:
 
     def locate(self, points: np.ndarray) -> SurfacePoints:
         """The closest point of the mesh to each of ``points`` [P, 3] (ties between faces at the
-        same distance go to the lower face index)."""
+        same distance: see :meth:`_nearest_pairs`)."""
         points = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         if not len(points):
             return SurfacePoints(face=np.zeros(0, dtype=np.int64), bary=np.zeros((0, 3)), distance=np.zeros(0))
@@ -181,10 +189,23 @@ class SurfaceIndex:
         ptr[1:] = np.cumsum(np.bincount(flat, minlength=len(self.vertices)))
         return ptr, order // 3
 
+    @cached_property
+    def _unit_normals(self) -> np.ndarray:
+        """[F, 3] unit face normals (zero for a degenerate face)."""
+        n = np.cross(self.ab, self.ac)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
     def _nearest_pairs(self, points: np.ndarray, pair_point: np.ndarray, pair_face: np.ndarray) -> SurfacePoints:
         """For each point of ``pair_point`` (ascending once sorted), the nearest of its candidate
-        faces (pairs [M] with repeats allowed), the lowest face index among equal distances;
-        one row per distinct point, in ascending point order."""
+        faces (pairs [M] with repeats allowed); one row per distinct point, in ascending point
+        order.
+
+        Faces within :data:`TIE_DISTANCE` of the nearest are tied (a closest point on their
+        shared edge or corner): of those, the face whose plane the point lies most squarely
+        above (the offset from its closest point most nearly along the face's normal) is kept,
+        which a rigid motion or a renumbering of the mesh does not change; the lowest face index
+        only where that is equal too (a point on the surface, or on the bisector of an edge)."""
         n_faces = len(self.faces)
         key = np.sort(pair_point * n_faces + pair_face)
         key = key[np.r_[True, key[1:] != key[:-1]]]        # (np.unique: a slow hash in numpy 2.4)
@@ -192,8 +213,15 @@ class SurfaceIndex:
         bary, dist = self._closest(points[point], face)
         start = np.flatnonzero(np.r_[True, point[1:] != point[:-1]])      # each point's pairs
         lowest = np.repeat(np.minimum.reduceat(dist, start), np.diff(np.r_[start, len(point)]))
-        at_min = np.flatnonzero(dist == lowest)
-        best = at_min[np.r_[True, point[at_min][1:] != point[at_min][:-1]]]  # lowest face of the ties
+        tied = dist <= lowest + self.tie_distance
+        at_min = np.flatnonzero(tied)
+        offset = points[point[at_min]] - (self.a[face[at_min]] + bary[at_min, 1:2] * self.ab[face[at_min]]
+                                          + bary[at_min, 2:3] * self.ac[face[at_min]])
+        square = np.abs(np.einsum("ij,ij->i", offset, self._unit_normals[face[at_min]]))
+        square = np.divide(square, dist[at_min], out=np.zeros_like(square), where=dist[at_min] > 0)
+        # by point, then the squarest first, then the lowest face
+        at_min = at_min[np.lexsort((face[at_min], -square, point[at_min]))]
+        best = at_min[np.r_[True, point[at_min][1:] != point[at_min][:-1]]]
         return SurfacePoints(face=face[best].astype(np.int64), bary=bary[best], distance=dist[best])
 
     def _locate_samples(self, points: np.ndarray) -> SurfacePoints:
