@@ -13,6 +13,7 @@ import pytest
 from torchakvf.evaluate.metrics import (
     HammingResult,
     average_radius,
+    compare_segmentations,
     consistency_errors,
     cut_discrepancy,
     evaluate_segmentation,
@@ -225,6 +226,29 @@ def test_consistency_matches_per_face_definition():
 # ---------------------------------------------------------------------------------------------
 # Cut discrepancy
 # ---------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("k", [3, 7, "every"])
+def test_compare_segmentations_gives_each_metric_s_own_numbers(k):
+    """One contingency table for the pair: the very numbers rand_index_error, hamming_distance
+    (area weighted) and consistency_errors compute each on its own table of the same pair, for
+    labels with gaps and negatives, and for "every face its own segment" (the sorted table)."""
+    rng = np.random.default_rng(11)
+    n = 5000
+    b = rng.choice([-3, 0, 2, 9, 40], n)
+    a = np.arange(n) * 7 - 5 if k == "every" else rng.integers(0, k, n) * 3
+    areas = rng.random(n) + 0.1
+    got = compare_segmentations(a, b, areas)
+    hd = hamming_distance(a, b, areas)
+    gce, lce = consistency_errors(a, b)
+    want = {"rand_index_error": rand_index_error(a, b), "hamming_distance": hd.distance,
+            "hamming_missing_rate": hd.missing_rate, "hamming_false_alarm_rate": hd.false_alarm_rate,
+            "gce": gce, "lce": lce}
+    assert got == want
+    assert 0 < got["rand_index_error"] < 1 and 0 < got["hamming_distance"] < 1
+    only_rand = compare_segmentations(a, b, hamming=False, consistency=False)
+    assert only_rand == {"rand_index_error": want["rand_index_error"]}
+    assert set(compare_segmentations(a, b, areas, rand=False)) == set(want) - {"rand_index_error"}
+
 
 def test_average_radius_hand_case():
     v, f = strip_mesh()
