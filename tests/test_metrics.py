@@ -299,6 +299,41 @@ def test_cut_discrepancy_scale_invariant():
                                                               rel=1e-12)
 
 
+def _cut_vertices_plainly(faces, labels):
+    """Endpoints of every edge whose faces carry more than one label, edge by edge."""
+    seen = {}
+    for fi, tri in enumerate(faces.tolist()):
+        for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])):
+            if a != b:
+                seen.setdefault((min(a, b), max(a, b)), set()).add(int(labels[fi]))
+    return sorted({v for e, labs in seen.items() if len(labs) > 1 for v in e})
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "strip", "non-manifold"])
+def test_cut_vertices_are_the_ends_of_edges_between_labels(mesh):
+    """A closed mesh (every edge has two faces: one comparison per edge), a strip with boundary
+    edges (never cut) and a fin of three faces on one edge: the vertices of the plain edge scan."""
+    from torchakvf.evaluate.metrics import EdgeGraph
+
+    if mesh == "sphere":
+        v, f = sphere_mesh(2)
+        labels = octant_labels(v, f)
+    else:
+        v, f = strip_mesh()
+        labels = np.array([0, 0, 1, 1, 0, 2])
+        if mesh == "non-manifold":                          # a third face on the edge 1-5
+            v = np.concatenate([v, [[1.5, 0.5, 1.0]]])
+            f = np.concatenate([f, [[1, 5, 8]]])
+            labels = np.array([0, 0, 0, 0, 0, 0, 3])
+    graph = EdgeGraph(v, f)
+    assert (graph._face_pairs is not None) == (mesh == "sphere")
+    got = graph.cut_vertices(labels)
+    want = _cut_vertices_plainly(f, labels)
+    assert len(want) > 0
+    np.testing.assert_array_equal(got, want)
+    assert got.dtype == np.int64
+
+
 def test_one_graph_scoring_many_pairs_runs_dijkstra_once_per_labelling(monkeypatch):
     """A mesh's scorer keeps each labelling's distance to its cut: every pair gives the value of
     a fresh computation (bitwise), and Dijkstra runs once per distinct labelling, however the
