@@ -145,11 +145,10 @@ def gallery_item(plan, row):
     ks = [k for k in row.ks if plan.pred_path(k).is_file()]
     if not ks:
         return None
-    humans = [P.read_seg(s) for s in plan.entry.seg_paths]
-    counts = [P.segment_count(h) for h in humans]
+    counts = plan.counts                  # the segment counts of plan.entry.seg_paths, in order
     pick = next((i for i, c in enumerate(counts) if c in ks), 0)
     k = counts[pick] if counts[pick] in ks else ks[0]
-    pred, human = P.read_seg(plan.pred_path(k)), humans[pick]
+    pred, human = P.read_seg(plan.pred_path(k)), P.read_seg(plan.entry.seg_paths[pick])
     mesh = load_mesh(plan.entry.mesh_path)
     if not (len(pred) == len(human) == mesh.n_faces):
         return None
@@ -159,11 +158,11 @@ def gallery_item(plan, row):
 
 #: Scored meshes per gallery worker process: a pool gets one worker per this many meshes (at
 #: most the workers asked for, one per category), none below twice as many. A spawned worker
-#: spends about 3.5 CPU s importing torch, torchakvf and matplotlib before it draws anything,
-#: and drawing one mesh's pair (mesh and segmentations read, rasterized once, painted twice,
-#: its share of the PNG) takes about 0.12 s: a worker started for fewer meshes than start-up
-#: over drawing cost finishes later than this process would have drawn them itself.
-MESHES_PER_GALLERY_WORKER = 30
+#: spends about 3.5 CPU s importing torch, torchakvf and matplotlib before it draws anything;
+#: drawing one mesh (its mesh and segmentations read, rasterized once, painted twice, its share
+#: of the PNG) takes about 0.22 s (30 PSB meshes, one thread): a worker started for fewer meshes
+#: than start-up over drawing cost finishes later than this process would have drawn them.
+MESHES_PER_GALLERY_WORKER = 16
 
 
 def gallery_workers(meshes: int, categories: int, workers: int) -> int:
@@ -183,7 +182,8 @@ def write_galleries(out: Path, plans, rows, workers: int = 1) -> dict:
 
     workers : processes at most drawing categories side by side (:func:`gallery_workers`
         chooses how many from the number of meshes: on the PSB, 300 scored meshes, drawing is
-        about 35 CPU s, 15 meshes of a quick run under 2 s, less than one worker's start-up)."""
+        about 65 CPU s; the 30 meshes of a quick run about 6.5 s, less than two workers' start-up
+        and half the drawing)."""
     by_id = {r.mesh_id: r for r in rows}
     pairs: dict = {}
     for p in plans:
