@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from torchakvf import shapes
-from torchakvf.evaluate.gallery import CELL_PIXELS, match_labels, write_gallery
+from torchakvf.evaluate.gallery import (
+    CELL_PIXELS,
+    MESHES_PER_GALLERY_WORKER,
+    gallery_canvas,
+    gallery_workers,
+    match_labels,
+    write_gallery,
+)
 from torchakvf.evaluate.metrics import rand_index_error
 
 
@@ -44,3 +51,63 @@ def test_write_gallery_one_png_with_pairs(tmp_path):
     np.testing.assert_allclose(left, right, atol=0.02)
     with pytest.raises(ValueError):
         write_gallery(tmp_path / "empty.png", [])
+
+
+def _dumbbells():
+    items = []
+    for n_around in (16, 24, 20):
+        s = shapes.dumbbell(n_around=n_around)
+        pred = s.part_labels
+        human = np.where(np.arange(len(pred)) % 5 == 0, 7, pred)
+        items.append((f"d{n_around}", s.vertices, s.faces, pred, human, rand_index_error(pred, human)))
+    return items
+
+
+def test_gallery_canvas_holds_each_picture_unresampled_at_its_place(tmp_path):
+    """Every painted picture (the prediction, then the matched human) sits in the canvas at its
+    cell's position with its exact pixels (0-255, truncated), white around; the PNG written has
+    the canvas's pixels wherever there is no text (captions stay above the pictures)."""
+    from torchakvf.io.render import best_view, paint, raster_view, view_aspect
+
+    items, pixels = _dumbbells(), 120
+    canvas, texts = gallery_canvas(items, title="Dumbbell", columns=2, pixels=pixels)
+    views = [best_view(v, f) for _, v, f, *_ in items]
+    img_h = int(round(pixels * max(view_aspect(it[1], vw) for it, vw in zip(items, views))))
+    cell_w = 2 * pixels + 16
+    assert canvas.dtype == np.uint8 and canvas.shape == (50 + 2 * (img_h + 46), 2 * cell_w, 3)
+    covered = np.zeros(canvas.shape[:2], bool)
+    for i, ((_, v, f, pred, human, _), view) in enumerate(zip(items, views)):
+        raster = raster_view(v, f, view, pixels, img_h)
+        r, c = divmod(i, 2)
+        y0 = 50 + r * (img_h + 46) + 46
+        for j, lab in enumerate((pred, match_labels(pred, human))):
+            x0 = c * cell_w + j * (pixels + 16)
+            want = (paint(raster, lab).image * 255).astype(np.uint8)
+            np.testing.assert_array_equal(canvas[y0:y0 + img_h, x0:x0 + pixels], want)
+            covered[y0:y0 + img_h, x0:x0 + pixels] = True
+    assert (canvas[~covered] == 255).all()
+    caption = "d16   k=2 (human 3)   1-RI=%.3f" % items[0][5]
+    assert [t[2] for t in texts[:4]] == ["Dumbbell", "prediction", "human", caption]
+    # a text's centre lies above the pictures of its row
+    assert all(not covered[int(y), int(x)] for x, y, *_ in texts)
+    write_gallery(tmp_path / "g.png", items, title="Dumbbell", columns=2, pixels=pixels)
+    png = _read_rgb(tmp_path / "g.png")
+    assert png.shape == canvas.shape
+    np.testing.assert_array_equal(png[covered], canvas[covered])
+    assert (png[~covered] < 128).any()                              # the captions are written
+
+
+def _read_rgb(path):
+    import matplotlib.image
+
+    return np.round(matplotlib.image.imread(str(path))[..., :3] * 255).astype(np.uint8)
+
+
+def test_gallery_workers_start_a_pool_only_for_enough_meshes():
+    m = MESHES_PER_GALLERY_WORKER
+    assert gallery_workers(m - 1, 15, 8) == 1                      # a quick run: drawn here
+    assert gallery_workers(2 * m - 1, 15, 2) == 1                  # one worker would not repay
+    assert gallery_workers(2 * m, 15, 2) == 2
+    assert gallery_workers(300, 15, 8) == min(8, 300 // m)
+    assert gallery_workers(300, 1, 8) == 1                          # one category: one process
+    assert gallery_workers(10 * m, 15, 1) == 1

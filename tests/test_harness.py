@@ -93,14 +93,19 @@ def test_gallery_shows_prediction_beside_a_human_at_the_same_k(tiny_psb, run_by_
     assert err == rand_index_error(pred, d.part_labels) and 0.0 <= err < 0.05
 
 
-def test_galleries_drawn_in_worker_processes_equal_those_drawn_here(tiny_psb, run_by_seg, tmp_path):
+def test_galleries_drawn_in_worker_processes_equal_those_drawn_here(tiny_psb, run_by_seg, tmp_path,
+                                                                   monkeypatch):
     """Categories are drawn side by side in worker processes: the same PNG bytes and the same
-    {category: path} (in the plans' order) as drawn one after another in this process."""
+    {category: path} (in the plans' order) as drawn one after another in this process (a worker
+    per mesh allowed, so that two meshes start a pool)."""
     import copy
     import dataclasses
     import shutil
 
+    from torchakvf.evaluate import gallery
     from torchakvf.evaluate.gallery import write_galleries
+
+    monkeypatch.setattr(gallery, "MESHES_PER_GALLERY_WORKER", 1)
     from torchakvf.evaluate.plan import find_entries, plan_meshes
 
     root, _ = tiny_psb
@@ -124,6 +129,27 @@ def test_galleries_drawn_in_worker_processes_equal_those_drawn_here(tiny_psb, ru
     assert got[1] == got[2]
     for rel in got[1].values():
         assert (tmp_path / "w1" / rel).read_bytes() == (tmp_path / "w2" / rel).read_bytes()
+
+
+def test_few_meshes_are_drawn_in_this_process(tiny_psb, run_by_seg, monkeypatch):
+    """write_galleries asks map_batches for one process (no pool) for a run's few meshes, however
+    many workers the run has."""
+    from torchakvf.evaluate import gallery
+    from torchakvf.evaluate.plan import find_entries, plan_meshes
+
+    root, _ = tiny_psb
+    out, summary, _ = run_by_seg
+    plan = plan_meshes(find_entries(root)[0], out, "by-segmentation", False, 6)[0]
+    asked = []
+    real = gallery.map_batches
+
+    def spy(batches, fn, args=(), *, workers=1, **kw):
+        asked.append(workers)
+        return real(batches, fn, args, workers=workers, **kw)
+
+    monkeypatch.setattr(gallery, "map_batches", spy)
+    assert gallery.write_galleries(out, [plan], [summary.row(1)], workers=4) == {"Human": "gallery/Human.png"}
+    assert asked == [1]
 
 
 def test_predictions_of_another_method_are_not_resumed(tiny_psb, run_by_seg):

@@ -13,6 +13,7 @@ import pytest
 from torchakvf.evaluate.metrics import (
     HammingResult,
     average_radius,
+    compare_segmentations,
     consistency_errors,
     cut_discrepancy,
     evaluate_segmentation,
@@ -226,6 +227,29 @@ def test_consistency_matches_per_face_definition():
 # Cut discrepancy
 # ---------------------------------------------------------------------------------------------
 
+@pytest.mark.parametrize("k", [3, 7, "every"])
+def test_compare_segmentations_gives_each_metric_s_own_numbers(k):
+    """One contingency table for the pair: the very numbers rand_index_error, hamming_distance
+    (area weighted) and consistency_errors compute each on its own table of the same pair, for
+    labels with gaps and negatives, and for "every face its own segment" (the sorted table)."""
+    rng = np.random.default_rng(11)
+    n = 5000
+    b = rng.choice([-3, 0, 2, 9, 40], n)
+    a = np.arange(n) * 7 - 5 if k == "every" else rng.integers(0, k, n) * 3
+    areas = rng.random(n) + 0.1
+    got = compare_segmentations(a, b, areas)
+    hd = hamming_distance(a, b, areas)
+    gce, lce = consistency_errors(a, b)
+    want = {"rand_index_error": rand_index_error(a, b), "hamming_distance": hd.distance,
+            "hamming_missing_rate": hd.missing_rate, "hamming_false_alarm_rate": hd.false_alarm_rate,
+            "gce": gce, "lce": lce}
+    assert got == want
+    assert 0 < got["rand_index_error"] < 1 and 0 < got["hamming_distance"] < 1
+    only_rand = compare_segmentations(a, b, hamming=False, consistency=False)
+    assert only_rand == {"rand_index_error": want["rand_index_error"]}
+    assert set(compare_segmentations(a, b, areas, rand=False)) == set(want) - {"rand_index_error"}
+
+
 def test_average_radius_hand_case():
     v, f = strip_mesh()
     assert mesh_face_areas(v, f) == pytest.approx(np.full(6, 0.5))
@@ -273,6 +297,41 @@ def test_cut_discrepancy_scale_invariant():
     h = (v[f].mean(axis=1)[:, 2] > 0).astype(int)
     assert cut_discrepancy(3.5 * v, f, g, h) == pytest.approx(cut_discrepancy(v, f, g, h),
                                                               rel=1e-12)
+
+
+def _cut_vertices_plainly(faces, labels):
+    """Endpoints of every edge whose faces carry more than one label, edge by edge."""
+    seen = {}
+    for fi, tri in enumerate(faces.tolist()):
+        for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])):
+            if a != b:
+                seen.setdefault((min(a, b), max(a, b)), set()).add(int(labels[fi]))
+    return sorted({v for e, labs in seen.items() if len(labs) > 1 for v in e})
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "strip", "non-manifold"])
+def test_cut_vertices_are_the_ends_of_edges_between_labels(mesh):
+    """A closed mesh (every edge has two faces: one comparison per edge), a strip with boundary
+    edges (never cut) and a fin of three faces on one edge: the vertices of the plain edge scan."""
+    from torchakvf.evaluate.metrics import EdgeGraph
+
+    if mesh == "sphere":
+        v, f = sphere_mesh(2)
+        labels = octant_labels(v, f)
+    else:
+        v, f = strip_mesh()
+        labels = np.array([0, 0, 1, 1, 0, 2])
+        if mesh == "non-manifold":                          # a third face on the edge 1-5
+            v = np.concatenate([v, [[1.5, 0.5, 1.0]]])
+            f = np.concatenate([f, [[1, 5, 8]]])
+            labels = np.array([0, 0, 0, 0, 0, 0, 3])
+    graph = EdgeGraph(v, f)
+    assert (graph._face_pairs is not None) == (mesh == "sphere")
+    got = graph.cut_vertices(labels)
+    want = _cut_vertices_plainly(f, labels)
+    assert len(want) > 0
+    np.testing.assert_array_equal(got, want)
+    assert got.dtype == np.int64
 
 
 def test_one_graph_scoring_many_pairs_runs_dijkstra_once_per_labelling(monkeypatch):

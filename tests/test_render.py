@@ -164,6 +164,50 @@ def test_labellings_of_one_view_share_its_raster():
     assert (grey(pics[0].image) < grey(pics[1].image) - 0.1).any()     # the border line
 
 
+def _paint_plainly(raster, labels):
+    """paint's picture written plainly: the full-resolution image, outlines with NaN depths off
+    the mesh, each darkening applied in turn, numpy's mean of each 2 x 2 block."""
+    from torchakvf.io.outputs import label_colors
+    from torchakvf.io.render import shade_faces
+
+    ids, zbuf = raster.face_ids, raster.zbuf
+    rgb = shade_faces(raster.normals_cam, label_colors(labels)[:, :3] / 255.0)
+    hit = ids >= 0
+    img = np.ones(ids.shape + (3,))
+    img[hit] = rgb[ids[hit]]
+    lab = np.where(hit, labels[np.maximum(ids, 0)], -2)
+    zf = np.where(hit, zbuf, np.nan)
+    edge, border = np.zeros(ids.shape, bool), np.zeros(ids.shape, bool)
+    for a, b in (((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
+                 ((slice(None), slice(1, None)), (slice(None), slice(None, -1)))):
+        e = (hit[a] != hit[b]) | (np.nan_to_num(np.abs(zf[a] - zf[b]), nan=0.0) > 0.02 * raster.extent)
+        bd = (lab[a] != lab[b]) & hit[a] & hit[b] & ~e
+        edge[a] |= e
+        edge[b] |= e
+        border[a] |= bd
+        border[b] |= bd
+    img[edge] = img[edge] * 0.25
+    img[border] = img[border] * 0.55
+    return img.reshape(raster.height, 2, raster.width, 2, 3).mean(axis=(1, 3))
+
+
+def test_paint_equals_the_picture_written_plainly():
+    """Parts with borders, the connecting region (-1), silhouettes and depth jumps (two spheres,
+    one behind the other): paint's picture is the plain one's (the same numbers but for the
+    order of the 2 x 2 block sums, which a reduction may choose)."""
+    a, b = shapes.icosphere(level=3), shapes.icosphere(level=2)
+    v = np.concatenate([a.vertices, 0.6 * b.vertices + [0.9, 0.3, -1.5]])
+    f = np.concatenate([a.faces, b.faces + len(a.vertices)])
+    labels = (v[f].mean(axis=1)[:, 0] > 0.2).astype(np.int64) + 2 * (np.arange(len(f)) >= len(a.faces))
+    labels[::7] = -1
+    raster = raster_view(v, f, best_view(v, f), 90, 70)
+    pic = paint(raster, labels)
+    want = _paint_plainly(raster, labels)
+    assert pic.image.shape == (70, 90, 3)
+    assert (want < 0.3).any() and (want == 1.0).any()        # outlines and background are there
+    np.testing.assert_allclose(pic.image, want, rtol=0, atol=1e-12)
+
+
 def test_render_png_default_size_pixels_and_views(tmp_path):
     s = shapes.dumbbell(n_around=32)
     labels = s.part_labels

@@ -70,6 +70,10 @@ class EdgeGraph:
         self.edge_faces = owner[order]
         self.edge_start = np.flatnonzero(np.r_[True, code[1:] != code[:-1]])
         uniq = code[self.edge_start]
+        #: [E, 2] the two faces of each edge where every edge has two (a closed manifold mesh,
+        #: as every PSB mesh), else None: a cut test per edge is then one comparison
+        two = self.edge_faces.size == 2 * self.edge_start.size and np.all(np.diff(self.edge_start) == 2)
+        self._face_pairs = self.edge_faces.reshape(-1, 2) if two else None
         self.edge_ends = np.stack([uniq // n_v, uniq % n_v], axis=1)
         lengths = np.linalg.norm(v[self.edge_ends[:, 0]] - v[self.edge_ends[:, 1]], axis=1)
         # Zero-length edges stay in the graph as explicit zeros (csgraph keeps stored zeros
@@ -107,10 +111,15 @@ class EdgeGraph:
         """
         if self.edge_start.size == 0:
             return np.empty(0, dtype=np.int64)
-        lab = labels[self.edge_faces]
-        is_cut = (np.minimum.reduceat(lab, self.edge_start)
-                  != np.maximum.reduceat(lab, self.edge_start))
-        return np.unique(self.edge_ends[is_cut].ravel())
+        if self._face_pairs is not None:
+            is_cut = labels[self._face_pairs[:, 0]] != labels[self._face_pairs[:, 1]]
+        else:
+            lab = labels[self.edge_faces]
+            is_cut = (np.minimum.reduceat(lab, self.edge_start)
+                      != np.maximum.reduceat(lab, self.edge_start))
+        on_cut = np.zeros(len(self.vertices), dtype=bool)      # the sorted unique cut vertices
+        on_cut[self.edge_ends[is_cut].ravel()] = True
+        return np.flatnonzero(on_cut)
 
     def distance_to(self, sources: np.ndarray) -> np.ndarray:
         """Edge-path distance from each vertex to the nearest source ([V]; inf: unreachable)."""

@@ -61,6 +61,7 @@ __all__ = [
     "rand_index_error",
     "hamming_distance",
     "consistency_errors",
+    "compare_segmentations",
     "cut_discrepancy",
     "evaluate_segmentation",
     "mesh_face_areas",
@@ -185,7 +186,10 @@ def rand_index_error(a, b) -> float:
     module notes for the (< 0.04 %) difference this makes.
     """
     a, b = label_pair(a, b)
-    t = _table(a, b)
+    return _rand_index_error(_table(a, b))
+
+
+def _rand_index_error(t: _Table) -> float:
     n = t.n_faces
     if n < 2:
         return 0.0
@@ -236,7 +240,10 @@ def hamming_distance(a, b, face_areas=None) -> HammingResult:
         ``b`` swaps the two rates and keeps ``distance``.
     """
     a, b = label_pair(a, b)
-    t = _table(a, b, with_face_cell=True)
+    return _hamming_distance(_table(a, b, with_face_cell=True), face_areas)
+
+
+def _hamming_distance(t: _Table, face_areas) -> HammingResult:
     w = np.ones(t.n_faces) if face_areas is None else as_weights(face_areas, t.n_faces)
     total = float(w.sum())
     inter = np.bincount(t.face_cell, weights=w, minlength=t.cell_count.size)
@@ -283,7 +290,10 @@ def consistency_errors(a, b, face_areas=None) -> tuple[float, float]:
     (gce, lce) : tuple of float, each in [0, 1]
     """
     a, b = label_pair(a, b)
-    t = _table(a, b, with_face_cell=face_areas is not None)
+    return _consistency_errors(_table(a, b, with_face_cell=face_areas is not None), face_areas)
+
+
+def _consistency_errors(t: _Table, face_areas) -> tuple[float, float]:
     freq = t.cell_count.astype(np.float64)  # faces in each cell: the per-face errors' multiplicity
     if face_areas is None:
         inter, size_a, size_b = freq, t.size_a.astype(np.float64), t.size_b.astype(np.float64)
@@ -311,6 +321,29 @@ def _refinement_error(inter: np.ndarray, segment_size: np.ndarray) -> np.ndarray
 # ---------------------------------------------------------------------------------------------
 # all of them
 # ---------------------------------------------------------------------------------------------
+
+def compare_segmentations(a, b, face_areas=None, *, rand: bool = True, hamming: bool = True,
+                          consistency: bool = True) -> dict:
+    """The metrics of one pair that a contingency table gives, from one table: the numbers
+    :func:`rand_index_error`, :func:`hamming_distance` (weighted by ``face_areas`` [F], as
+    there) and :func:`consistency_errors` (faces counted) give one by one.
+
+    Returns {"rand_index_error", "hamming_distance", "hamming_missing_rate",
+    "hamming_false_alarm_rate", "gce", "lce"}: float each, those asked for.
+    """
+    a, b = label_pair(a, b)
+    t = _table(a, b, with_face_cell=hamming)
+    out = {}
+    if rand:
+        out["rand_index_error"] = _rand_index_error(t)
+    if hamming:
+        hd = _hamming_distance(t, face_areas)
+        out.update(hamming_distance=hd.distance, hamming_missing_rate=hd.missing_rate,
+                   hamming_false_alarm_rate=hd.false_alarm_rate)
+    if consistency:
+        out["gce"], out["lce"] = _consistency_errors(t, None)
+    return out
+
 
 def evaluate_segmentation(vertices, faces, pred, gt, face_areas=None) -> dict:
     """All benchmark metrics of one segmentation against one reference segmentation.

@@ -139,7 +139,8 @@ def _fmt(v, digits=4) -> str:
 def write_reports(out, rows_by_id, plans, settings, groups, wall, recorded, *, plot,
                   problems=()) -> EvalSummary:
     """Writes scores.csv, summary.md (and with ``plot`` rand_index.png and the galleries, drawn
-    in ``settings.workers`` processes) from the rows so far.
+    in up to ``settings.workers`` processes: :func:`~torchakvf.evaluate.gallery.gallery_workers`)
+    from the rows so far.
 
     settings : the run's :class:`~torchakvf.evaluate.settings.EvalSettings`
     recorded : {"prediction": ..., "run": ...} as settings.json holds them

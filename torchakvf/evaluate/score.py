@@ -78,20 +78,12 @@ class MeshScorer:
         self.areas = self.graph.face_areas if self.graph is not None else None
 
     def score(self, pred, gt) -> dict:
-        out = {}
         g = self.groups
-        if "rand" in g:
-            out["rand_index_error"] = M.rand_index_error(pred, gt)
-        if "hamming" in g:
-            hd = M.hamming_distance(pred, gt, self.areas)
-            out.update(hamming_distance=hd.distance, hamming_missing_rate=hd.missing_rate,
-                       hamming_false_alarm_rate=hd.false_alarm_rate)
-        if "gce" in g or "lce" in g:
-            gce, lce = M.consistency_errors(pred, gt)
-            if "gce" in g:
-                out["gce"] = gce
-            if "lce" in g:
-                out["lce"] = lce
+        # one contingency table for the rand, hamming and consistency metrics of the pair
+        out = M.compare_segmentations(pred, gt, self.areas, rand="rand" in g, hamming="hamming" in g,
+                                      consistency="gce" in g or "lce" in g)
+        for name in {"gce", "lce"} - set(g):
+            out.pop(name, None)
         if "cd" in g:
             out["cut_discrepancy"] = self.graph.cut_discrepancy(np.asarray(pred, dtype=np.int64),
                                                                 np.asarray(gt, dtype=np.int64))

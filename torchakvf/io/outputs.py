@@ -175,7 +175,7 @@ def label_colors(labels: np.ndarray) -> np.ndarray:
 
     cmap = matplotlib.colormaps["tab20"]
     labels = np.asarray(labels)
-    rgba = (np.array([cmap(int(v) % 20) for v in range(max(int(labels.max()) + 1, 1))]) * 255).astype(np.uint8)
+    rgba = (np.asarray(cmap(np.arange(max(int(labels.max()) + 1, 1)) % 20)) * 255).astype(np.uint8)
     out = np.full((len(labels), 4), 200, dtype=np.uint8)
     ok = labels >= 0
     out[ok] = rgba[labels[ok]]

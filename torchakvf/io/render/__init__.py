@@ -15,7 +15,16 @@ One job a module:
 Every public name is importable from ``torchakvf.io.render``.
 """
 from .camera import View, best_view, face_geometry, opposite_view, principal_axes, projected_area, view_aspect
-from .figures import DEFAULT_PIXELS, FLOW_COLOR, contact_sheet, new_figure, render_png, save_figure
+from .figures import (
+    DEFAULT_PIXELS,
+    FLOW_COLOR,
+    contact_sheet,
+    figure_pixels,
+    new_figure,
+    render_png,
+    save_figure,
+    save_pixels,
+)
 from .flow import generator_arrows, generator_streamlines
 from .raster import (
     FILL_LIGHT,
@@ -34,4 +43,5 @@ __all__ = ["render_png", "contact_sheet", "generator_streamlines", "generator_ar
            "principal_axes", "projected_area", "render_view", "raster_view", "paint", "Raster", "rasterize", "View",
            "Picture",
            "DEFAULT_PIXELS", "opposite_view", "view_aspect", "face_geometry", "shade_faces",
-           "new_figure", "save_figure", "SUPERSAMPLE", "KEY_LIGHT", "FILL_LIGHT", "FLOW_COLOR"]
+           "new_figure", "save_figure", "figure_pixels", "save_pixels", "SUPERSAMPLE", "KEY_LIGHT", "FILL_LIGHT",
+           "FLOW_COLOR"]

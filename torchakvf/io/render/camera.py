@@ -42,6 +42,11 @@ def principal_axes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
     surface (rows, largest extent first), from the area-weighted covariance of the face
     centroids (vertex density does not bias it)."""
     c, _, a = face_geometry(np.asarray(vertices, float), np.asarray(faces))
+    return _principal_axes(c, a)
+
+
+def _principal_axes(c: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`principal_axes` from the face centroids c [F, 3] and areas a [F]."""
     w = a / max(a.sum(), 1e-300)
     center = w @ c
     d = c - center
@@ -63,8 +68,8 @@ def best_view(vertices: np.ndarray, faces: np.ndarray, tilt: float = 0.4) -> Vie
     shows the largest projected area; the longest principal axis visible across the picture
     is horizontal."""
     v, f = np.asarray(vertices, float), np.asarray(faces)
-    center, axes = principal_axes(v, f)
-    _, normals, areas = face_geometry(v, f)
+    cent, normals, areas = face_geometry(v, f)
+    center, axes = _principal_axes(cent, areas)
     best = None
     for i in range(3):
         j, k = [a for a in range(3) if a != i]
@@ -78,8 +83,7 @@ def best_view(vertices: np.ndarray, faces: np.ndarray, tilt: float = 0.4) -> Vie
     _, d, j = best
     # d and -d show the same area; look from the side the surface's area lies toward (a
     # table from above its top, not from under its legs)
-    cent, _, a = face_geometry(v, f)
-    bulk = (a @ cent) / max(a.sum(), 1e-300)
+    bulk = (areas @ cent) / max(areas.sum(), 1e-300)
     mid = 0.5 * ((cent @ d).max() + (cent @ d).min())
     if bulk @ d < mid:
         d = -d

@@ -90,6 +90,25 @@ def save_figure(fig, path, tight: bool = True) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
+def figure_pixels(fig) -> np.ndarray:
+    """[H, W, 3] uint8 RGB of ``fig`` drawn on the Agg canvas (closes it)."""
+    import matplotlib.pyplot as plt
+
+    fig.canvas.draw()
+    rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return rgb
+
+
+def save_pixels(path, rgb: np.ndarray) -> None:
+    """Write an [H, W, 3] uint8 RGB image to ``path`` as PNG (atomically), as it is."""
+    import matplotlib.image
+
+    buf = io.BytesIO()
+    matplotlib.image.imsave(buf, np.ascontiguousarray(rgb, dtype=np.uint8), format="png")
+    atomic_write_bytes(path, buf.getvalue())
+
+
 def render_png(path, vertices, faces, labels, title: str | None = None, arrows=None, *,
                flow=None, streamlines=None, views: int = 1, pixels: int = DEFAULT_PIXELS) -> None:
     """One mesh coloured by part (grey = connecting region) as a PNG ``pixels`` wide per view
@@ -143,4 +162,5 @@ def contact_sheet(path, items: Sequence[tuple], columns: int = 4, size: float | 
     save_figure(fig, path, tight=False)
 
 
-__all__ = ["render_png", "contact_sheet", "new_figure", "save_figure", "DEFAULT_PIXELS", "FLOW_COLOR"]
+__all__ = ["render_png", "contact_sheet", "new_figure", "save_figure", "figure_pixels", "save_pixels",
+           "DEFAULT_PIXELS", "FLOW_COLOR"]

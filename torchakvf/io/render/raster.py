@@ -174,28 +174,51 @@ def paint(raster: Raster, labels, colors: np.ndarray | None = None) -> Picture:
     H, W = ids.shape
     base = (label_colors(labels)[:, :3] / 255.0) if colors is None else colors
     rgb = shade_faces(raster.normals_cam, base)
-    img = np.ones((H, W, 3))
     hit = ids >= 0
-    img[hit] = rgb[ids[hit]]
-    # outlines: silhouettes / depth jumps, and borders between parts
-    lab = np.where(hit, np.asarray(labels)[np.maximum(ids, 0)], -2)
-    zf = np.where(hit, zbuf, np.nan)
-    jump = 0.02 * raster.extent              # world units, like zbuf
-    edge = np.zeros((H, W), dtype=bool)
-    border = np.zeros((H, W), dtype=bool)
-    for a, b in (((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
-                 ((slice(None), slice(1, None)), (slice(None), slice(None, -1)))):
-        dz = np.abs(zf[a] - zf[b])
-        e = (hit[a] != hit[b]) | (np.nan_to_num(dz, nan=0.0) > jump)
-        bd = (lab[a] != lab[b]) & hit[a] & hit[b] & ~e
-        edge[a] |= e
-        edge[b] |= e
-        border[a] |= bd
-        border[b] |= bd
-    img[edge] = img[edge] * 0.25
-    img[border] = img[border] * 0.55
-    small = img.reshape(raster.height, ss, raster.width, ss, 3).mean(axis=(1, 3))
+    edge, border = _outlines(hit, np.asarray(labels)[np.maximum(ids, 0)], zbuf, 0.02 * raster.extent)
+    # the shaded colour per supersample (white background), darkened on outlines: scaling by
+    # 0.25 is exact, so one factor 0.25 * 0.55 on a pixel both edge and border darkens it to the
+    # bit as the two scalings one after the other would
+    shade = np.where(edge, 0.25, 1.0) * np.where(border, 0.55, 1.0)
+    palette = np.concatenate([rgb, np.ones((1, 3))])
+    img = np.take(palette, np.where(hit, ids, len(rgb)), axis=0) * shade[..., None]
+    small = _box_mean(img, raster.height, raster.width, ss)
     return Picture(small, raster.view, raster.scale, raster.offset, zbuf, ss, ids)
+
+
+def _outlines(hit: np.ndarray, lab: np.ndarray, zbuf: np.ndarray, jump: float) -> tuple[np.ndarray, np.ndarray]:
+    """(edge, border) [H, W] bool of a supersampled view: pixels on either side of a silhouette
+    or a depth jump over ``jump`` (world units, like ``zbuf``), and of a border between parts
+    (``lab`` [H, W], the part of each pixel's face) that is no edge."""
+    edge = np.zeros(hit.shape, dtype=bool)
+    border = np.zeros(hit.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        for a, b in (((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
+                     ((slice(None), slice(1, None)), (slice(None), slice(None, -1)))):
+            both = hit[a] & hit[b]
+            # depths -inf off the mesh: a jump to it is inf (also a silhouette), between two
+            # background pixels NaN, which compares False
+            e = (hit[a] != hit[b]) | (np.abs(zbuf[a] - zbuf[b]) > jump)
+            bd = (lab[a] != lab[b]) & both & ~e
+            edge[a] |= e
+            edge[b] |= e
+            border[a] |= bd
+            border[b] |= bd
+    return edge, border
+
+
+def _box_mean(img: np.ndarray, height: int, width: int, ss: int) -> np.ndarray:
+    """[height, width, C] mean of each ss x ss block of ``img`` [height·ss, width·ss, C]: the sum
+    in row-major order over the block, then divided by its size, as numpy's ``mean`` over the
+    block axes sums (so the same numbers to the bit where it does)."""
+    blocks = img.reshape(height, ss, width, ss, img.shape[-1])
+    total = blocks[:, 0, :, 0].copy()
+    for i in range(ss):
+        for j in range(ss):
+            if i or j:
+                total += blocks[:, i, :, j]
+    total /= ss * ss
+    return total
 
 
 def render_view(vertices, faces, labels, view: View, width: int, height: int,
