@@ -39,6 +39,12 @@ def test_face_features_on_input_faces_of_a_decimated_mesh():
         assert np.all(np.abs(ff.eigenvalues[:3]) < 1.0) and ff.eigenvalues[3] > 10.0
 
 
+#: Largest relative difference of a decimated mesh's column under another seed or a moved,
+#: renumbered copy: the eigensolver's tolerance, with room (the coarse surface and the faces
+#: located on it are the same; a tie settled by round-off used to move sparse columns by 0.1).
+STABLE = 1e-3
+
+
 def _relative_difference(a: np.ndarray, a0: np.ndarray, area: np.ndarray) -> np.ndarray:
     """[d] per column ||a - a0|| / ||a0||, norms over the faces weighted by area
     (docs/descriptors.md, Stability; experiments/descriptors/descriptor_stability.py)."""
@@ -47,9 +53,10 @@ def _relative_difference(a: np.ndarray, a0: np.ndarray, area: np.ndarray) -> np.
 
 
 def test_descriptors_repeat_under_another_seed_and_a_moved_renumbered_copy():
-    """The stability bound of docs/descriptors.md (at most 0.10 per column) on a decimated
-    built-in shape: another seed (the solve's start and the features' untangling), and a copy
-    rotated and translated, with vertices and faces renumbered."""
+    """The stability of docs/descriptors.md on a decimated built-in shape: another seed (the
+    solve's start and the features' untangling), and a copy rotated and translated, with
+    vertices and faces renumbered, move no column by more than the solver's tolerance allows
+    (measured at most 4e-6; the bound docs/descriptors.md states is 0.10)."""
     from torchakvf.mesh.clean import face_areas
     s = shapes.fish()                                                 # 7720 faces
     v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
@@ -65,11 +72,11 @@ def test_descriptors_repeat_under_another_seed_and_a_moved_renumbered_copy():
     back[pf] = run(moved, 0)
     for other in (run(Mesh(v, f), 1), back):
         rel = _relative_difference(other, d0, area)
-        assert rel.max() <= 0.10, rel
+        assert rel.max() <= STABLE, rel
 
 
 def test_psb_mesh_descriptors_repeat_under_another_seed_and_a_moved_renumbered_copy(psb):
-    """The same 0.10 bound on a real mesh: PSB 21 decimated to 2000 faces, 16 fields."""
+    """The same on a real mesh: PSB 21 decimated to 2000 faces, 16 fields."""
     from torchakvf import load_mesh
     from torchakvf.mesh.clean import face_areas
     mesh = load_mesh(psb / "meshes" / "21.off.gz")
@@ -86,14 +93,14 @@ def test_psb_mesh_descriptors_repeat_under_another_seed_and_a_moved_renumbered_c
     area = face_areas(v, f)
     for other in (run(Mesh(v, f), 1), back):
         rel = _relative_difference(other, d0, area)
-        assert rel.max() <= 0.10, rel
+        assert rel.max() <= STABLE, rel
 
 
 def test_boundary_columns_repeat_and_the_probability_is_high_on_true_part_boundaries():
     """The crease cues and the boundary probability (32 fields: the default counts) of a
     procedural shape the model never saw (its seed is outside the fitted corpus'), decimated to
-    4000 faces as the model was fitted: within the 0.10 bound under another seed and a moved,
-    renumbered copy, and far higher within 0.02 of the shape's true part boundaries than away
+    4000 faces as the model was fitted: the same under another seed and a moved, renumbered
+    copy, and far higher within 0.02 of the shape's true part boundaries than away
     from them (average precision over twice the positive rate)."""
     from torchakvf.mesh.clean import face_areas
     from torchakvf.parts.boundary_cues import CUE_NAMES
@@ -115,7 +122,7 @@ def test_boundary_columns_repeat_and_the_probability_is_high_on_true_part_bounda
     area = face_areas(v, f)
     for other in (run(Mesh(v, f), 1).descriptors, back):
         rel = _relative_difference(other[:, 41:], d0, area)
-        assert rel.max() <= 0.10, rel
+        assert rel.max() <= STABLE, rel
     near = cut_distance(dual_graph(v, f), np.asarray(ps.shape.part_labels), cap=0.04) <= 0.02
     p = ff.descriptors[:, -1]
     order = np.argsort(-p, kind="stable")
