@@ -25,19 +25,21 @@ import descriptor_pass as dp  # noqa: E402
 import learn_boundaries as lb  # noqa: E402
 
 from torchakvf.parts.concavity import dual_edges  # noqa: E402
-from torchakvf.parts.creases import neighbour_table  # noqa: E402
+from torchakvf.parts.creases import dual_ball  # noqa: E402
 
 
 def context(d: dict) -> np.ndarray:
-    """[F, 4] float32: max and mean of the probability within 2, then 4 dual rings."""
+    """[F, 4] float32: max and mean of the probability over the distinct faces within 2, then 4
+    dual rings (the face itself included). The figures in the result file were made with an
+    earlier gathering of the rings (a neighbour table, since removed from the package) whose mean
+    counted a face once per walk reaching it; the max is the same."""
     v, f = d["packed_vertices"], d["packed_faces"].astype(np.int64)
-    table = neighbour_table(dual_edges(v, f).pairs, len(f))
-    p = d["akvf_boundary"][:, 0]
-    ring, cols = np.arange(len(f))[:, None], []
-    for r in range(1, 5):
-        ring = np.unique(table[ring].reshape(len(f), -1), axis=1)
-        if r in (2, 4):
-            cols += [p[ring].max(1), p[ring].mean(1)]
+    pairs = dual_edges(v, f).pairs
+    p = d["akvf_boundary"][:, 0].astype(np.float64)
+    cols = []
+    for r in (2, 4):
+        ball = dual_ball(pairs, len(f), r)                     # every row holds its own face
+        cols += [np.maximum.reduceat(p[ball.indices], ball.indptr[:-1]), (ball @ p) / np.diff(ball.indptr)]
     return np.column_stack(cols).astype(np.float32)
 
 

@@ -30,14 +30,13 @@ import descriptor_pass as dp  # noqa: E402
 import learn_boundaries as lb  # noqa: E402
 
 from torchakvf.parts.concavity import dual_edges  # noqa: E402
+from torchakvf.parts.creases import dual_graph  # noqa: E402
 
 
 def dual_adjacency(d: dict) -> sp.csr_matrix:
     """[F, F] 0/1 adjacency of faces sharing an edge."""
     v, f = d["packed_vertices"], d["packed_faces"].astype(np.int64)
-    a, b = dual_edges(v, f).pairs.T
-    adj = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(len(f), len(f))).tocsr()
-    return (adj + adj.T).tocsr()
+    return dual_graph(dual_edges(v, f).pairs, len(f))
 
 
 def classical(d):
