@@ -1,6 +1,7 @@
 """Part merging (:mod:`torchakvf.parts.merge`): the region graph and merge cost by hand and
 against plain loops, adjacency-only merges, the over-segmentation count, shared arrays against
-fresh ones, and the two failure-mode shapes (table, mug) part for part."""
+fresh ones, the two failure-mode shapes (table, mug) part for part, and the lines-of-sight term
+keeping a U's arms off its base."""
 from __future__ import annotations
 
 import math
@@ -396,3 +397,34 @@ def test_merge_parts_names_the_cache_for_its_former_arguments():
     with pytest.raises(ParameterError, match=r"cache=MergeCache\(bends=..., unit=...\)"):
         merge_parts(labels, f, v, feats, area, 2, unit=unit_rows(feats), bends=None)
 
+
+
+def test_lines_of_sight_keep_the_arms_of_a_u_off_its_base():
+    """A U of voxels cut into six pieces (the base and each arm in halves): with the sight term
+    alone, the halves (convex unions: no segment leaves the solid) merge first and the arms stay
+    off the base; without it every cost ties and the first pairs merge (a base half takes an arm).
+    The region graph's sight counts are those of SightLines on its compact labels."""
+    from torchakvf.parts.sightlines import SightLines
+    from torchakvf.shapes.implicit import _voxel_surface
+
+    occ = np.zeros((8, 2, 8), dtype=bool)
+    occ[:, :, :2] = True
+    occ[:2, :, 2:] = True
+    occ[6:, :, 2:] = True
+    v, f, owner = _voxel_surface(occ, 0.1, (0.0, 0.0, 0.0))
+    i, _, kz = np.unravel_index(owner, occ.shape)
+    pieces = np.where(kz < 2, (i >= 4).astype(int), np.where(i < 4, 2, 4) + (kz >= 5))
+    truth = np.where(kz < 2, 0, np.where(i < 4, 1, 2))
+    feats = np.ones((len(f), 3))
+    area = face_areas(v, f)
+    only_sight = MergeWeights.hand_set(symmetry=0.0, concavity=0.0, convexity=0.0, cut=0.0, sight=1.0)
+    merged = merge_parts(pieces, f, v, feats, area, 3, only_sight)
+    assert matched_agreement(merged, truth) == 1.0
+    blind = merge_parts(pieces, f, v, feats, area, 3, MergeWeights.hand_set(symmetry=0.0, concavity=0.0,
+                                                                             convexity=0.0, cut=0.0))
+    assert matched_agreement(blind, truth) < 0.9
+    sight = SightLines(v, f)
+    graph = region_graph(pieces, dual_edges(v, f), feats, area, sight=sight)
+    seen, lines = sight.counts(graph.labels, graph.n_parts)
+    np.testing.assert_array_equal(graph.sums["seen"], seen)
+    np.testing.assert_array_equal(graph.sums["lines"], lines)

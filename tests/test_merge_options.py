@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import json
+import re
 from importlib.resources import files
 from pathlib import Path
 
@@ -23,7 +24,7 @@ PACKAGE_FILE = files("torchakvf") / "parts" / "merge_weights.json"
 
 
 def train_merge():
-    """experiments/segmentation/train_merge.py as a module (its fit needs the PSB captures; its writer not)."""
+    """experiments/segmentation/train_merge.py as a module (its fit needs the captures; its writer not)."""
     path = Path(__file__).resolve().parents[1] / "experiments" / "segmentation" / "train_merge.py"
     spec = importlib.util.spec_from_file_location("train_merge", path)
     module = importlib.util.module_from_spec(spec)
@@ -52,14 +53,17 @@ def test_training_script_writes_the_package_file():
     record = json.loads(PACKAGE_FILE.read_text())
     values = record["merge_weights"]
     w = np.array([values[FIELD_OF_TERM[name]] for name in TERM_NAMES])
-    words = record["trained_on"].split()          # "300 meshes of 15 labelled PSB categories"
-    n_meshes, n_categories = int(words[0]), int(words[3])
-    got = tm.weights_record(w, values["intercept"], values["rand_gamma"], n_meshes, n_categories)
-    assert got == record and got["trained_on"] == record["trained_on"]
+    # "300 PSB meshes of 15 labelled categories and 150 procedural shapes of 15 families (corpus share 0.5)"
+    numbers = re.findall(r"[0-9.]+", record["trained_on"])
+    counts = int(numbers[0]), int(numbers[1]), int(numbers[2]), int(numbers[3]), float(numbers[4])
+    assert tm.trained_on(*counts) == record["trained_on"]
+    got = tm.weights_record(w, values["intercept"], values["rand_gamma"], tm.trained_on(*counts))
+    assert got == record
     assert tm.write_weights(got, Path("/dev/null")) + "\n" == PACKAGE_FILE.read_text()
-    other = tm.weights_record(w * 1.000123 + 1e-5, 2.7182818, 0.25, 10, 2)
+    other = tm.weights_record(w * 1.000123 + 1e-5, 2.7182818, 0.25, tm.trained_on(10, 2, 30, 3, 0.25))
     assert other["merge_weights"]["intercept"] == 2.718
-    assert other["trained_on"] == "10 meshes of 2 labelled PSB categories"
+    assert other["trained_on"] == ("10 PSB meshes of 2 labelled categories and 30 procedural shapes of 3 families "
+                                   "(corpus share 0.25)")
     assert tm.PACKAGE_FILE.resolve() == Path(str(PACKAGE_FILE)).resolve()
 
 

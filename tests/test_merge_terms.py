@@ -89,6 +89,29 @@ def test_merging_a_state_adds_its_sums_and_the_terms_follow():
     np.testing.assert_allclose(T[0, 2, col["thickness"]], abs(math.log(8.5 / 5 / 2.0)))
 
 
+def test_sight_term_is_the_share_of_blocked_lines_and_merges_add_counts():
+    st = _state()
+    col = TERM_NAMES.index("sight")
+    np.testing.assert_array_equal(pair_terms(st, np.array([0, 1]), k=3)[0][..., col], 0.0)   # no counts: 0
+    excess = TERM_NAMES.index("sight_excess")
+    # the diagonal: a part's own segments (28 between 8 samples); part 0 sees all of itself,
+    # part 1 half, part 2 a quarter
+    st.seen = np.array([[28, 48, 10], [48, 14, 16], [10, 16, 7]], dtype=np.float64)
+    st.lines = np.array([[28, 64, 64], [64, 28, 64], [64, 64, 28]], dtype=np.float64)
+    T, _ = pair_terms(st, np.array([0, 1]), k=3)
+    np.testing.assert_allclose(T[0, 1, col], 1 - 48 / 64)
+    np.testing.assert_allclose(T[1, 2, col], 1 - 16 / 64)
+    np.testing.assert_allclose(T[0, 1, excess], (1 - 48 / 64) - (0 + 0.5) / 2)
+    np.testing.assert_allclose(T[1, 2, excess], (1 - 16 / 64) - (0.5 + 0.75) / 2)
+    assert T[0, 2, col] == T[0, 2, excess] == 0.0                   # not adjacent
+    st.merge(0, 1)
+    np.testing.assert_array_equal(st.seen[0], [28 + 14 + 48, 0, 26])
+    np.testing.assert_array_equal(st.lines[:, 0], [28 + 28 + 64, 0, 128])
+    T, _ = pair_terms(st, np.array([0]), k=2)
+    np.testing.assert_allclose(T[0, 2, col], 1 - 26 / 128)
+    np.testing.assert_allclose(T[0, 2, excess], (1 - 26 / 128) - ((1 - 90 / 120) + 0.75) / 2)
+
+
 def test_part_sums_of_labelled_faces():
     labels = np.array([0, 0, 1, -1])
     area = np.array([1.0, 3.0, 2.0, 5.0])

@@ -54,7 +54,7 @@ def merge_weights_record(values: dict, trained_on: str) -> dict:
 #: The :class:`MergeWeights` fields the learned-weights file sets: the pair terms' weights, the
 #: intercept and the Rand exponent (``crease_angle`` is fixed beforehand, not fitted).
 LEARNED_FIELDS = ("symmetry", "concavity", "convexity", "cut", "part_size", "size_ratio", "short_cut", "thickness",
-                  "thin", "centricity", "size", "intercept", "rand_gamma")
+                  "thin", "centricity", "sight", "sight_excess", "size", "intercept", "rand_gamma")
 #: The learned merge weights, package data written by experiments/segmentation/train_merge.py, read once here:
 #: the defaults of :class:`MergeWeights` (a read-only mapping; floats are immutable).
 LEARNED_WEIGHTS = MappingProxyType(read_merge_weights(files(__package__) / "parts" / "merge_weights.json"))
@@ -152,6 +152,14 @@ class MergeWeights:
     #: weight of (d_small - d_large) / R, the smaller part's distance from the surface's centroid
     #: beyond the larger one's, R the RMS radius (a protrusion lies further out)
     centricity: float = LEARNED_WEIGHTS["centricity"]
+    #: weight of the share of the segments between the two parts' samples that leave the solid
+    #: (two pieces of one convex part see each other through its inside; a plate does not see
+    #: the plate it meets at a right angle, a leg the body); != 0 casts those segments on every
+    #: mesh (:mod:`torchakvf.parts.sightlines`, igl rays)
+    sight: float = LEARNED_WEIGHTS["sight"]
+    #: weight of that share less the mean of the two parts' own (the segments between a part's
+    #: own samples): a hollow part's inside and outside never see each other
+    sight_excess: float = LEARNED_WEIGHTS["sight_excess"]
 
     #: the cost's form. None: the weighted sum s above is the cost. A number γ >= 0: s is read as
     #: the log-odds that the two parts lie in one part people cut, p = sigmoid(intercept - s),
@@ -162,7 +170,7 @@ class MergeWeights:
     intercept: float = LEARNED_WEIGHTS["intercept"]
 
     #: terms whose weight may be negative (their sign is learned, not known beforehand)
-    SIGNED = ("convexity", "cut", "short_cut", "thin", "centricity", "intercept")
+    SIGNED = ("convexity", "cut", "short_cut", "thin", "centricity", "sight_excess", "intercept")
 
     def __new__(cls, *args, **changes):
         # The over-segmentation's settings are an OverSegmentation's: name the new spelling
@@ -184,11 +192,12 @@ class MergeWeights:
         """The hand-set cost chosen by cross-validation before the learned one (the weighted
         sum of symmetry 1, concavity 16, convexity 4, boundary share 0.25), with ``changes``."""
         base = dict(symmetry=1.0, concavity=16.0, part_size=0.0, convexity=4.0, cut=0.25, size_ratio=0.0,
-                    short_cut=0.0, thickness=0.0, thin=0.0, centricity=0.0, rand_gamma=None, intercept=0.0)
+                    short_cut=0.0, thickness=0.0, thin=0.0, centricity=0.0, sight=0.0, sight_excess=0.0,
+                    rand_gamma=None, intercept=0.0)
         return cls(**{**base, **changes})
 
     def __post_init__(self):
-        for name in ("symmetry", "concavity", "size", "part_size", "size_ratio", "thickness"):
+        for name in ("symmetry", "concavity", "size", "part_size", "size_ratio", "thickness", "sight"):
             if not getattr(self, name) >= 0:
                 raise ParameterError(f"merge weight {name} must be >= 0, got {getattr(self, name)!r}")
         for name in self.SIGNED:
@@ -207,7 +216,8 @@ OVERSEG_FIELDS = tuple(f.name for f in dataclass_fields(OverSegmentation))
 #: segmentation's params are file formats, and a record of the same settings must read the same.
 MERGE_RECORD_FIELDS = ("symmetry", "concavity", "size", "ratio", "part_size", "convexity", "cut", "crease_angle",
                        "extra_max", "min_k", "size_ratio", "short_cut", "thickness", "thin", "crease_split",
-                       "crease_rings", "crease_concave", "centricity", "rand_gamma", "intercept")
+                       "crease_rings", "crease_concave", "centricity", "rand_gamma", "intercept", "sight",
+                       "sight_excess")
 
 
 __all__ = ["MergeWeights", "OverSegmentation", "LEARNED_WEIGHTS", "LEARNED_FIELDS", "OVERSEG_FIELDS",

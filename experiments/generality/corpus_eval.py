@@ -23,17 +23,26 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from items import corpus_items, read_truth  # noqa: E402
 
+#: The merge weights fitted on the 15 labelled PSB categories alone, without the lines of sight
+#: (torchakvf/parts/merge_weights.json at a724fd4): setting "psb-fit", the baseline the corpus's
+#: share in the fit and the sight terms are measured against.
+PSB_FIT = dict(symmetry=4.099, concavity=28.69, convexity=-0.206, cut=-0.4207, part_size=0.7441, size_ratio=0.3394,
+               short_cut=-0.2115, thickness=1.718, thin=-0.1241, centricity=-0.1763, sight=0.0, sight_excess=0.0,
+               size=0.0, intercept=3.038, rand_gamma=0.5)
+
 
 def setting_options(name: str):
     """SegmentOptions overrides of a named setting: "default", "hand-set" (the hand-set merge
-    weights), "paper" (the paper's method), or a JSON object of MergeWeights and
-    OverSegmentation changes (each field to its own class)."""
+    weights), "psb-fit" (:data:`PSB_FIT`), "paper" (the paper's method), or a JSON object of
+    MergeWeights and OverSegmentation changes (each field to its own class)."""
     from torchakvf.options import OVERSEG_FIELDS, MergeWeights, OverSegmentation
 
     if name == "default":
         return {}
     if name == "hand-set":
         return dict(merge=MergeWeights.hand_set())
+    if name == "psb-fit":
+        return dict(merge=MergeWeights(**PSB_FIT))
     if name == "paper":
         return dict(method="paper")
     changes = json.loads(name)
@@ -94,6 +103,8 @@ def main():
     ap.add_argument("--coarse-faces", type=int, default=4000)
     ap.add_argument("--families", default=None)
     ap.add_argument("--per-family", type=int, default=None)
+    ap.add_argument("--skip-per-family", type=int, default=0,
+                    help="leave out each family's first N shapes (those a fit was made on)")
     ap.add_argument("--out", default=None)
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args()
@@ -101,6 +112,10 @@ def main():
     todo = corpus_items(a.corpus)
     if a.families:
         todo = [i for i in todo if i.group in a.families.split(",")]
+    if a.skip_per_family:
+        skipped: dict = {}
+        todo = [i for i in todo
+                if skipped.setdefault(i.group, []).append(i) or len(skipped[i.group]) > a.skip_per_family]
     if a.per_family:
         seen: dict = {}
         todo = [i for i in todo if seen.setdefault(i.group, []).append(i) or len(seen[i.group]) <= a.per_family]

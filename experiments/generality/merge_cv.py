@@ -219,6 +219,8 @@ def main():
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--corpus-share", default="0,0.5", help="comma-separated shares of the corpus in the fit")
     ap.add_argument("--stage", default="all", choices=["prep", "all"])
+    ap.add_argument("--drop", default="", help="semicolon-separated term sets to fit without, each "
+                    "comma-separated TERM_NAMES (e.g. 'sight;sight,thin'); each is a row beside the fit on all")
     ap.add_argument("--weights-out", default=None,
                     help="write {group: weights fitted without it, '*': fitted on all} of the last share (JSON)")
     a = ap.parse_args()
@@ -243,16 +245,21 @@ def main():
         results["shipped weights (fitted on the PSB), merged"] = group_scores(keys, Cost.of(MergeWeights()), pool)
         results["hand-set weights, merged"] = group_scores(keys, Cost.of(MergeWeights.hand_set()), pool)
         policy = Cost.of(MergeWeights.hand_set())
+        drops = [()] + [tuple(d.split(",")) for d in a.drop.split(";") if d]
         for share in [float(x) for x in a.corpus_share.split(",")]:
-            print(f"corpus share {share}", flush=True)
-            sc, costs = held_out(policy, pool, share)
-            results[f"learned, corpus share {share} (held out)"] = sc
-            everything = fitted_cost(keys, policy, pool, share)
-            results[f"learned, corpus share {share} (fitted on all: in-sample)"] = group_scores(keys, everything, pool)
-            if a.weights_out:
-                out = {g: weight_fields(c) for g, c in costs.items()}
-                out["*"] = weight_fields(everything)
-                Path(a.weights_out).write_text(json.dumps(out, indent=1) + "\n")
+            for drop in drops:
+                cols = [c for c, name in enumerate(TERM_NAMES) if name not in drop]
+                name = f"learned{' without ' + '+'.join(drop) if drop else ''}, corpus share {share}"
+                print(name, flush=True)
+                sc, costs = held_out(policy, pool, share, cols=cols)
+                results[f"{name} (held out)"] = sc
+                everything = fitted_cost(keys, policy, pool, share, cols=cols)
+                results[f"{name} (fitted on all: in-sample)"] = group_scores(keys, everything, pool)
+                print(name, "fitted on all:", weight_fields(everything), flush=True)
+                if a.weights_out:
+                    out = {g: weight_fields(c) for g, c in costs.items()}
+                    out["*"] = weight_fields(everything)
+                    Path(a.weights_out).write_text(json.dumps(out, indent=1) + "\n")
     text = table(results)
     print(text)
     if a.out:

@@ -30,6 +30,7 @@ from .merge import (
     merged_distances,
     mesh_sums_inputs,
     needs_part_sums,
+    needs_sight,
     needs_thickness,
     next_merge_cost,
     partition_cost,
@@ -38,6 +39,7 @@ from .merge import (
 )
 from .pieces import limit_parts
 from .results import MeshSegmentation
+from .sightlines import SightLines
 from .solve import solve_quality
 from .topology import face_adjacency
 
@@ -57,7 +59,8 @@ class ClusteredParts:
         (with ε = 0 cleaned of small pieces; cut along creases where the merge asks for it:
         then center ``labels // n_patches``), area [F] (unit total), unit [F, n] (unit feature
         rows; None with ε > 0)
-    graphs : the merge's region graph of ``labels`` by crease angle (made when first asked)
+    graphs : the merge's region graph of ``labels`` by (crease angle, whether it holds the
+        centroids, the thickness, the lines of sight) (made when first asked)
     n_patches : the crease patches ``labels`` were cut along (1: not cut)
     """
 
@@ -69,7 +72,7 @@ class ClusteredParts:
     labels: np.ndarray
     area: np.ndarray
     unit: np.ndarray | None
-    graphs: dict[float, RegionGraph] = field(default_factory=dict)
+    graphs: dict[tuple, RegionGraph] = field(default_factory=dict)
     n_patches: int = 1
 
     @property
@@ -96,6 +99,7 @@ class MeshCache:
     sums_inputs : (centroids, thickness) of the mesh the merge terms read
         (:func:`~torchakvf.parts.merge.mesh_sums_inputs`), made when first needed
     patches : {(angle, rings, concave only): [F] :func:`~torchakvf.parts.creases.crease_patches`}
+    sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines`, made when first needed
     """
 
     adjacency: np.ndarray | None = None
@@ -105,6 +109,7 @@ class MeshCache:
     bends: dict[float, tuple] = field(default_factory=dict)
     cut_costs: dict[GraphCut, np.ndarray] = field(default_factory=dict)
     over: ClusteredParts | None = None
+    sight: SightLines | None = None
 
 
 def over_settings(opts: SegmentOptions, floor: float) -> tuple:
@@ -274,12 +279,18 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
                                                  thickness=None if have is None else have[1])
         centroids, thickness = cache.sums_inputs
         thickness = thickness if needs_thickness(opts.merge) else None
+    sight = None
+    if needs_sight(opts.merge):
+        if cache.sight is None:
+            cache.sight = SightLines(clean.vertices, clean.faces)
+        sight = cache.sight
     if opts.merges_parts:
-        if crease not in over.graphs:
-            over.graphs[crease] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
-                                               centroids=centroids, thickness=thickness)
+        key = (crease, centroids is not None, thickness is not None, sight is not None)
+        if key not in over.graphs:
+            over.graphs[key] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
+                                            centroids=centroids, thickness=thickness, sight=sight)
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
-                             MergeCache(dual=dual, unit=unit, bends=bends, graph=over.graphs[crease]))
+                             MergeCache(dual=dual, unit=unit, bends=bends, graph=over.graphs[key]))
         # the refined cut and the graph cut's data term follow the merged parts
         vdist = merged_distances(vdist, over.centers, merged, faces=clean.faces,
                                  patches=over.labels % over.n_patches if over.n_patches > 1 else None)
@@ -296,7 +307,7 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
                                      cut_cost=cache.cut_costs[opts.graphcut], min_fraction=floor)
     # what merging two of these parts would cost (k auto's "merge" rule reads it)
     merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends,
-                                 centroids=centroids, thickness=thickness)
+                                 centroids=centroids, thickness=thickness, sight=sight)
     return CutParts(labels=labels, vdist=vdist, cost=cost, merge_next=merge_next)
 
 

@@ -39,6 +39,7 @@ from ..restarts import first_near_min
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
 from .merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
+from .sightlines import SightLines
 
 
 def oversegment_k(k: int, ratio: float, n_faces: int, extra_max: int | None = None, min_k: int = 1) -> int:
@@ -60,8 +61,9 @@ class RegionGraph:
     length : [K, K] symmetric shared-boundary length (0 = not adjacent)
     concave : [K, K] symmetric length-weighted sum of concavity along the shared boundary
     convex : [K, K] the same of convex bending (None: not computed, counted as 0)
-    sums : :func:`~torchakvf.parts.merge_terms.part_sums` (centroids, thickness) where the
-        weights read them (None: those terms count 0)
+    sums : :func:`~torchakvf.parts.merge_terms.part_sums` (centroids, thickness) and the
+        lines of sight ("seen", "lines": :meth:`SightLines.counts`) where the weights read them
+        (None or missing: those terms count 0)
     """
 
     labels: np.ndarray
@@ -85,7 +87,8 @@ class RegionGraph:
         return MergeState(self.area.copy(), self.mean.copy(), self.length.copy(), self.concave.copy(), convex,
                           thick=copy("thick"), thick_area=copy("thick_area"), centroid=copy("centroid"),
                           center=sums.get("center"), radius=float(sums.get("radius", 1.0)),
-                          thick_median=float(sums.get("thick_median", 1.0)))
+                          thick_median=float(sums.get("thick_median", 1.0)), seen=copy("seen"),
+                          lines=copy("lines"))
 
 
 #: The :class:`MergeWeights` field weighing each column of
@@ -93,7 +96,8 @@ class RegionGraph:
 #: :func:`term_weights`).
 FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
                      small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
-                     thin="thin", centricity="centricity")
+                     thin="thin", centricity="centricity", sight="sight",
+                     sight_excess="sight_excess")
 
 
 def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
@@ -107,6 +111,11 @@ def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
 def needs_thickness(weights: MergeWeights) -> bool:
     """Whether the cost reads the parts' thickness (then each mesh's is computed)."""
     return weights.thickness != 0 or weights.thin != 0
+
+
+def needs_sight(weights: MergeWeights) -> bool:
+    """Whether the cost reads the lines of sight between parts (then each mesh's are cast)."""
+    return weights.sight != 0 or weights.sight_excess != 0
 
 
 def needs_part_sums(weights: MergeWeights) -> bool:
@@ -133,7 +142,8 @@ def boundary_bends(dual: DualEdges, crease_angle: float = math.pi) -> tuple[np.n
 def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
                  face_area: np.ndarray, crease_angle: float = math.pi, *,
                  unit: np.ndarray | None = None, bends: tuple | None = None,
-                 centroids: np.ndarray | None = None, thickness: np.ndarray | None = None) -> RegionGraph:
+                 centroids: np.ndarray | None = None, thickness: np.ndarray | None = None,
+                 sight: SightLines | None = None) -> RegionGraph:
     """The region adjacency graph of ``labels`` [F] on the mesh whose dual graph is ``dual``.
 
     features : [F, n] per-face untangled feature rows (normalized here, as k-means does);
@@ -143,6 +153,8 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
         if at hand (then ``features`` is not read).
     centroids : [F, 3] face centroids and thickness [F] (:func:`face_thickness`, or None) where
         the centricity and thickness terms are wanted (:func:`needs_part_sums`); None: not read.
+    sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` where the sight term is
+        wanted (:func:`needs_sight`); None: not read.
     """
     labels = np.asarray(labels)
     present = labels >= 0
@@ -164,6 +176,9 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     convex = np.bincount(key, weights=bent_cvx[cut], minlength=K * K).reshape(K, K)
     sums = None if centroids is None else part_sums(lab, K, np.asarray(face_area, dtype=np.float64),
                                                     np.asarray(centroids, dtype=np.float64), thickness)
+    if sight is not None:
+        sums = dict(sums or {})
+        sums["seen"], sums["lines"] = sight.counts(lab, K)
     return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T, sums)
 
 
@@ -248,6 +263,7 @@ class MergeCache:
     bends: tuple | None = None
     graph: RegionGraph | None = None
     thickness: np.ndarray | None = None
+    sight: SightLines | None = None
 
 
 def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, features: np.ndarray,
@@ -274,8 +290,9 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
     if graph is None:
         dual = dual_edges(vertices, faces) if cache.dual is None else cache.dual
         centroids, thickness = mesh_sums_inputs(vertices, faces, weights, cache.thickness)
+        sight = (cache.sight or SightLines(vertices, faces)) if needs_sight(weights) else None
         graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=cache.unit,
-                             bends=cache.bends, centroids=centroids, thickness=thickness)
+                             bends=cache.bends, centroids=centroids, thickness=thickness, sight=sight)
     new_id, _ = greedy_merge(graph, k, weights)
     out = np.where(graph.labels >= 0, new_id[np.maximum(graph.labels, 0)], graph.labels)
     return out.astype(np.asarray(labels).dtype, copy=False)
@@ -296,17 +313,17 @@ def mesh_sums_inputs(vertices: np.ndarray, faces: np.ndarray, weights: MergeWeig
 def next_merge_cost(labels: np.ndarray, dual: DualEdges, features: np.ndarray, face_area: np.ndarray,
                     weights: MergeWeights | None = None, *, unit: np.ndarray | None = None,
                     bends: tuple | None = None, centroids: np.ndarray | None = None,
-                    thickness: np.ndarray | None = None) -> float:
+                    thickness: np.ndarray | None = None, sight: SightLines | None = None) -> float:
     """The cost of the cheapest merge left among the parts of ``labels`` [F] (inf when no two
     parts are adjacent): what going from k = (its part count) to k - 1 parts would cost. k auto
     reads it: a large one means the parts are worth keeping apart. With ``weights.rand_gamma`` it
     is the least log-odds against one part (s - intercept, :func:`state_costs`), not the Rand
     cost, whose size factor would make it small wherever a small part is left. features [F, n], face_area [F];
-    unit, bends : as :func:`merge_parts` takes them; centroids, thickness : as :func:`region_graph`
-    takes them (:func:`mesh_sums_inputs`)."""
+    unit, bends : as :func:`merge_parts` takes them; centroids, thickness, sight : as
+    :func:`region_graph` takes them (:func:`mesh_sums_inputs`, :func:`needs_sight`)."""
     weights = MergeWeights() if weights is None else weights
     graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends,
-                         centroids=centroids, thickness=thickness)
+                         centroids=centroids, thickness=thickness, sight=sight)
     if graph.n_parts < 2:
         return float("inf")
     cost = state_costs(graph.state(), np.arange(graph.n_parts), weights, graph.n_parts, odds=True)
@@ -374,7 +391,8 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
     return out
 
 
-__all__ = ["MergeWeights", "MergeCache", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_part_sums",
+__all__ = ["MergeWeights", "MergeCache", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_sight",
+           "needs_part_sums",
            "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances", "partition_cost",
            "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs", "greedy_merge",
            "merge_parts"]

@@ -21,7 +21,7 @@ import numpy as np
 
 #: names of the columns of :func:`pair_terms`, in order (the learned merge's inputs)
 TERM_NAMES = ("symmetry", "concavity", "convexity", "share", "small", "size_ratio", "short_cut",
-              "thickness", "thin", "centricity")
+              "thickness", "thin", "centricity", "sight", "sight_excess")
 
 #: rays shot per sampled face by :func:`face_thickness` (in a 60° cone around the inward normal)
 THICKNESS_RAYS = 8
@@ -97,7 +97,9 @@ class MergeState:
     [K, K] symmetric shared-boundary length and its length-weighted bending sums;
     thick, thick_area : [K] Σ a_f s_f and Σ a_f over the part's faces with a thickness s_f;
     centroid : [K, 3] Σ a_f c_f; center : [3] the surface's area centroid; radius : its RMS
-    distance to it; total : the surface area. (thick, centroid None: not computed.)
+    distance to it; total : the surface area; seen, lines : [K, K] of the segments between the
+    parts' samples (the diagonal: between a part's own samples), those that stay inside the solid
+    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`). (thick, centroid, seen None: not computed.)
     """
 
     area: np.ndarray
@@ -111,6 +113,8 @@ class MergeState:
     center: np.ndarray | None = None
     radius: float = 1.0
     thick_median: float = 1.0
+    seen: np.ndarray | None = None
+    lines: np.ndarray | None = None
 
     @property
     def total(self) -> float:
@@ -126,6 +130,14 @@ class MergeState:
             if vec is not None:
                 vec[i] += vec[j]
                 vec[j] = 0.0
+        for mat in (self.seen, self.lines):
+            if mat is not None:
+                # the diagonal counts a part's own segments: the union's are both parts' and those between them
+                inner = mat[i, i] + mat[j, j] + mat[i, j]
+                mat[i, :] += mat[j, :]
+                mat[:, i] = mat[i, :]
+                mat[i, i] = inner
+                mat[j, :] = mat[:, j] = 0.0
         for mat in (self.length, self.concave, self.convex):
             mat[i, :] += mat[j, :]
             mat[:, i] = mat[i, :]
@@ -166,7 +178,10 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
     (t a part's mean shape diameter); thin log(t_small / t_median), t of the smaller part
     against the mesh's median thickness; centricity (d_small - d_large) / R, d a part
     centroid's distance to the surface's centroid, R the RMS radius (a protrusion lies
-    further out). Terms whose sums are missing are 0."""
+    further out); sight 1 - seen_ij / lines_ij, the share of the segments between the two parts'
+    samples that leave the solid (:mod:`torchakvf.parts.sightlines`); sight_excess that share less
+    the mean of the two parts' own (a hollow part's inside and outside never see each other, a
+    flat or convex one's always do). Terms whose sums are missing are 0."""
     rows = np.asarray(rows)
     area, length = state.area, state.length
     L = length[rows]
@@ -198,6 +213,13 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
         c = state.centroid / np.maximum(area, 1e-300)[:, None]
         d = np.linalg.norm(c - state.center, axis=1) / state.radius
         T[..., 9] = np.where(i_small, d[rows][:, None] - d[None, :], d[None, :] - d[rows][:, None])
+    if state.seen is not None:
+        lines = state.lines[rows]
+        blocked = np.where(lines > 0, 1.0 - state.seen[rows] / np.maximum(lines, 1.0), 0.0)
+        T[..., 10] = blocked
+        own_lines = np.diag(state.lines)
+        own = np.where(own_lines > 0, 1.0 - np.diag(state.seen) / np.maximum(own_lines, 1.0), 0.0)
+        T[..., 11] = blocked - 0.5 * (own[rows][:, None] + own[None, :])
     T[~adjacent] = 0.0
     return T, adjacent
 
