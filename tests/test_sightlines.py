@@ -113,3 +113,26 @@ def test_one_part_has_only_its_own_lines_and_none_has_none():
     assert lines.tolist() == [[28]] and 0 < seen[0, 0] < 28          # a U does not see all of itself
     seen, lines = sight.counts(np.zeros(len(f), dtype=np.int64), 0)
     assert seen.shape == lines.shape == (0, 0)
+
+
+def test_counts_of_unions_are_those_the_merge_state_adds_up():
+    from torchakvf.parts.merge_terms import MergeState
+    from torchakvf.parts.sightlines import PartSight
+
+    rng = np.random.default_rng(3)
+    K = 6
+    lines = rng.integers(1, 65, size=(K, K)).astype(np.float64)
+    lines = np.triu(lines) + np.triu(lines, 1).T
+    seen = np.floor(lines * rng.random((K, K)))
+    seen = np.triu(seen) + np.triu(seen, 1).T
+    state = MergeState(np.ones(K), np.zeros((K, 2)), np.ones((K, K)), np.zeros((K, K)), np.zeros((K, K)),
+                       seen=seen.copy(), lines=lines.copy())
+    state.merge(0, 3)
+    state.merge(0, 5)
+    state.merge(1, 4)
+    owner = np.array([0, 1, 2, 0, 1, 0])
+    got = PartSight(seen, lines).merged(owner, 3)
+    keep = [0, 1, 2]
+    np.testing.assert_array_equal(got.seen, state.seen[np.ix_(keep, keep)])
+    np.testing.assert_array_equal(got.lines, state.lines[np.ix_(keep, keep)])
+    np.testing.assert_array_equal(got.take([2, 0]).lines, state.lines[np.ix_([2, 0], [2, 0])])

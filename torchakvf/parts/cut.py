@@ -39,7 +39,7 @@ from .merge import (
 )
 from .pieces import limit_parts
 from .results import MeshSegmentation
-from .sightlines import SightLines
+from .sightlines import PartSight, SightLines
 from .solve import solve_quality
 from .topology import face_adjacency
 
@@ -289,8 +289,15 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
         if key not in over.graphs:
             over.graphs[key] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
                                             centroids=centroids, thickness=thickness, sight=sight)
+        graph = over.graphs[key]
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
-                             MergeCache(dual=dual, unit=unit, bends=bends, graph=over.graphs[key]))
+                             MergeCache(dual=dual, unit=unit, bends=bends, graph=graph))
+        if sight is not None:
+            # the next merge reads the merged parts' lines of sight, summed from the pieces'
+            # (those the merge itself saw) rather than cast again for the cut's labels
+            owner = np.zeros(graph.n_parts, dtype=np.int64)
+            owner[graph.labels[graph.labels >= 0]] = merged[graph.labels >= 0]
+            sight = PartSight(graph.sums["seen"], graph.sums["lines"]).merged(owner, int(merged.max()) + 1)
         # the refined cut and the graph cut's data term follow the merged parts
         vdist = merged_distances(vdist, over.centers, merged, faces=clean.faces,
                                  patches=over.labels % over.n_patches if over.n_patches > 1 else None)

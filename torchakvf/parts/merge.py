@@ -39,7 +39,7 @@ from ..restarts import first_near_min
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
 from .merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
-from .sightlines import SightLines
+from .sightlines import PartSight, SightLines
 
 
 def oversegment_k(k: int, ratio: float, n_faces: int, extra_max: int | None = None, min_k: int = 1) -> int:
@@ -143,7 +143,7 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
                  face_area: np.ndarray, crease_angle: float = math.pi, *,
                  unit: np.ndarray | None = None, bends: tuple | None = None,
                  centroids: np.ndarray | None = None, thickness: np.ndarray | None = None,
-                 sight: SightLines | None = None) -> RegionGraph:
+                 sight: SightLines | PartSight | None = None) -> RegionGraph:
     """The region adjacency graph of ``labels`` [F] on the mesh whose dual graph is ``dual``.
 
     features : [F, n] per-face untangled feature rows (normalized here, as k-means does);
@@ -154,7 +154,8 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     centroids : [F, 3] face centroids and thickness [F] (:func:`face_thickness`, or None) where
         the centricity and thickness terms are wanted (:func:`needs_part_sums`); None: not read.
     sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` where the sight term is
-        wanted (:func:`needs_sight`); None: not read.
+        wanted (:func:`needs_sight`), or the counts of these labels by their ids
+        (:class:`~torchakvf.parts.sightlines.PartSight`) where they are at hand; None: not read.
     """
     labels = np.asarray(labels)
     present = labels >= 0
@@ -178,7 +179,11 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
                                                     np.asarray(centroids, dtype=np.float64), thickness)
     if sight is not None:
         sums = dict(sums or {})
-        sums["seen"], sums["lines"] = sight.counts(lab, K)
+        if isinstance(sight, PartSight):
+            counts = sight.take(np.unique(labels[present]))
+            sums["seen"], sums["lines"] = counts.seen, counts.lines
+        else:
+            sums["seen"], sums["lines"] = sight.counts(lab, K)
     return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T, sums)
 
 
@@ -313,7 +318,7 @@ def mesh_sums_inputs(vertices: np.ndarray, faces: np.ndarray, weights: MergeWeig
 def next_merge_cost(labels: np.ndarray, dual: DualEdges, features: np.ndarray, face_area: np.ndarray,
                     weights: MergeWeights | None = None, *, unit: np.ndarray | None = None,
                     bends: tuple | None = None, centroids: np.ndarray | None = None,
-                    thickness: np.ndarray | None = None, sight: SightLines | None = None) -> float:
+                    thickness: np.ndarray | None = None, sight: SightLines | PartSight | None = None) -> float:
     """The cost of the cheapest merge left among the parts of ``labels`` [F] (inf when no two
     parts are adjacent): what going from k = (its part count) to k - 1 parts would cost. k auto
     reads it: a large one means the parts are worth keeping apart. With ``weights.rand_gamma`` it

@@ -18,6 +18,8 @@ Rays are cast on libigl's AABB tree (MPL-2.0), as the thickness is.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .creases import unit_face_normals
@@ -106,4 +108,32 @@ class SightLines:
         return seen, lines
 
 
-__all__ = ["SIGHT_SAMPLES", "SIGHT_OFFSET", "SightLines"]
+@dataclass(frozen=True)
+class PartSight:
+    """Counts of :meth:`SightLines.counts` of a labelling, by its part ids: seen, lines [K, K]."""
+
+    seen: np.ndarray
+    lines: np.ndarray
+
+    def merged(self, owner: np.ndarray, n_parts: int) -> "PartSight":
+        """The counts of the unions of parts, ``owner`` [K] the union (0..n_parts-1) each part
+        joins: a union's own segments are its parts' own and those between them (each once), as
+        :meth:`~torchakvf.parts.merge_terms.MergeState.merge` adds them."""
+        M = np.zeros((len(owner), int(n_parts)))
+        M[np.arange(len(owner)), np.asarray(owner)] = 1.0
+
+        def union(mat):
+            own = np.diag(mat)
+            out = M.T @ (mat - np.diag(own)) @ M
+            out[np.diag_indices(int(n_parts))] = 0.5 * np.diag(out) + M.T @ own
+            return out
+
+        return PartSight(union(self.seen), union(self.lines))
+
+    def take(self, ids: np.ndarray) -> "PartSight":
+        """The counts of parts ``ids`` (in that order)."""
+        ix = np.ix_(np.asarray(ids), np.asarray(ids))
+        return PartSight(self.seen[ix], self.lines[ix])
+
+
+__all__ = ["SIGHT_SAMPLES", "SIGHT_OFFSET", "SightLines", "PartSight"]
