@@ -136,3 +136,12 @@ def test_counts_of_unions_are_those_the_merge_state_adds_up():
     np.testing.assert_array_equal(got.seen, state.seen[np.ix_(keep, keep)])
     np.testing.assert_array_equal(got.lines, state.lines[np.ix_(keep, keep)])
     np.testing.assert_array_equal(got.take([2, 0]).lines, state.lines[np.ix_([2, 0], [2, 0])])
+
+
+def test_many_parts_get_fewer_samples_each():
+    v, f, _ = u_shape()
+    sight = SightLines(v, f)
+    assert [sight.samples_per_part(K) for K in (1, 32, 33, 40, 64, 100)] == [8, 8, 7, 6, 4, 4]
+    labels = np.arange(len(f)) % 40                       # 40 parts of at least 6 faces
+    seen, lines = sight.counts(labels, 40)
+    assert lines[0, 1] == 36 and lines[0, 0] == 15         # 6 x 6 between, 6 x 5 / 2 within

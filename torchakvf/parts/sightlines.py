@@ -8,7 +8,8 @@ parts (weakly convex decompositions are built on it), where the bending of the s
 wraps round a plate's outer edge, the concave crease is no longer on the boundary the merge
 reads, but the plates still do not see each other.
 
-Each part is sampled at ``samples`` face centroids, moved a little inside the surface
+Each part is sampled at ``samples`` face centroids (fewer past 32 parts: :data:`SIGHT_BUDGET`),
+moved a little inside the surface
 (``offset`` of the bounding-box diagonal against the outward normal); a pair of samples sees
 each other when the segment between them crosses no face. The counts over all pairs of parts
 are additive, so a merged part's counts are sums of its pieces' (:class:`~torchakvf.parts.
@@ -26,6 +27,11 @@ from .creases import unit_face_normals
 
 #: face centroids sampled per part: 8 x 8 = 64 segments per pair of parts
 SIGHT_SAMPLES = 8
+#: at most this many samples over all parts: past 32 parts each part gets fewer (at least
+#: :data:`SIGHT_MIN_SAMPLES`), so the segments cast stay near 33,000 (the square of the samples,
+#: halved) however many pieces a large k over-segments into
+SIGHT_BUDGET = 256
+SIGHT_MIN_SAMPLES = 4
 #: how far inside the surface a sample sits, relative to the bounding-box diagonal (well below
 #: half the thickness of a thin plate or fin, well above the ray caster's round-off)
 SIGHT_OFFSET = 1e-4
@@ -38,12 +44,13 @@ class SightLines:
     vertices : [V, 3]; faces : [F, 3] outward-oriented (counter-clockwise from outside)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, samples: int = SIGHT_SAMPLES,
-                 offset: float = SIGHT_OFFSET):
+                 offset: float = SIGHT_OFFSET, budget: int = SIGHT_BUDGET):
         import igl
 
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.samples = int(samples)
+        self.budget = int(budget)
         self.centroids = self.vertices[self.faces].mean(axis=1) if len(self.faces) else np.zeros((0, 3))
         extent = np.ptp(self.vertices, axis=0) if len(self.vertices) else np.ones(3)
         diag = float(np.linalg.norm(extent))
@@ -52,12 +59,18 @@ class SightLines:
         if len(self.faces):
             self.tree.init(self.vertices, self.faces)
 
+    def samples_per_part(self, n_parts: int) -> int:
+        """``samples``, fewer where n_parts of them would pass the budget (at least
+        :data:`SIGHT_MIN_SAMPLES`)."""
+        return int(min(self.samples, max(SIGHT_MIN_SAMPLES, self.budget // max(int(n_parts), 1))))
+
     def part_samples(self, labels: np.ndarray, n_parts: int) -> np.ndarray:
-        """[n_parts, samples] face ids of each part's samples (-1 where a part has fewer faces):
-        farthest-point sampling of the face centroids, from the face nearest the part's centroid
-        (ties to the lower face id)."""
+        """[n_parts, S] face ids of each part's samples, S = :meth:`samples_per_part` (-1 where a
+        part has fewer faces): farthest-point sampling of the face centroids, from the face nearest
+        the part's centroid (ties to the lower face id)."""
         labels = np.asarray(labels)
-        out = np.full((n_parts, self.samples), -1, dtype=np.int64)
+        S = self.samples_per_part(n_parts)
+        out = np.full((n_parts, S), -1, dtype=np.int64)
         order = np.argsort(labels, kind="stable")
         bounds = np.searchsorted(labels[order], np.arange(n_parts + 1))
         for p in range(n_parts):
@@ -68,7 +81,7 @@ class SightLines:
             first = int(np.argmin(((c - c.mean(axis=0)) ** 2).sum(axis=1)))
             d = ((c - c[first]) ** 2).sum(axis=1)
             pick = [first]
-            for _ in range(min(self.samples, len(ids)) - 1):
+            for _ in range(min(S, len(ids)) - 1):
                 j = int(np.argmax(d))
                 pick.append(j)
                 d = np.minimum(d, ((c - c[j]) ** 2).sum(axis=1))
@@ -88,7 +101,7 @@ class SightLines:
         ok = pick >= 0
         pts = self.inside[np.maximum(pick, 0)]
         iu, ju = np.triu_indices(K, 0)
-        S = self.samples
+        S = pick.shape[1]
         valid = ok[iu][:, :, None] & ok[ju][:, None, :]
         # within a part, each unordered pair of distinct samples once
         valid[iu == ju] &= np.triu(np.ones((S, S), dtype=bool), 1)
@@ -136,4 +149,4 @@ class PartSight:
         return PartSight(self.seen[ix], self.lines[ix])
 
 
-__all__ = ["SIGHT_SAMPLES", "SIGHT_OFFSET", "SightLines", "PartSight"]
+__all__ = ["SIGHT_SAMPLES", "SIGHT_BUDGET", "SIGHT_MIN_SAMPLES", "SIGHT_OFFSET", "SightLines", "PartSight"]
