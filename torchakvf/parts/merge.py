@@ -96,8 +96,7 @@ class RegionGraph:
 #: :func:`term_weights`).
 FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
                      small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
-                     thin="thin", centricity="centricity", sight="sight",
-                     sight_excess="sight_excess")
+                     thin="thin", centricity="centricity", sight="sight", sight_excess="sight_excess")
 
 
 def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
@@ -260,7 +259,8 @@ class MergeCache:
     bends : :func:`boundary_bends` (dual, the weights' crease angle); graph :
     :func:`region_graph` of the labels at the weights' crease angle (it does not depend on k);
     thickness : [F] :func:`face_thickness` of the mesh (read where the weights read it and no
-    graph is given).
+    graph is given); sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` (read
+    where the weights read the lines of sight and no graph is given).
     """
 
     dual: DualEdges | None = None
@@ -397,7 +397,6 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
 
 
 __all__ = ["MergeWeights", "MergeCache", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_sight",
-           "needs_part_sums",
-           "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances", "partition_cost",
-           "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs", "greedy_merge",
-           "merge_parts"]
+           "needs_part_sums", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances",
+           "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
+           "greedy_merge", "merge_parts"]

@@ -9,11 +9,11 @@ wraps round a plate's outer edge, the concave crease is no longer on the boundar
 reads, but the plates still do not see each other.
 
 Each part is sampled at ``samples`` face centroids (fewer past 32 parts: :data:`SIGHT_BUDGET`),
-moved a little inside the surface
-(``offset`` of the bounding-box diagonal against the outward normal); a pair of samples sees
-each other when the segment between them crosses no face. The counts over all pairs of parts
-are additive, so a merged part's counts are sums of its pieces' (:class:`~torchakvf.parts.
-merge_terms.MergeState`). The samples are chosen by geometry alone (farthest-point sampling
+moved a little inside the surface (``offset`` of the bounding-box diagonal against the outward
+normal); a pair of samples sees each other when the segment between them crosses no face. The
+counts over all pairs of parts, and over each part's own pairs of samples, are additive, so a
+merged part's counts are sums of its pieces' (:class:`~torchakvf.parts.merge_terms.MergeState`,
+:meth:`PartSight.merged`). The samples are chosen by geometry alone (farthest-point sampling
 from the face nearest the part's centroid), so a moved or renumbered mesh gets the same ones.
 Rays are cast on libigl's AABB tree (MPL-2.0), as the thickness is.
 """
