@@ -96,6 +96,8 @@ def main():
     ap.add_argument("--corpus", default=None, help="procedural corpus folder (index.json)")
     ap.add_argument("--no-psb", action="store_true")
     ap.add_argument("--keys", default=None, help="comma-separated item keys (default: all)")
+    ap.add_argument("--per-family", type=int, default=None,
+                    help="only the first N shapes of each corpus family (the PSB's meshes all)")
     ap.add_argument("--coarse-faces", type=int, default=4000)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--weights", default=None,
@@ -110,6 +112,10 @@ def main():
     if a.keys:
         want = set(a.keys.split(","))
         todo = [i for i in todo if i.key in want]
+    if a.per_family is not None:
+        seen: dict = {}
+        todo = [i for i in todo if i.source == "psb"
+                or seen.setdefault(i.group, []).append(i) or len(seen[i.group]) <= a.per_family]
     weights = json.loads(Path(a.weights).read_text()) if a.weights else None
     jobs = [(i, str(out), a.variant, a.coarse_faces, a.curvature_rings, weights) for i in todo]
     os.environ.update({v: "1" for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")})

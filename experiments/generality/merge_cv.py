@@ -16,6 +16,9 @@ shape the mean over its truths, per group the mean over its shapes.
 
     PYTHONPATH=$PWD nice python3 experiments/generality/merge_cv.py --capture /tmp/capture_crease60 \\
         --prep /tmp/prep_crease60 --out /tmp/merge_cv_crease60.md
+    PYTHONPATH=$PWD nice python3 experiments/generality/merge_cv.py --capture /tmp/capture_concave60 \\
+        --prep /tmp/prep_concave60 --corpus-share 0.5 --drop "sight,sight_excess;sight_excess;sight" \\
+        --weights-out /tmp/folds.json      # experiments/results/generality_sight.md
 """
 from __future__ import annotations
 
@@ -222,7 +225,8 @@ def main():
     ap.add_argument("--drop", default="", help="semicolon-separated term sets to fit without, each "
                     "comma-separated TERM_NAMES (e.g. 'sight;sight,thin'); each is a row beside the fit on all")
     ap.add_argument("--weights-out", default=None,
-                    help="write {group: weights fitted without it, '*': fitted on all} of the last share (JSON)")
+                    help="write {group: weights fitted without it, '*': fitted on all} of the last share, "
+                         "every term in the fit (JSON)")
     a = ap.parse_args()
     prep = Path(a.prep)
     prep.mkdir(parents=True, exist_ok=True)
@@ -242,7 +246,7 @@ def main():
         for m in keys:
             fin.setdefault(PREP[m]["group"], []).append(final_error(m))
         results["captured default, merged + graph cut"] = {g: float(np.mean(v)) for g, v in fin.items()}
-        results["shipped weights (fitted on the PSB), merged"] = group_scores(keys, Cost.of(MergeWeights()), pool)
+        results["package weights (MergeWeights()), merged"] = group_scores(keys, Cost.of(MergeWeights()), pool)
         results["hand-set weights, merged"] = group_scores(keys, Cost.of(MergeWeights.hand_set()), pool)
         policy = Cost.of(MergeWeights.hand_set())
         drops = [()] + [tuple(d.split(",")) for d in a.drop.split(";") if d]
@@ -256,7 +260,7 @@ def main():
                 everything = fitted_cost(keys, policy, pool, share, cols=cols)
                 results[f"{name} (fitted on all: in-sample)"] = group_scores(keys, everything, pool)
                 print(name, "fitted on all:", weight_fields(everything), flush=True)
-                if a.weights_out:
+                if a.weights_out and not drop:
                     out = {g: weight_fields(c) for g, c in costs.items()}
                     out["*"] = weight_fields(everything)
                     Path(a.weights_out).write_text(json.dumps(out, indent=1) + "\n")

@@ -13,8 +13,9 @@ PSB category or corpus family on the other groups (experiments/results/generalit
 package file is the one copy: rewriting it changes the defaults (tests/test_merge_options.py
 checks that it is in this script's format and that MergeWeights() reads it).
 
+    python datasets_scripts/make_parts_corpus.py --out /tmp/corpus --per-family 30 --seed 0
     PYTHONPATH=$PWD nice python3 experiments/generality/capture.py --variant concave60 \\
-        --corpus /tmp/corpus --out /tmp/capture --workers 2        # PSB and corpus shapes
+        --corpus /tmp/corpus --per-family 10 --out /tmp/capture --workers 2   # the PSB's 300, 150 shapes
     PYTHONPATH=$PWD nice python3 experiments/segmentation/train_merge.py --capture /tmp/capture \\
         --prep /tmp/capture_prep --corpus-share 0.5 --out torchakvf/parts/merge_weights.json
 """
