@@ -27,9 +27,9 @@ from .creases import unit_face_normals
 
 #: face centroids sampled per part: 8 x 8 = 64 segments per pair of parts
 SIGHT_SAMPLES = 8
-#: at most this many samples over all parts: past 32 parts each part gets fewer (at least
-#: :data:`SIGHT_MIN_SAMPLES`), so the segments cast stay near 33,000 (the square of the samples,
-#: halved) however many pieces a large k over-segments into
+#: samples over all parts: past 32 parts each part gets fewer (at least
+#: :data:`SIGHT_MIN_SAMPLES`), so the segments cast (about half the square of the samples) stay
+#: near 33,000 up to 64 parts, where a large k's over-segmentation would otherwise cast 100,000s
 SIGHT_BUDGET = 256
 SIGHT_MIN_SAMPLES = 4
 #: how far inside the surface a sample sits, relative to the bounding-box diagonal (well below
