@@ -62,6 +62,12 @@ def test_segment_k_auto_records_the_k_each_mesh_got(tmp_path, capsys):
                                "--formats", "seg", "--batched"], capsys)
     assert rc == 0, err
     assert (tmp_path / "b" / "dumb.seg").read_bytes() == (out / "dumb.seg").read_bytes()
+    # every output format, the .npz holding the choice as plain arrays
+    rc, _, err = cli_run(["segment", str(src), "-k", "auto", "--k-range", "1,3", "--out", str(tmp_path / "all")],
+                         capsys)
+    assert rc == 0, err
+    with np.load(tmp_path / "all" / "dumb.npz", allow_pickle=False) as z:
+        assert z["param_k_auto_ks"].tolist() == [1, 2, 3] and int(z["param_k"]) == 2
     # the k given: no k recorded beside the parameters (manifests of earlier runs still resume)
     rc, _, err = cli_run(["segment", str(src), "-k", "2", "--out", str(tmp_path / "two"), "--formats", "seg"], capsys)
     assert rc == 0, err

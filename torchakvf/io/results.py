@@ -23,6 +23,19 @@ def safe_stem(name: str) -> str:
     return stem or "mesh"
 
 
+def flat_params(params: dict) -> dict:
+    """``params`` with each dict value spread into ``name_key`` entries (a -k auto choice's
+    ``k_auto`` {rule, ks, costs} becomes ``k_auto_rule``, ``k_auto_ks``, ``k_auto_costs``), so
+    every value is a plain array in an .npz."""
+    out = {}
+    for name, value in params.items():
+        if isinstance(value, dict):
+            out.update({f"{name}_{key}": v for key, v in flat_params(value).items()})
+        else:
+            out[name] = value
+    return out
+
+
 def write_segmentation(seg, vertices: np.ndarray, faces: np.ndarray, out_dir, stem: str,
                        formats=OUTPUT_FORMATS, face_vectors: np.ndarray | None = None) -> dict:
     """Write one :class:`~torchakvf.parts.MeshSegmentation` of the input mesh (vertices [V, 3],
@@ -44,7 +57,7 @@ def write_segmentation(seg, vertices: np.ndarray, faces: np.ndarray, out_dir, st
         written["npz"] = out_dir / f"{stem}.npz"
         gens = [(p, g.field, g.share, g.energy) for p, gs in enumerate(seg.generators) for g in gs]
         gens = np.array(gens, dtype=np.float64).reshape(-1, 4)
-        params = {f"param_{k}": np.asarray(v) for k, v in seg.params.items()}
+        params = {f"param_{k}": np.asarray(v) for k, v in flat_params(seg.params).items()}
         write_npz(written["npz"], labels=seg.labels, features=seg.features.astype(np.float32),
                   eigenvalues=seg.eigenvalues, generators=gens, cost=np.float64(seg.cost), **params)
     if "ply" in formats:
