@@ -404,15 +404,11 @@ def test_lines_of_sight_keep_the_arms_of_a_u_off_its_base():
     alone, the halves (convex unions: no segment leaves the solid) merge first and the arms stay
     off the base; without it every cost ties and the first pairs merge (a base half takes an arm).
     The region graph's sight counts are those of SightLines on its compact labels."""
-    from torchakvf.parts.sightlines import SightLines
-    from torchakvf.shapes.implicit import _voxel_surface
+    from helpers.voxel_meshes import voxel_u
 
-    occ = np.zeros((8, 2, 8), dtype=bool)
-    occ[:, :, :2] = True
-    occ[:2, :, 2:] = True
-    occ[6:, :, 2:] = True
-    v, f, owner = _voxel_surface(occ, 0.1, (0.0, 0.0, 0.0))
-    i, _, kz = np.unravel_index(owner, occ.shape)
+    from torchakvf.parts.sightlines import SightLines
+
+    v, f, i, kz = voxel_u()
     pieces = np.where(kz < 2, (i >= 4).astype(int), np.where(i < 4, 2, 4) + (kz >= 5))
     truth = np.where(kz < 2, 0, np.where(i < 4, 1, 2))
     feats = np.ones((len(f), 3))

@@ -2,23 +2,17 @@
 is known by hand, agreement with an independent segment-triangle test, and the same counts on a
 moved, renumbered copy."""
 import numpy as np
+from helpers.voxel_meshes import voxel_u
 
 from torchakvf.parts.sightlines import SightLines
 from torchakvf.shapes.implicit import _voxel_surface
 
 
 def u_shape():
-    """A U of voxels (unit 0.1): a base 8 x 2 x 2 and two arms 2 x 2 x 6 on its ends, a gap of
-    4 voxels between them. Labels by the voxel behind each face: 0 base (z < 2), 1 left arm,
+    """:func:`voxel_u` labelled by the voxel behind each face: 0 base (z < 2), 1 left arm,
     2 right arm."""
-    occ = np.zeros((8, 2, 8), dtype=bool)
-    occ[:, :, :2] = True
-    occ[:2, :, 2:] = True
-    occ[6:, :, 2:] = True
-    v, f, owner = _voxel_surface(occ, 0.1, (0.0, 0.0, 0.0))
-    i, _, k = np.unravel_index(owner, occ.shape)
-    labels = np.where(k < 2, 0, np.where(i < 4, 1, 2))
-    return v, f, labels
+    v, f, x, z = voxel_u()
+    return v, f, np.where(z < 2, 0, np.where(x < 4, 1, 2))
 
 
 def test_a_convex_box_sees_itself_everywhere():
