@@ -11,7 +11,7 @@ from helpers.refusals import write_file
 
 import torchakvf as ta
 from torchakvf import shapes
-from torchakvf.mesh.clean import OUTLIER_DISTANCE, faces_at_outliers
+from torchakvf.mesh.clean import OUTLIER_DISTANCE, faces_at_outliers, weld_roots
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # one intra-op thread (see conftest)
 
@@ -104,7 +104,7 @@ def ico3_eigs(ico3):
 def test_clean_mesh_is_identity_on_a_good_mesh(ico3):
     V, F = ico3
     c = ta.clean_mesh(ta.Mesh(V, F))
-    assert c.report == {"merged_vertices": 0, "repeated_index_faces": 0, "outlier_faces": 0, "zero_area_faces": 0,
+    assert c.report == {"merged_vertices": 0, "welded_vertices": 0, "repeated_index_faces": 0, "outlier_faces": 0, "zero_area_faces": 0,
                         "repeated_faces": 0, "unreferenced_vertices": 0, "flipped_faces": 0,
                         "components": 1, "boundary_edges": 0}
     np.testing.assert_array_equal(c.face_index, np.arange(len(F)))
@@ -287,6 +287,39 @@ def test_two_components_union_spectrum():
     np.testing.assert_allclose(both, union, rtol=1e-6)
     # both components contribute their 3 rotations: 6 small eigenvalues, then a gap
     assert np.all(both[:6] < 0.1) and both[6] > 5
+
+
+def test_weld_roots_by_hand():
+    v = np.array([[0, 0, 0], [1e-15, 0, 0], [1, 0, 0], [0, 1, 0], [2e-15, 1e-15, 0], [0, 0, 1.0]])
+    # 0, 1 and 4 lie within round-off of each other: all welded into the lowest, 0
+    np.testing.assert_array_equal(weld_roots(v), [0, 0, 2, 3, 0, 5])
+    assert weld_roots(v[[0, 2, 3, 5]]) is None                 # nothing that close
+    # A stray coordinate does not set the scale: on the bounding box's diagonal (1e12) the
+    # tolerance would be 100 and weld the unit-spaced vertices together.
+    far = np.concatenate([v[[0, 2, 3, 5]], [[1e12, 0, 0]]])
+    assert weld_roots(far) is None
+
+
+def test_marching_cubes_disc_on_a_grid_plane_stays_one_closed_surface():
+    """A slab whose face lies on a grid plane: marching cubes puts pairs of vertices 1e-15
+    apart there, with zero-area faces between them. Dropped without a weld, they cut the
+    disc's top from its rim (2 components, open); welded, the surface stays closed."""
+    from torchakvf.shapes.marching import marching_cubes
+    from torchakvf.shapes.sdf import cylinder
+
+    disc = cylinder((0, 0, -0.1), (0, 0, 0.1), 1.0)
+    v, f = marching_cubes(disc, (-1.1, -1.1, -0.2), (1.1, 1.1, 0.2), 0.03)   # z = 0.1 on the grid
+    # the near-duplicates are there: distinct vertices, equal to 9 decimals
+    assert len(np.unique(v, axis=0)) == len(v) > len(np.unique(v.round(9), axis=0))
+    c = ta.clean_mesh(ta.Mesh(v, f, name="disc"))
+    assert c.report["welded_vertices"] > 0 and c.report["repeated_index_faces"] > 0
+    assert c.report["components"] == 1 and c.report["boundary_edges"] == 0
+    assert c.report["zero_area_faces"] == 0
+    # the welded surface has the disc's area (2 pi r^2 + 2 pi r h), to the grid's resolution
+    area = ta.mesh.face_areas(c.vertices, c.faces).sum()
+    assert abs(area - (2 * np.pi + 2 * np.pi * 0.2)) < 0.02 * area
+    # every input face maps to a kept face or is one of the dropped slivers
+    assert len(c.faces) + c.report["repeated_index_faces"] == len(f)
 
 
 def _sphere_with_a_needle():

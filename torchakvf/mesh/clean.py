@@ -1,7 +1,8 @@
 """Validation and clean-up of one mesh, with index maps back to the input's faces.
 
 What is repaired (and counted in ``CleanMesh.report``): exact duplicate vertices are merged,
-faces with a repeated vertex index, faces reaching an outlier vertex (:data:`OUTLIER_DISTANCE`),
+distinct vertices within round-off of each other (:data:`WELD_DISTANCE`) are welded, faces with
+a repeated vertex index, faces reaching an outlier vertex (:data:`OUTLIER_DISTANCE`),
 zero-area faces and repeated faces are dropped (with
 ``zip_cracks=True`` the crack a dropped needle face leaves is zipped shut), faces are
 re-oriented consistently per component, unreferenced vertices are removed.
@@ -24,6 +25,15 @@ from .mesh import Mesh
 #: Faces with area below this fraction of the mean face area are treated as degenerate:
 #: their cotangents are unbounded and their star2 = 1/A is infinite.
 DEGENERATE_AREA_FRACTION = 1e-10
+
+#: Distinct vertices closer than this fraction of the mesh's spread (:data:`OUTLIER_DISTANCE`)
+#: are welded into one. Marching cubes puts two vertices 1e-16..1e-14 apart where the surface
+#: passes through a grid point (a slab's face on a grid plane); the faces between them have zero
+#: area and are dropped, and without the weld the drop cuts the surface apart along the plane (a
+#: disc's top from its rim: two components with open boundaries). No PSB mesh nor procedural corpus shape
+#: has two vertices within 1e-8 of its bounding-box diagonal (a few spreads), so the weld touches
+#: only such meshes.
+WELD_DISTANCE = 1e-10
 
 #: A face with an edge longer than this many times the mesh's spread (the median distance of
 #: its vertices from their coordinate-wise median) reaches an outlier vertex (a stray
@@ -136,6 +146,13 @@ def clean_mesh(mesh: Mesh, zip_cracks: bool = True) -> CleanMesh:
     # Merge exact duplicate vertices (STL and many exporters write one copy per face).
     verts, first_input, inverse, _ = unique_rows(mesh.vertices)
     report["merged_vertices"] = mesh.n_vertices - len(verts)
+    root = weld_roots(verts)
+    report["welded_vertices"] = 0 if root is None else int((root != np.arange(len(verts))).sum())
+    if root is not None:
+        reps = np.flatnonzero(root == np.arange(len(verts)))
+        number = np.full(len(verts), -1, dtype=np.int64)
+        number[reps] = np.arange(len(reps))
+        verts, first_input, inverse = verts[reps], first_input[reps], number[root][inverse]
     faces = inverse[mesh.faces]
     keep = np.arange(mesh.n_faces)
 
@@ -195,6 +212,30 @@ def clean_mesh(mesh: Mesh, zip_cracks: bool = True) -> CleanMesh:
     return CleanMesh(vertices=verts, faces=faces, face_index=keep, n_input_faces=mesh.n_faces,
                      face_component=vertex_comp[faces[:, 0]].astype(np.int64), name=name,
                      input_faces=mesh.faces, report=report)
+
+
+def weld_roots(vertices: np.ndarray, distance: float = WELD_DISTANCE) -> np.ndarray | None:
+    """[V] the vertex each of ``vertices`` [V, 3] is welded into: the lowest index of its
+    cluster of vertices linked by distances below ``distance`` times their spread (the median
+    distance from their coordinate-wise median; itself where none is that close); None where no two vertices are that close."""
+    if len(vertices) < 2:
+        return None
+    # the scale is the vertices' spread (as for the outliers), which a stray coordinate such as
+    # 1e12 does not move: on the diagonal it would weld every vertex of the mesh into one
+    spread = float(np.median(np.linalg.norm(vertices - np.median(vertices, axis=0), axis=1)))
+    if not np.isfinite(spread) or spread <= 0:
+        return None
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(vertices).query_pairs(distance * spread, output_type="ndarray")
+    if len(pairs) == 0:
+        return None
+    n = len(vertices)
+    link = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, cluster = connected_components(link, directed=False)
+    lowest = np.full(int(cluster.max()) + 1, n, dtype=np.int64)
+    np.minimum.at(lowest, cluster, np.arange(n))
+    return lowest[cluster]
 
 
 def faces_at_outliers(vertices: np.ndarray, faces: np.ndarray,
