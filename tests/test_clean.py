@@ -104,7 +104,8 @@ def ico3_eigs(ico3):
 def test_clean_mesh_is_identity_on_a_good_mesh(ico3):
     V, F = ico3
     c = ta.clean_mesh(ta.Mesh(V, F))
-    assert c.report == {"merged_vertices": 0, "welded_vertices": 0, "repeated_index_faces": 0, "outlier_faces": 0, "zero_area_faces": 0,
+    assert c.report == {"merged_vertices": 0, "welded_vertices": 0, "repeated_index_faces": 0, "outlier_faces": 0,
+                        "zero_area_faces": 0,
                         "repeated_faces": 0, "unreferenced_vertices": 0, "flipped_faces": 0,
                         "components": 1, "boundary_edges": 0}
     np.testing.assert_array_equal(c.face_index, np.arange(len(F)))

@@ -142,7 +142,8 @@ def test_meshes_load_and_clean_unrepaired(corpus, tmp_path):
         assert np.array_equal(mesh.faces, ps.shape.faces)
         report = clean_mesh(mesh).report
         assert report["components"] == 1 and report["boundary_edges"] == 0
-        for key in ("merged_vertices", "welded_vertices", "zero_area_faces", "repeated_faces", "flipped_faces", "unreferenced_vertices"):
+        for key in ("merged_vertices", "welded_vertices", "zero_area_faces", "repeated_faces", "flipped_faces",
+                    "unreferenced_vertices"):
             assert report[key] == 0, (family, key)
         meshes.append(mesh)
     # Decimated for solving (the CLI's default), one mechanical and one organic mesh.

@@ -217,7 +217,8 @@ def clean_mesh(mesh: Mesh, zip_cracks: bool = True) -> CleanMesh:
 def weld_roots(vertices: np.ndarray, distance: float = WELD_DISTANCE) -> np.ndarray | None:
     """[V] the vertex each of ``vertices`` [V, 3] is welded into: the lowest index of its
     cluster of vertices linked by distances below ``distance`` times their spread (the median
-    distance from their coordinate-wise median; itself where none is that close); None where no two vertices are that close."""
+    distance from their coordinate-wise median; itself where none is that close); None where
+    no two vertices are that close."""
     if len(vertices) < 2:
         return None
     # the scale is the vertices' spread (as for the outliers), which a stray coordinate such as
