@@ -192,3 +192,47 @@ def test_canonical_frame_of_a_renumbered_sphere_is_the_same():
     u1, g1, _ = canonical_frame(v[pv], g)
     np.testing.assert_array_equal(u1, u0)
     np.testing.assert_array_equal(g1, g0)
+
+
+def _double_flange(h=0.03):
+    """A disc 0.1 thick with a hub on each side, by marching cubes (21,064 faces at h = 0.03)."""
+    from torchakvf.shapes.marching import marching_cubes
+    from torchakvf.shapes.sdf import Union, cylinder
+
+    parts = (cylinder((0, 0, -0.05), (0, 0, 0.05), 1.0), cylinder((0, 0, 0.05), (0, 0, 0.65), 0.25),
+             cylinder((0, 0, -0.65), (0, 0, -0.05), 0.25))
+    v, f = marching_cubes(Union(parts), (-1.05, -1.05, -0.75), (1.05, 1.05, 0.75), h)
+    return clean_mesh(ta.Mesh(v, f, name="flange"))
+
+
+def test_folded_share_by_hand():
+    from torchakvf.mesh.coarse import CoarseMesh, folded_share
+    from torchakvf.mesh.surface_map import SurfacePoints
+
+    s = shapes.icosphere(2)
+    fine = clean_mesh(ta.Mesh(s.vertices, s.faces))
+    n = len(fine.faces)
+    on = SurfacePoints(np.arange(n), np.full((n, 3), 1 / 3), np.zeros(n))
+    flipped = fine.faces.copy()
+    flipped[: n // 2] = flipped[: n // 2, ::-1]            # half the faces point inward
+    area = face_areas(fine.vertices, fine.faces)
+    for coarse_faces, want in ((fine.faces, 0.0), (flipped, area[: n // 2].sum() / area.sum())):
+        coarse = ta.mesh.CleanMesh(fine.vertices, coarse_faces, np.arange(n), n, np.zeros(n, dtype=np.int64), "c",
+                                   coarse_faces)
+        cm = CoarseMesh(coarse=coarse, fine=fine, vertices_on_coarse=on, faces_on_coarse=on)
+        assert folded_share(cm) == pytest.approx(want, abs=1e-12)
+
+
+def test_a_folded_decimation_is_made_again_with_more_faces():
+    """Collapsed to 1,000 faces, the flange's flat caps become fans of long triangles through
+    the hubs: a fifth of the surface lies above coarse faces pointing the other way. The coarse
+    mesh is made again at 2,000 faces, where it does not fold."""
+    from torchakvf.mesh.coarse import FOLDED_SHARE, _coarse_at, folded_share
+
+    flange = _double_flange()
+    assert folded_share(_coarse_at(flange, 1000, False)) > 2 * FOLDED_SHARE
+    cm = coarse_mesh(flange, 1000)
+    assert cm.faces_asked == 2000 and abs(len(cm.coarse.faces) - 2000) <= 10
+    assert folded_share(cm) < 0.01
+    # where it does not fold, the face count asked is kept
+    assert coarse_mesh(flange, 4000).faces_asked == 4000
