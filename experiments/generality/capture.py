@@ -9,6 +9,9 @@ redoes only the merge on exactly these over-segmentations.
 
     PYTHONPATH=$PWD nice python3 experiments/generality/capture.py --variant crease60 \\
         --corpus /tmp/corpus --out /tmp/capture_crease60 --workers 2
+
+``--graphcut "smoothness=5"`` segments with other boundary-step parameters (the final labels
+change; the over-segmentations do not).
 """
 from __future__ import annotations
 
@@ -43,15 +46,26 @@ OVERSEG = {
 }
 
 
-def options(variant: str, merge_changes: dict | None = None):
-    from torchakvf.options import MergeWeights, OverSegmentation, SegmentOptions
+def options(variant: str, merge_changes: dict | None = None, graphcut: dict | None = None):
+    from torchakvf.options import GraphCut, MergeWeights, OverSegmentation, SegmentOptions
 
     return SegmentOptions(refine=False, merge=MergeWeights(**(merge_changes or {})),
-                          overseg=OverSegmentation(**OVERSEG[variant]))
+                          overseg=OverSegmentation(**OVERSEG[variant]), graphcut=GraphCut(**(graphcut or {})))
+
+
+def parse_graphcut(text: str | None) -> dict | None:
+    """``--graphcut "smoothness=5,beta=10"`` -> {name: number} of GraphCut fields (None: default)."""
+    if not text:
+        return None
+    out = {}
+    for item in text.split(","):
+        name, value = item.split("=")
+        out[name.strip()] = int(value) if name.strip() in ("band", "cycles") else float(value)
+    return out
 
 
 def capture_item(args) -> str:
-    item, out, variant, coarse_faces, rings, weights = args
+    item, out, variant, coarse_faces, rings, weights, graphcut = args
     import torch
 
     from torchakvf.operators import killing
@@ -69,7 +83,7 @@ def capture_item(args) -> str:
     if path.exists():
         return f"{item.key} cached"
     t0 = time.perf_counter()
-    opts = options(variant, weights.get(item.group, weights.get("*")) if weights else None)
+    opts = options(variant, weights.get(item.group, weights.get("*")) if weights else None, graphcut)
     try:
         mesh = load_mesh(item.mesh_path)
         gts = [read_truth(s) for s in item.truths]
@@ -105,6 +119,8 @@ def main():
                          "segmented with (held-out weights per group)")
     ap.add_argument("--curvature-rings", type=int, default=None,
                     help="rings of the 'smooth' remedy's curvature averaging (default: the package's)")
+    ap.add_argument("--graphcut", default=None,
+                    help="GraphCut fields for the boundary step, e.g. 'smoothness=5,beta=10' (default: the package's)")
     a = ap.parse_args()
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -117,7 +133,8 @@ def main():
         todo = [i for i in todo if i.source == "psb"
                 or seen.setdefault(i.group, []).append(i) or len(seen[i.group]) <= a.per_family]
     weights = json.loads(Path(a.weights).read_text()) if a.weights else None
-    jobs = [(i, str(out), a.variant, a.coarse_faces, a.curvature_rings, weights) for i in todo]
+    jobs = [(i, str(out), a.variant, a.coarse_faces, a.curvature_rings, weights, parse_graphcut(a.graphcut))
+            for i in todo]
     os.environ.update({v: "1" for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")})
     if a.workers == 1:
         for j in jobs:
