@@ -133,6 +133,8 @@ def main():
         todo = [i for i in todo if i.source == "psb"
                 or seen.setdefault(i.group, []).append(i) or len(seen[i.group]) <= a.per_family]
     weights = json.loads(Path(a.weights).read_text()) if a.weights else None
+    if weights and "folds" in weights:      # merge_weights_folds.json: {source, meaning, folds}
+        weights = weights["folds"]
     jobs = [(i, str(out), a.variant, a.coarse_faces, a.curvature_rings, weights, parse_graphcut(a.graphcut))
             for i in todo]
     os.environ.update({v: "1" for v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")})
