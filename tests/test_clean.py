@@ -321,6 +321,11 @@ def test_marching_cubes_disc_on_a_grid_plane_stays_one_closed_surface():
     assert abs(area - (2 * np.pi + 2 * np.pi * 0.2)) < 0.02 * area
     # every input face maps to a kept face or is one of the dropped slivers
     assert len(c.faces) + c.report["repeated_index_faces"] == len(f)
+    # without the weld (as decimated meshes are cleaned) the slivers are dropped and the
+    # surface comes apart along the plane
+    plain = ta.clean_mesh(ta.Mesh(v, f, name="disc"), weld=False)
+    assert plain.report["welded_vertices"] == 0 and plain.report["zero_area_faces"] > 0
+    assert plain.report["components"] == 2 and plain.report["boundary_edges"] > 0
 
 
 def _sphere_with_a_needle():

@@ -32,7 +32,7 @@ DEGENERATE_AREA_FRACTION = 1e-10
 #: area and are dropped, and without the weld the drop cuts the surface apart along the plane (a
 #: disc's top from its rim: two components with open boundaries). No PSB mesh nor procedural corpus shape
 #: has two vertices within 1e-8 of its bounding-box diagonal (a few spreads), so the weld touches
-#: only such meshes.
+#: only such meshes. Decimated meshes are not welded (:func:`clean_mesh`'s ``weld``).
 WELD_DISTANCE = 1e-10
 
 #: A face with an edge longer than this many times the mesh's spread (the median distance of
@@ -131,7 +131,7 @@ def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(face_cross_products(vertices, faces), axis=1)
 
 
-def clean_mesh(mesh: Mesh, zip_cracks: bool = True) -> CleanMesh:
+def clean_mesh(mesh: Mesh, zip_cracks: bool = True, weld: bool = True) -> CleanMesh:
     """Validate and clean ``mesh``; see the module docstring for what is repaired or refused.
 
     zip_cracks : close the crack that dropping a needle face (zero area, one vertex on the
@@ -140,13 +140,16 @@ def clean_mesh(mesh: Mesh, zip_cracks: bool = True) -> CleanMesh:
         one loses a rotation) or make R - σS1 indefinite at every shift (PSB 351, the only PSB
         mesh with such faces: 20 of them; zipped, it solves at full resolution). False: the
         faces are just dropped.
+    weld : weld distinct vertices within :data:`WELD_DISTANCE` of each other (an input's
+        round-off pairs). False: only exact duplicates are merged (a decimated mesh, whose
+        close vertices are the collapse's own, is cleaned so).
     """
     name = mesh.name
     report = {}
     # Merge exact duplicate vertices (STL and many exporters write one copy per face).
     verts, first_input, inverse, _ = unique_rows(mesh.vertices)
     report["merged_vertices"] = mesh.n_vertices - len(verts)
-    root = weld_roots(verts)
+    root = weld_roots(verts) if weld else None
     report["welded_vertices"] = 0 if root is None else int((root != np.arange(len(verts))).sum())
     if root is not None:
         reps = np.flatnonzero(root == np.arange(len(verts)))
