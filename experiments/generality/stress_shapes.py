@@ -1,0 +1,104 @@
+"""Shapes made in code outside the corpus's families' ranges, each with its exact part labels, to
+try the CLI defaults on as a new user's shapes would come (unions of cylinders and boxes meshed by
+marching cubes, with no relaxation, so flat faces that lie on grid planes leave the round-off
+vertex pairs such meshes have): thin and thick tables, round and tall tables, stepped shafts,
+flanges with a hub on one or both sides, a disc exactly on the grid.
+
+    PYTHONPATH=$PWD python experiments/generality/stress_shapes.py --out /tmp/stress
+    for f in /tmp/stress/*.off; do torchakvf segment $f -k $(sort -u ${f%.off}.seg | wc -l) \\
+        --out /tmp/stress/out --formats seg; done
+    PYTHONPATH=$PWD python experiments/generality/stress_shapes.py --score /tmp/stress out
+
+Writes NAME.off and NAME.seg (one label per face: the primitive nearest the face's centroid) per
+shape; ``--score DIR SUB [SUB ...]`` prints 1 - Rand index of DIR/SUB/NAME.seg against each truth.
+Result: experiments/results/generality_decimation.md.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import numpy as np
+
+from torchakvf.io.outputs import write_off
+from torchakvf.shapes.marching import marching_cubes
+from torchakvf.shapes.sdf import Box, Union, cylinder
+
+
+def _save(out: Path, name: str, parts: list, h: float, lo=None, hi=None) -> None:
+    if lo is None:
+        lo = np.min([p.bounds()[0] for p in parts], axis=0) - 2 * h
+        hi = np.max([p.bounds()[1] for p in parts], axis=0) + 2 * h
+    v, f = marching_cubes(Union(tuple(parts)), lo, hi, h)
+    c = v[f].mean(axis=1)
+    labels = np.stack([p(c) for p in parts], axis=1).argmin(axis=1)
+    write_off(out / f"{name}.off", v, f)
+    np.savetxt(out / f"{name}.seg", labels, fmt="%d")
+    print(name, len(f), "faces, parts", np.bincount(labels).tolist())
+
+
+def _table(out, name, top_t, leg_r, inset, h, round_top=False, height=0.7):
+    if round_top:
+        top = cylinder((0, 0, height), (0, 0, height + top_t), 0.9)
+        feet = [(0.6 * np.cos(a), 0.6 * np.sin(a)) for a in np.arange(4) * np.pi / 2 + np.pi / 4]
+    else:
+        top = Box(center=(0, 0, height + top_t / 2), half=(1.0, 0.6, top_t / 2))
+        feet = [(x, y) for x in (-1 + inset, 1 - inset) for y in (-0.6 + inset, 0.6 - inset)]
+    _save(out, name, [top] + [cylinder((x, y, 0.0), (x, y, height), leg_r) for x, y in feet], h)
+
+
+def _shaft(out, name, radii, z, h):
+    _save(out, name, [cylinder((0, 0, z[i]), (0, 0, z[i + 1]), r) for i, r in enumerate(radii)], h)
+
+
+def _flange(out, name, t, hub_r, hub_h, h, both=False):
+    parts = [cylinder((0, 0, -t / 2), (0, 0, t / 2), 1.0), cylinder((0, 0, t / 2), (0, 0, t / 2 + hub_h), hub_r)]
+    if both:
+        parts.append(cylinder((0, 0, -t / 2 - hub_h), (0, 0, -t / 2), hub_r))
+    _save(out, name, parts, h)
+
+
+def write_all(out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    _table(out, "table_thin", 0.04, 0.035, 0.1, 0.012)
+    _table(out, "table_thick", 0.12, 0.08, 0.12, 0.02)
+    _table(out, "table_round", 0.05, 0.05, 0.0, 0.015, round_top=True)
+    _table(out, "table_tall", 0.06, 0.04, 0.08, 0.015, height=1.2)
+    _shaft(out, "shaft3", [0.3, 0.45, 0.25], [0, 1.0, 1.6, 2.6], 0.02)
+    _shaft(out, "shaft4", [0.2, 0.3, 0.4, 0.25], [0, 0.8, 1.5, 1.9, 2.8], 0.02)
+    _shaft(out, "shaft3b", [0.35, 0.25, 0.15], [0, 0.7, 1.6, 2.8], 0.018)
+    _flange(out, "hub_014", 0.14, 0.3, 0.5, 0.02)
+    _flange(out, "hub_010b", 0.10, 0.25, 0.6, 0.015, both=True)
+    _flange(out, "hub_020", 0.2, 0.4, 0.4, 0.025)
+    # on the grid: the disc's top (z = 0.07) and the hub's end are grid planes
+    disc, hub = cylinder((0, 0, -0.07), (0, 0, 0.07), 1.0), cylinder((0, 0, -0.07), (0, 0, 0.7), 0.3)
+    _save(out, "hub_grid", [disc, hub], 0.03, (-1.1, -1.1, -0.17), (1.1, 1.1, 0.8))
+
+
+def score(folder: Path, subs: list) -> None:
+    from torchakvf.evaluate.metrics import rand_index_error
+
+    print("shape", *subs)
+    for off in sorted(folder.glob("*.off")):
+        truth = np.loadtxt(off.with_suffix(".seg"), dtype=int)
+        cells = []
+        for sub in subs:
+            p = folder / sub / f"{off.stem}.seg"
+            cells.append(f"{rand_index_error(np.loadtxt(p, dtype=int), truth):.3f}" if os.path.exists(p) else "-")
+        print(off.stem, *cells)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, help="folder to write the shapes to")
+    ap.add_argument("--score", nargs="+", metavar=("DIR", "SUB"), help="score DIR/SUB/*.seg against DIR/*.seg")
+    a = ap.parse_args()
+    if a.out:
+        write_all(a.out)
+    if a.score:
+        score(Path(a.score[0]), a.score[1:])
+
+
+if __name__ == "__main__":
+    main()
