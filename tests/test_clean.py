@@ -107,7 +107,7 @@ def test_clean_mesh_is_identity_on_a_good_mesh(ico3):
     assert c.report == {"merged_vertices": 0, "welded_vertices": 0, "repeated_index_faces": 0, "outlier_faces": 0,
                         "zero_area_faces": 0,
                         "repeated_faces": 0, "unreferenced_vertices": 0, "flipped_faces": 0,
-                        "components": 1, "boundary_edges": 0}
+                        "turned_outward": 0, "components": 1, "boundary_edges": 0}
     np.testing.assert_array_equal(c.face_index, np.arange(len(F)))
     assert c.n_input_faces == len(F) and c.n_components == 1
     # same triangles (vertices may be renumbered)
@@ -252,12 +252,12 @@ def test_inconsistent_orientation_repaired(ico3, ico3_eigs):
     np.testing.assert_array_equal(c.vertices[c.faces], V[F])
     np.testing.assert_allclose(_akvf_eigs(mesh), ico3_eigs, rtol=1e-9, atol=1e-10)
 
-    # flipping face 0 too: the whole mesh comes out inward, which must not change the spectrum
+    # flipping face 0 too: made consistent, the mesh is inward, and it is turned outward again
     F3 = F.copy()
     F3[0::2] = F3[0::2][:, ::-1]
     c3 = ta.clean_mesh(ta.Mesh(V, F3))
-    assert c3.report["flipped_faces"] == len(F) // 2
-    np.testing.assert_array_equal(c3.vertices[c3.faces], V[F][:, ::-1])
+    assert c3.report["flipped_faces"] == len(F) // 2 and c3.report["turned_outward"] == len(F)
+    np.testing.assert_array_equal(c3.vertices[c3.faces], V[F])
     np.testing.assert_allclose(_akvf_eigs(ta.Mesh(V, F3)), ico3_eigs, rtol=1e-9, atol=1e-10)
 
 
@@ -288,6 +288,41 @@ def test_two_components_union_spectrum():
     np.testing.assert_allclose(both, union, rtol=1e-6)
     # both components contribute their 3 rotations: 6 small eigenvalues, then a gap
     assert np.all(both[:6] < 0.1) and both[6] > 5
+
+
+def _signed_volumes(c):
+    p = c.vertices[c.faces]
+    return np.bincount(c.face_component, weights=np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2]))) / 6
+
+
+def test_closed_surfaces_are_turned_outward_cavities_and_open_ones_kept():
+    s = shapes.icosphere(2)
+    v, f = s.vertices, s.faces
+    inward = ta.clean_mesh(ta.Mesh(v, f[:, ::-1], name="inward"))
+    assert inward.report["turned_outward"] == len(f) and inward.report["flipped_faces"] == 0
+    np.testing.assert_array_equal(inward.faces, ta.clean_mesh(ta.Mesh(v, f)).faces)
+    assert _signed_volumes(inward)[0] > 0
+    # a solid ball with a cavity: the inner sphere faces the cavity (inward) and stays so
+    hollow = ta.clean_mesh(ta.Mesh(np.concatenate([v, 0.5 * v]), np.concatenate([f, f[:, ::-1] + len(v)])))
+    assert hollow.report["turned_outward"] == 0 and (np.sign(_signed_volumes(hollow)) == [1, -1]).all()
+    # two balls side by side, the second inward: only it is turned
+    apart = ta.clean_mesh(ta.Mesh(np.concatenate([v, v + 3.0]), np.concatenate([f, f[:, ::-1] + len(v)])))
+    assert apart.report["turned_outward"] == len(f) and (_signed_volumes(apart) > 0).all()
+    # an open cap has no inside: kept as it is, either way round
+    cap = f[(v[f].mean(axis=1)[:, 2] > 0.3)]
+    for faces in (cap, cap[:, ::-1]):
+        assert ta.clean_mesh(ta.Mesh(v, faces)).report["turned_outward"] == 0
+
+
+def test_an_inward_mesh_segments_as_the_outward_one():
+    """The merge reads concave creases, lines of sight and thickness, all of which turn inside
+    out with the faces: an inward U was cut elsewhere before it was turned outward."""
+    from helpers.voxel_meshes import voxel_u
+
+    v, f, _, _ = voxel_u()
+    out = ta.segment([ta.Mesh(v, f)], k=3, seed=0)[0].labels
+    inward = ta.segment([ta.Mesh(v, f[:, ::-1])], k=3, seed=0)[0].labels
+    np.testing.assert_array_equal(inward, out)
 
 
 def test_weld_roots_by_hand():

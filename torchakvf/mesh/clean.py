@@ -5,7 +5,8 @@ distinct vertices within round-off of each other (:data:`WELD_DISTANCE`) are wel
 a repeated vertex index, faces reaching an outlier vertex (:data:`OUTLIER_DISTANCE`),
 zero-area faces and repeated faces are dropped (with
 ``zip_cracks=True`` the crack a dropped needle face leaves is zipped shut), faces are
-re-oriented consistently per component, unreferenced vertices are removed.
+re-oriented consistently per component and closed components turned to face outward
+(:func:`orient_outward`), unreferenced vertices are removed.
 What is refused (``MeshError``): non-manifold edges (shared by more than two faces),
 non-orientable surfaces, and meshes with nothing left after clean-up.
 Open boundaries and several connected components are supported as they are.
@@ -210,11 +211,50 @@ def clean_mesh(mesh: Mesh, zip_cracks: bool = True, weld: bool = True) -> CleanM
     report["flipped_faces"] = flipped
 
     n_comp, vertex_comp = connected_components(vertex_adjacency(faces, len(verts)), directed=False)
+    face_comp = vertex_comp[faces[:, 0]].astype(np.int64)
+    open_face = (counts[edge_faces.inverse] == 1).reshape(-1, 3).any(axis=1)
+    faces, report["turned_outward"] = orient_outward(verts, faces, face_comp, open_face)
     report["components"] = int(n_comp)
     report["boundary_edges"] = int((counts == 1).sum())
     return CleanMesh(vertices=verts, faces=faces, face_index=keep, n_input_faces=mesh.n_faces,
-                     face_component=vertex_comp[faces[:, 0]].astype(np.int64), name=name,
-                     input_faces=mesh.faces, report=report)
+                     face_component=face_comp, name=name, input_faces=mesh.faces, report=report)
+
+
+def orient_outward(vertices: np.ndarray, faces: np.ndarray, face_component: np.ndarray,
+                   open_face: np.ndarray) -> tuple[np.ndarray, int]:
+    """(faces [F, 3], faces turned): every closed component turned to face outward (its signed
+    volume positive), except one inside another closed component's bounding box, which may bound
+    a cavity (it keeps its orientation). A closed surface oriented inward (some exporters and
+    marching-cubes codes write them so) would read its concave creases as convex and cast the
+    lines of sight and the thickness rays outside the solid. Open components are left as they
+    are (an open surface has no inside). face_component : [F]; open_face : [F] bool, faces on
+    a boundary edge."""
+    n = int(face_component.max()) + 1 if len(faces) else 0
+    closed = np.bincount(face_component[open_face], minlength=n) == 0
+    p = vertices[faces]
+    # signed volume of each component (the divergence theorem; about each one's own first
+    # vertex, so that coordinates far from the origin lose no digits)
+    origin = np.zeros((n, 3))
+    origin[face_component[::-1]] = p[::-1, 0]
+    q = p - origin[face_component][:, None]
+    volume = np.bincount(face_component, weights=np.einsum("ij,ij->i", q[:, 0], np.cross(q[:, 1], q[:, 2])),
+                         minlength=n) / 6.0
+    lo = np.full((n, 3), np.inf)
+    hi = np.full((n, 3), -np.inf)
+    np.minimum.at(lo, face_component, p.min(axis=1))
+    np.maximum.at(hi, face_component, p.max(axis=1))
+    turn = np.zeros(n, dtype=bool)
+    for c in np.flatnonzero(closed & (volume < 0)):
+        others = closed.copy()
+        others[c] = False
+        inside = others & np.all(lo <= lo[c], axis=1) & np.all(hi >= hi[c], axis=1)
+        turn[c] = not inside.any()
+    flip = turn[face_component]
+    if not flip.any():
+        return faces, 0
+    out = faces.copy()
+    out[flip] = out[flip][:, ::-1]
+    return out, int(flip.sum())
 
 
 def weld_roots(vertices: np.ndarray, distance: float = WELD_DISTANCE) -> np.ndarray | None:
