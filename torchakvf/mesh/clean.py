@@ -243,8 +243,11 @@ def orient_outward(vertices: np.ndarray, faces: np.ndarray, face_component: np.n
     hi = np.full((n, 3), -np.inf)
     np.minimum.at(lo, face_component, p.min(axis=1))
     np.maximum.at(hi, face_component, p.max(axis=1))
+    # a closed surface of no volume (two sheets on each other) has no inside to face away from:
+    # its sign is round-off, so it is kept
+    size = np.linalg.norm(hi - lo, axis=1)
     turn = np.zeros(n, dtype=bool)
-    for c in np.flatnonzero(closed & (volume < 0)):
+    for c in np.flatnonzero(closed & (volume < -1e-9 * size ** 3)):
         others = closed.copy()
         others[c] = False
         inside = others & np.all(lo <= lo[c], axis=1) & np.all(hi >= hi[c], axis=1)
