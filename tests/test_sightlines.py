@@ -130,6 +130,13 @@ def test_counts_of_unions_are_those_the_merge_state_adds_up():
     np.testing.assert_array_equal(got.seen, state.seen[np.ix_(keep, keep)])
     np.testing.assert_array_equal(got.lines, state.lines[np.ix_(keep, keep)])
     np.testing.assert_array_equal(got.take([2, 0]).lines, state.lines[np.ix_([2, 0], [2, 0])])
+    # by hand: parts 0 and 2 of three join; the union's own segments are 0's, 2's and those
+    # between them (5 + 7 + 3), its segments to part 1 both parts' (2 + 4)
+    hand = np.array([[5.0, 2, 3], [2, 6, 4], [3, 4, 7]])
+    united = PartSight(hand, hand).merged(np.array([0, 1, 0]), 2)
+    np.testing.assert_array_equal(united.lines, [[15, 6], [6, 6]])
+    # a union no part joins has no segments
+    np.testing.assert_array_equal(PartSight(hand, hand).merged(np.array([0, 1, 0]), 3).lines[2], 0)
 
 
 def test_many_parts_get_fewer_samples_each():

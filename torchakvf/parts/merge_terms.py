@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .sightlines import join_counts
+
 #: names of the columns of :func:`pair_terms`, in order (the learned merge's inputs)
 TERM_NAMES = ("symmetry", "concavity", "convexity", "share", "small", "size_ratio", "short_cut",
               "thickness", "thin", "centricity", "sight", "sight_excess")
@@ -132,12 +134,7 @@ class MergeState:
                 vec[j] = 0.0
         for mat in (self.seen, self.lines):
             if mat is not None:
-                # the diagonal counts a part's own segments: the union's are both parts' and those between them
-                inner = mat[i, i] + mat[j, j] + mat[i, j]
-                mat[i, :] += mat[j, :]
-                mat[:, i] = mat[i, :]
-                mat[i, i] = inner
-                mat[j, :] = mat[:, j] = 0.0
+                join_counts(mat, i, j)
         for mat in (self.length, self.concave, self.convex):
             mat[i, :] += mat[j, :]
             mat[:, i] = mat[i, :]

@@ -124,6 +124,17 @@ class SightLines:
         return seen, lines
 
 
+def join_counts(mat: np.ndarray, i: int, j: int) -> None:
+    """Part j joins part i in the symmetric counts ``mat`` [K, K] (seen or lines), in place: the
+    union's segments to any other part are both parts' (summed), its own (the diagonal) both
+    parts' own and those between them; j's row and column become zero."""
+    inner = mat[i, i] + mat[j, j] + mat[i, j]
+    mat[i, :] += mat[j, :]
+    mat[:, i] = mat[i, :]
+    mat[i, i] = inner
+    mat[j, :] = mat[:, j] = 0.0
+
+
 @dataclass(frozen=True)
 class PartSight:
     """Counts of :meth:`SightLines.counts` of a labelling, by its part ids: seen, lines [K, K]."""
@@ -133,18 +144,23 @@ class PartSight:
 
     def merged(self, owner: np.ndarray, n_parts: int) -> "PartSight":
         """The counts of the unions of parts, ``owner`` [K] the union (0..n_parts-1) each part
-        joins: a union's own segments are its parts' own and those between them (each once), as
-        :meth:`~torchakvf.parts.merge_terms.MergeState.merge` adds them."""
-        M = np.zeros((len(owner), int(n_parts)))
-        M[np.arange(len(owner)), np.asarray(owner)] = 1.0
-
-        def union(mat):
-            own = np.diag(mat)
-            out = M.T @ (mat - np.diag(own)) @ M
-            out[np.diag_indices(int(n_parts))] = 0.5 * np.diag(out) + M.T @ own
-            return out
-
-        return PartSight(union(self.seen), union(self.lines))
+        joins, each part joining the union's first (:func:`join_counts`, as
+        :meth:`~torchakvf.parts.merge_terms.MergeState.merge` joins them); a union of no part
+        has zero counts."""
+        seen, lines = self.seen.copy(), self.lines.copy()
+        first = np.full(int(n_parts), -1, dtype=np.int64)
+        for part, union in enumerate(np.asarray(owner)):
+            if first[union] < 0:
+                first[union] = part
+            else:
+                join_counts(seen, first[union], part)
+                join_counts(lines, first[union], part)
+        present = first >= 0
+        rows = np.ix_(first[present], first[present])
+        out = PartSight(np.zeros((len(first), len(first))), np.zeros((len(first), len(first))))
+        out.seen[np.ix_(present, present)] = seen[rows]
+        out.lines[np.ix_(present, present)] = lines[rows]
+        return out
 
     def take(self, ids: np.ndarray) -> "PartSight":
         """The counts of parts ``ids`` (in that order)."""
@@ -152,4 +168,5 @@ class PartSight:
         return PartSight(self.seen[ix], self.lines[ix])
 
 
-__all__ = ["SIGHT_SAMPLES", "SIGHT_BUDGET", "SIGHT_MIN_SAMPLES", "SIGHT_OFFSET", "SightLines", "PartSight"]
+__all__ = ["SIGHT_SAMPLES", "SIGHT_BUDGET", "SIGHT_MIN_SAMPLES", "SIGHT_OFFSET", "SightLines", "PartSight",
+           "join_counts"]
