@@ -227,10 +227,10 @@ def test_a_folded_decimation_is_made_again_with_more_faces():
     """Collapsed to 1,000 faces, the flange's flat caps become fans of long triangles through
     the hubs: a fifth of the surface lies above coarse faces pointing the other way. The coarse
     mesh is made again at 2,000 faces, where it does not fold."""
-    from torchakvf.mesh.coarse import FOLDED_SHARE, _coarse_at, folded_share
+    from torchakvf.mesh.coarse import FOLDED_SHARE, coarse_mesh_at, folded_share
 
     flange = _double_flange()
-    assert folded_share(_coarse_at(flange, 1000, False)) > 2 * FOLDED_SHARE
+    assert folded_share(coarse_mesh_at(flange, 1000)) > 2 * FOLDED_SHARE
     cm = coarse_mesh(flange, 1000)
     assert cm.faces_asked == 2000 and abs(len(cm.coarse.faces) - 2000) <= 10
     assert folded_share(cm) < 0.01

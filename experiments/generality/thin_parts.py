@@ -21,22 +21,20 @@ import numpy as np
 
 from torchakvf.io import load_mesh
 from torchakvf.io.outputs import write_off
-from torchakvf.mesh.clean import face_cross_products
-from torchakvf.mesh.coarse import coarse_mesh
+from torchakvf.mesh.clean import clean_mesh
+from torchakvf.mesh.coarse import DECIMATE_ABOVE, coarse_mesh_at, folded_share
 from torchakvf.shapes.marching import marching_cubes
 from torchakvf.shapes.sdf import Union, cylinder
 
 
 def flipped_shares(path: str, budget: int) -> tuple[float, float] | None:
-    """(area share with dot < 0, with dot < 0.5) of ``path`` decimated to ``budget`` faces."""
-    cm = coarse_mesh(load_mesh(path), budget)
-    if cm is None:
+    """(area share with dot < 0, with dot < 0.5) of ``path`` decimated to ``budget`` faces
+    (once: not made again where it folds, as the pipeline's :func:`coarse_mesh` does)."""
+    fine = clean_mesh(load_mesh(path))
+    if len(fine.faces) <= DECIMATE_ABOVE * budget:
         return None
-    nf = face_cross_products(cm.fine.vertices, cm.fine.faces)
-    nc = face_cross_products(cm.coarse.vertices, cm.coarse.faces)[cm.faces_on_coarse.face]
-    area = np.linalg.norm(nf, axis=1)
-    cos = (nf * nc).sum(axis=1) / np.maximum(area * np.linalg.norm(nc, axis=1), 1e-300)
-    return float(area[cos < 0].sum() / area.sum()), float(area[cos < 0.5].sum() / area.sum())
+    cm = coarse_mesh_at(fine, budget)
+    return folded_share(cm), folded_share(cm, 0.5)
 
 
 def write_thin_hub(half: float, out: str) -> None:

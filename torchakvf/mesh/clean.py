@@ -269,7 +269,7 @@ def weld_roots(vertices: np.ndarray, distance: float = WELD_DISTANCE) -> np.ndar
         return None
     # the scale is the vertices' spread (as for the outliers), which a stray coordinate such as
     # 1e12 does not move: on the diagonal it would weld every vertex of the mesh into one
-    spread = float(np.median(np.linalg.norm(vertices - np.median(vertices, axis=0), axis=1)))
+    spread = point_spread(vertices)
     if not np.isfinite(spread) or spread <= 0:
         return None
     from scipy.spatial import cKDTree
@@ -285,6 +285,12 @@ def weld_roots(vertices: np.ndarray, distance: float = WELD_DISTANCE) -> np.ndar
     return lowest[cluster]
 
 
+def point_spread(points: np.ndarray) -> float:
+    """The spread of ``points`` [P, 3]: the median distance from their coordinate-wise median (a
+    scale no handful of stray points moves; :data:`OUTLIER_DISTANCE`, :data:`WELD_DISTANCE`)."""
+    return float(np.median(np.linalg.norm(points - np.median(points, axis=0), axis=1)))
+
+
 def faces_at_outliers(vertices: np.ndarray, faces: np.ndarray,
                       factor: float = OUTLIER_DISTANCE) -> np.ndarray:
     """[F] bool: the faces with an edge longer than ``factor`` spreads (see
@@ -292,7 +298,7 @@ def faces_at_outliers(vertices: np.ndarray, faces: np.ndarray,
     vertices the faces use."""
     used = np.flatnonzero(np.bincount(faces.ravel(), minlength=len(vertices)))
     p = vertices[used]
-    spread = np.median(np.linalg.norm(p - np.median(p, axis=0), axis=1))
+    spread = point_spread(p)
     if not spread > 0:
         return np.zeros(len(faces), dtype=bool)
     with np.errstate(over="ignore", invalid="ignore"):

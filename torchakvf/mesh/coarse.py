@@ -377,7 +377,7 @@ def coarse_mesh(mesh: Mesh | CleanMesh, faces: int, *, canonical: bool = False) 
     for _ in range(DECIMATE_RETRIES + 1):
         if len(fine.faces) <= DECIMATE_ABOVE * asked:
             return None
-        made = _coarse_at(fine, asked, canonical)
+        made = coarse_mesh_at(fine, asked, canonical)
         share = folded_share(made)
         if best is None or share < best[0]:
             best = (share, made)
@@ -387,7 +387,9 @@ def coarse_mesh(mesh: Mesh | CleanMesh, faces: int, *, canonical: bool = False) 
     return best[1]
 
 
-def _coarse_at(fine: CleanMesh, faces: int, canonical: bool) -> CoarseMesh:
+def coarse_mesh_at(fine: CleanMesh, faces: int, canonical: bool = False) -> CoarseMesh:
+    """The :class:`CoarseMesh` of the cleaned ``fine`` decimated once to about ``faces`` faces,
+    folded or not (:func:`coarse_mesh` makes it again where it folds)."""
     # the decimated surface is not welded: a few of its vertices lie within round-off of each
     # other after the collapse (1 of 362 decimated PSB meshes), and the segmentation's defaults
     # were chosen on the surface as collapsed
@@ -400,17 +402,19 @@ def _coarse_at(fine: CleanMesh, faces: int, canonical: bool) -> CoarseMesh:
                       faces_on_coarse=part(slice(nv, None)), faces_asked=int(faces), canonical=canonical)
 
 
-def folded_share(cm: CoarseMesh) -> float:
+def folded_share(cm: CoarseMesh, cos_below: float = 0.0) -> float:
     """The share of the fine surface's area whose faces point against the coarse face under
-    their barycentre (normals' dot product < 0): where the decimation folded the surface over
-    or collapsed a part thinner than its edges into a sheet (0 on a faithful decimation)."""
+    their barycentre (the cosine between their normals below ``cos_below``; at 0: where the
+    decimation folded the surface over or collapsed a part thinner than its edges into a
+    sheet, 0 on a faithful decimation)."""
     nf = face_cross_products(cm.fine.vertices, cm.fine.faces)
     nc = face_cross_products(cm.coarse.vertices, cm.coarse.faces)[cm.faces_on_coarse.face]
     area = np.linalg.norm(nf, axis=1)
     total = float(area.sum())
-    return float(area[(nf * nc).sum(axis=1) < 0].sum()) / total if total > 0 else 0.0
+    cos = (nf * nc).sum(axis=1) / np.maximum(area * np.linalg.norm(nc, axis=1), 1e-300)
+    return float(area[cos < cos_below].sum()) / total if total > 0 else 0.0
 
 
 __all__ = ["CoarseMesh", "SurfaceIndex", "SurfacePoints", "canonical_frame", "canonical_numbering", "coarse_mesh",
-           "decimate", "folded_share", "locate_on_surface", "DEFAULT_COARSE_FACES", "DECIMATE_ABOVE",
+           "coarse_mesh_at", "decimate", "folded_share", "locate_on_surface", "DEFAULT_COARSE_FACES", "DECIMATE_ABOVE",
            "DECIMATE_RETRIES", "FOLDED_SHARE", "FRAME_GRID"]
