@@ -219,3 +219,38 @@ def test_host_synchronizations_per_untangling_step_have_a_ceiling():
     assert per["linalg.svd"] == steps + steps // 3    # one per step, two per extrapolated step
     others = sum(per.values()) - per["linalg.svd"]
     assert others <= steps / horst_mod.SLOTS_EVERY, per
+
+
+def _orthogonal(n: int, generator: torch.Generator) -> torch.Tensor:
+    q, _ = torch.linalg.qr(torch.randn(n, n, generator=generator, dtype=torch.float64))
+    return q
+
+
+def test_moment_frame_turns_with_the_fields_and_so_does_the_untangling():
+    """Another basis of the same span, Y B (B orthogonal, some signs flipped: what another
+    eigensolver start returns inside an eigenspace), has the frame Bᵀ Q, signed by the
+    statistics turned alike; started in it, the untangling ends on the same fields. Random
+    forms, so nothing about a mesh makes it hold by accident."""
+    gen = torch.Generator().manual_seed(5)
+    e, n = 400, 6
+    # a few edges carry each field much more than the rest: an untangling with an optimum
+    y = torch.randn(e, n, generator=gen, dtype=torch.float64) * \
+        (1.0 + 4.0 * (torch.rand(e, n, generator=gen, dtype=torch.float64) > 0.9))
+    area = torch.rand(50, generator=gen, dtype=torch.float64)
+    omega, radial = (torch.randn(50, n, generator=gen, dtype=torch.float64) for _ in range(2))
+    b = _orthogonal(n, gen) * torch.tensor([1.0, -1.0, 1.0, -1.0, -1.0, 1.0], dtype=torch.float64)
+    q = untangle_mod.moment_frame(y, (area, omega, radial))
+    qb = untangle_mod.moment_frame(y @ b, (area, omega @ b, radial @ b))
+    assert torch.allclose(q.T @ q, torch.eye(n, dtype=torch.float64), atol=1e-12)
+    assert torch.allclose(qb, b.T @ q, atol=1e-9), (qb - b.T @ q).abs().max()
+    ends = []
+    for yy, frame in ((y, q), (y @ b, qb)):
+        a, score, _, _ = untangle_mod.orthomax(yy[None], 3, 0, 1e-12, 2000, torch.float64, frames=frame[None])
+        ends.append(((yy @ a[0]) ** 2, float(score[0])))
+    assert ends[0][1] == pytest.approx(ends[1][1], rel=1e-10)
+    assert torch.allclose(ends[0][0], ends[1][0], atol=1e-6 * float(ends[0][0].max()))
+
+
+def test_untangle_frame_is_checked(fields):
+    with pytest.raises(ta.ParameterError, match="frame must be one of"):
+        ta.untangle(fields, 4, frame="pca")

@@ -24,6 +24,37 @@ from .akvf_result import AKVFResult
 SIGN_MOMENT_FLOOR = 1e-6
 
 
+def sign_statistics(fields: AKVFResult, b: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(area [F_b], omega [F_b, n], radial [F_b, n]) of mesh b: its face areas (unit total), the
+    vorticity ω_i(f) of every field and its component r_i(f) = ⟨X_i(f), c(f) - c̄⟩ away from
+    the area centroid (:func:`vorticity_moments`). Both are linear in the fields, so the
+    statistics of a rotated set Φ A are ``omega @ A`` and ``radial @ A``."""
+    batch = fields.batch
+    forms = fields.forms.to(torch.float64)
+    f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
+    sign = batch.face_edge_sign[f0:f1].to(torch.float64)
+    # circulations on the packed edges of this mesh: sum of the half-edges' signed values
+    circ = (forms[batch.face_edges[f0:f1]] * sign[:, :, None]).sum(dim=1)              # [F_b, n]
+    v = batch.verts[batch.faces[f0:f1]].to(torch.float64)
+    area = 0.5 * torch.linalg.norm(torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=-1), dim=-1)
+    area = area / area.sum()
+    omega = circ / torch.clamp(area, min=1e-300)[:, None]
+    # the radial moment: how the field moves faces away from the area centroid
+    centers = v.mean(dim=1)
+    radial = torch.einsum("fnc,fc->fn", fields.face_vectors[f0:f1].to(torch.float64), centers - area @ centers)
+    return area, omega, radial
+
+
+def odd_moments(area: torch.Tensor, omega: torch.Tensor, radial: torch.Tensor) -> torch.Tensor:
+    """[n] Σ a ω³ / (Σ a ω²)^{3/2} + Σ a r³ / (Σ a r²)^{3/2} of :func:`sign_statistics`' arrays
+    (columns: fields)."""
+    second = (area[:, None] * omega ** 2).sum(dim=0)
+    third = (area[:, None] * omega ** 3).sum(dim=0)
+    r2 = (area[:, None] * radial ** 2).sum(dim=0)
+    r3 = (area[:, None] * radial ** 3).sum(dim=0)
+    return third / torch.clamp(second, min=1e-300) ** 1.5 + r3 / torch.clamp(r2, min=1e-300) ** 1.5
+
+
 def vorticity_moments(fields: AKVFResult) -> torch.Tensor:
     """[B, n] the sign moments of every mesh's fields: Σ a ω³ / (Σ a ω²)^{3/2} + Σ a r³ /
     (Σ a r²)^{3/2}, a = area(f) (unit total), ω_i(f) the vorticity and r_i(f) = ⟨X_i(f), c(f) -
@@ -31,27 +62,9 @@ def vorticity_moments(fields: AKVFResult) -> torch.Tensor:
     are scale-free third moments, odd in the field's sign and invariant to rigid motions and
     numbering. A mirror symmetry of the surface makes ω odd under it for a field it keeps, and
     r odd for a field it reverses: the sum is zero only where both are."""
-    batch = fields.batch
-    forms = fields.forms.to(torch.float64)
-    sign = batch.face_edge_sign.to(torch.float64)
-    out = torch.zeros(len(batch), fields.n, dtype=torch.float64, device=forms.device)
-    for b in range(len(batch)):
-        f0, f1 = int(batch.face_ptr[b]), int(batch.face_ptr[b + 1])
-        # circulations on the packed edges of this mesh: sum of the half-edges' signed values
-        circ = (forms[batch.face_edges[f0:f1]] * sign[f0:f1, :, None]).sum(dim=1)     # [F_b, n]
-        v = batch.verts[batch.faces[f0:f1]].to(torch.float64)
-        area = 0.5 * torch.linalg.norm(torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=-1), dim=-1)
-        area = area / area.sum()
-        omega = circ / torch.clamp(area, min=1e-300)[:, None]
-        second = (area[:, None] * omega ** 2).sum(dim=0)
-        third = (area[:, None] * omega ** 3).sum(dim=0)
-        # the radial moment: how the field moves faces away from the area centroid
-        centers = v.mean(dim=1)
-        radial = torch.einsum("fnc,fc->fn", fields.face_vectors[f0:f1].to(torch.float64),
-                              centers - area @ centers)
-        r2 = (area[:, None] * radial ** 2).sum(dim=0)
-        r3 = (area[:, None] * radial ** 3).sum(dim=0)
-        out[b] = third / torch.clamp(second, min=1e-300) ** 1.5 + r3 / torch.clamp(r2, min=1e-300) ** 1.5
+    out = torch.zeros(len(fields.batch), fields.n, dtype=torch.float64, device=fields.forms.device)
+    for b in range(len(fields.batch)):
+        out[b] = odd_moments(*sign_statistics(fields, b))
     return out
 
 
@@ -70,4 +83,4 @@ def canonical_signs(fields: AKVFResult) -> AKVFResult:
     return dataclasses.replace(fields, forms=forms, face_vectors=face_vectors)
 
 
-__all__ = ["SIGN_MOMENT_FLOOR", "canonical_signs", "vorticity_moments"]
+__all__ = ["SIGN_MOMENT_FLOOR", "canonical_signs", "vorticity_moments", "sign_statistics", "odd_moments"]

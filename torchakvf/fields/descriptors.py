@@ -39,12 +39,13 @@ column                        meaning, range
                               carried by the face change within r; [0, 1]
 ============================  ================================================================
 
-The untangling-based columns untangle the fields with their canonical signs
-(:func:`~torchakvf.fields.canonical.canonical_signs`) from :data:`DESCRIPTOR_SEED`'s starts,
-so they repeat whatever solver start, eigensolver, pose or numbering made the fields (to the
-solver's tolerance). Where eigenvalues are exactly equal (an exactly symmetric shape, a surface
-of revolution) no sign fixes the basis of their eigenspace: the untangling may start elsewhere,
-and only ``log_density`` and the coherences are guaranteed to repeat.
+The untangling-based columns untangle the fields from :data:`DESCRIPTOR_SEED`'s starts given
+in the fields' moment frame (:func:`~torchakvf.fields.untangle.moment_frame`), which turns with
+any basis of their span, so they repeat whatever solver start, eigensolver, pose or numbering
+made the fields (to the solver's tolerance), also where eigenvalues are (nearly) equal. On an
+exactly symmetric shape two untanglings that are mirror images of each other reach the same
+objective, and which one is found can be decided by round-off (a moved copy's): there only
+``log_density`` and the coherences are guaranteed to repeat.
 
 Counts and radii make ``len(counts) * (7 + 2 * len(CONTRAST_RADII))`` columns, named by
 :func:`descriptor_names` in the order :func:`face_descriptors` returns them.
@@ -77,6 +78,9 @@ BASE_COLUMNS = ("share1", "share2", "share3", "entropy", "log_density", "energy"
 #: Seed of the descriptors' own untangling, whatever seed solved the fields: with the fields'
 #: canonical signs the columns then depend on the fields' span and eigenvalues alone.
 DESCRIPTOR_SEED = 0
+#: Frame of the descriptors' untangling starts (:data:`~torchakvf.fields.untangle.START_FRAMES`):
+#: the fields' moment frame, so the columns repeat on exactly symmetric shapes too.
+DESCRIPTOR_FRAME = "moments"
 #: Floor of Σ φ² relative to its surface mean before the log (faces where no field moves).
 DENSITY_FLOOR = 1e-12
 
@@ -238,10 +242,11 @@ def face_descriptors(fields: AKVFResult, counts: Sequence[int] | int = DEFAULT_C
     canonical = None
     for n in counts:
         if n not in untangled:
-            # random starts act on the fields' coefficients: on fields whose signs the surface
-            # fixes, a seed gives the same starts whatever solver, pose or numbering made them
+            # the starts are given in the fields' moment frame, which turns with them: a seed
+            # gives the same starts whatever basis of the fields' span (solver start, pose,
+            # numbering, a symmetric shape's equal eigenvalues) the eigensolver returned
             canonical = canonical_signs(fields) if canonical is None else canonical
-            untangled[n] = untangle(canonical, n, restarts=restarts, seed=seed, tol=tol)
+            untangled[n] = untangle(canonical, n, restarts=restarts, seed=seed, tol=tol, frame=DESCRIPTOR_FRAME)
     out = []
     for b, mesh in enumerate(fields.batch.meshes):
         diffusion = FaceDiffusion(mesh.vertices, mesh.faces) if len(radii) else None
@@ -260,5 +265,5 @@ def face_descriptors(fields: AKVFResult, counts: Sequence[int] | int = DEFAULT_C
     return out
 
 
-__all__ = ["DEFAULT_COUNTS", "DESCRIPTOR_SEED", "CONTRAST_RADII", "BASE_COLUMNS", "FaceDiffusion", "descriptor_block",
-           "counts_for", "descriptor_names", "face_descriptors", "span_coherence"]
+__all__ = ["DEFAULT_COUNTS", "DESCRIPTOR_SEED", "DESCRIPTOR_FRAME", "CONTRAST_RADII", "BASE_COLUMNS", "FaceDiffusion",
+           "descriptor_block", "counts_for", "descriptor_names", "face_descriptors", "span_coherence"]

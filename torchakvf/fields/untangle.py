@@ -18,6 +18,7 @@ from ..mesh.batch import pad_packed
 from ..restarts import best_restart
 from ..threads import single_threaded
 from .akvf import AKVFResult
+from .canonical import SIGN_MOMENT_FLOOR, odd_moments, sign_statistics
 from .fourth_moments import STEPS_PER_RESTART, fourth_moments_pay, side_by_side
 from .horst import horst
 
@@ -27,6 +28,11 @@ FLOAT32_PHASE_TOL = 10.0
 #: segmentation uses :data:`~torchakvf.options.SEGMENT_UNTANGLE_RESTARTS`): enough that an exactly
 #: symmetric shape's best rotation is found among them.
 DEFAULT_RESTARTS = 8
+#: Frames the starts of Algorithm 1 are given in: "eigen", the fields as the eigensolver returned
+#: them (the identity start is the raw eigenbasis); "moments", the fields' own moment frame
+#: (:func:`moment_frame`), which turns with the fields, so the untangling does not depend on the
+#: basis the eigensolver chose inside an eigenspace nor on the fields' signs.
+START_FRAMES = ("eigen", "moments")
 
 
 @dataclass
@@ -137,7 +143,7 @@ def random_rotations(count: int, n: int, generator: torch.Generator, dtype=torch
 
 def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: int = DEFAULT_RESTARTS,
              seed: int = 0, tol: float = 1e-6, max_iter: int = 500,
-             iteration_dtype: torch.dtype = torch.float32) -> UntangledFields:
+             iteration_dtype: torch.dtype = torch.float32, frame: str = "eigen") -> UntangledFields:
     """Algorithm 1 on the first ``n`` fields of every mesh (default: all of them).
 
     n : one count for all meshes, or one per mesh; arrays are padded to the largest n
@@ -156,13 +162,18 @@ def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: 
         then run from there to ``tol``, so every restart ends on a float64 stopping test and
         the best restart is chosen by float64 objectives: float32 iterations are faster and
         reach the float64 end points (see docs/design.md; tests/test_precision.py checks it).
+    frame : one of :data:`START_FRAMES`: the starts (the identity and the random rotations) are
+        applied to the raw fields ("eigen") or to the fields in their moment frame ("moments",
+        :func:`moment_frame`): then any orthogonal mix of the same n fields (another
+        eigensolver start on an exactly or nearly symmetric shape, flipped signs) untangles to
+        the same fields, up to round-off.
     """
     nb = len(fields.batch)
     ns = [fields.n] * nb if n is None else ([int(n)] * nb if isinstance(n, numbers.Integral) else [int(v) for v in n])
     if len(ns) != nb or min(ns) < 1 or max(ns) > fields.n:
         raise ParameterError(f"n must be 1..{fields.n} per mesh (one int or {nb} ints), got {n!r}")
     rots = orthomax_rotations(fields, dict(enumerate(ns)), restarts=restarts, seed=seed, tol=tol,
-                              max_iter=max_iter, iteration_dtype=iteration_dtype)
+                              max_iter=max_iter, iteration_dtype=iteration_dtype, frame=frame)
     return untangled_from_rotations(fields, [rots[b] for b in range(nb)])
 
 
@@ -179,8 +190,10 @@ class MeshRotation:
 
 
 def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = DEFAULT_RESTARTS, seed: int = 0,
-                       tol: float = 1e-6, max_iter: int = 500, iteration_dtype: torch.dtype = torch.float32) -> dict:
-    """Algorithm 1 for some meshes of the batch: ns {mesh index b: n_b} -> {b: :class:`MeshRotation`}.
+                       tol: float = 1e-6, max_iter: int = 500, iteration_dtype: torch.dtype = torch.float32,
+                       frame: str = "eigen") -> dict:
+    """Algorithm 1 for some meshes of the batch: ns {mesh index b: n_b} -> {b: :class:`MeshRotation`}
+    (frame: :func:`untangle`'s).
 
     A mesh's rotation depends on its own fields, n_b and the seed alone, so a caller can keep
     them per (mesh, n) and untangle only the meshes whose n is new (a segmentation's rounds do:
@@ -191,6 +204,8 @@ def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = DEFAULT_
     devices the meshes sharing n_b run as one batch, padded to the batch's largest edge count.
     """
     batch = fields.batch
+    if frame not in START_FRAMES:
+        raise ParameterError(f"frame must be one of {START_FRAMES}, got {frame!r}")
     if not ns:
         return {}
     n_max = max(ns.values())
@@ -215,7 +230,12 @@ def orthomax_rotations(fields: AKVFResult, ns: dict, *, restarts: int = DEFAULT_
             groups.append((members, ypad[torch.tensor(members, device=dev)][:, :, :g]))
     for members, y in groups:
         # Meshes sharing n run together; fields beyond a mesh's n are not part of its problem.
-        ag, sg, ig, scores = orthomax(y, restarts, seed, tol, max_iter, iteration_dtype)
+        frames = None
+        if frame == "moments":
+            frames = torch.stack([moment_frame(y[j, :int(batch.edge_ptr[b + 1] - batch.edge_ptr[b])],
+                                               _first_columns(sign_statistics(fields, b), ns[b]))
+                                  for j, b in enumerate(members)])
+        ag, sg, ig, scores = orthomax(y, restarts, seed, tol, max_iter, iteration_dtype, frames=frames)
         for j, b in enumerate(members):
             out[b] = MeshRotation(rotation=ag[j], score=float(sg[j]), iterations=int(ig[j]),
                                   restart_scores=scores[j])
@@ -248,9 +268,44 @@ def untangled_from_rotations(fields: AKVFResult, rotations: list) -> UntangledFi
     return out
 
 
+def _first_columns(statistics: tuple, n: int) -> tuple:
+    """:func:`~torchakvf.fields.canonical.sign_statistics` of the first n fields."""
+    area, omega, radial = statistics
+    return area, omega[:, :n], radial[:, :n]
+
+
+def moment_frame(y: torch.Tensor, statistics: tuple | None = None) -> torch.Tensor:
+    """[n, n] orthogonal Q: the eigenvectors (by descending eigenvalue) of the fields' weighted
+    second moment M = Yᵀ diag(|y_e|²) Y for scaled forms y [E, n] (zero padding rows add
+    nothing), each column signed by the surface.
+
+    M turns with the fields: for Y B (B orthogonal: another basis of the same span, signs
+    flipped) it is Bᵀ M B, so Y B Q' = Y Q wherever M's eigenvalues are distinct and the signs
+    are decided. statistics : (area, omega, radial) of the mesh
+    (:func:`~torchakvf.fields.canonical.sign_statistics`, columns: the n fields): each column q
+    is signed as :func:`~torchakvf.fields.canonical.canonical_signs` signs a field, by the
+    odd moments of the combined field Φ q, which a mirror symmetry of the surface does not
+    make vanish both at once; where they do (or without statistics), by Σ_e (y_e · q)³."""
+    y = y.to(torch.float64)
+    w = (y * y).sum(dim=1)
+    m = y.T @ (w[:, None] * y)
+    m = 0.5 * (m + m.T)
+    with single_threaded():
+        _, q = torch.linalg.eigh(m)
+    q = q.flip(1)
+    odd = ((y @ q) ** 3).sum(dim=0)
+    if statistics is not None:
+        area, omega, radial = (t.to(torch.float64) for t in statistics)
+        surface = odd_moments(area, omega @ q, radial @ q)
+        odd = torch.where(surface.abs() > SIGN_MOMENT_FLOOR, surface, odd)
+    return q * torch.where(odd < 0, -1.0, 1.0).to(q.dtype)[None, :]
+
+
 def orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter: int,
-             iteration_dtype: torch.dtype = torch.float64):
-    """Horst's iteration for [b, Emax, n] scaled forms, all restarts at once.
+             iteration_dtype: torch.dtype = torch.float64, frames: torch.Tensor | None = None):
+    """Horst's iteration for [b, Emax, n] scaled forms, all restarts at once (frames: optional
+    [b, n, n] orthogonal frames the starts are given in, e.g. :func:`moment_frame`; None: the
+    raw fields').
 
     The R rotations of a mesh sit side by side, A = [A_1 | ... | A_R] [n, R·n], so each step is
     two GEMMs per mesh (Y A and Yᵀ (Y A)^3) rather than R small products over copies of Y.
@@ -265,6 +320,8 @@ def orthomax(ypad: torch.Tensor, restarts: int, seed: int, tol: float, max_iter:
         rots = random_rotations(restarts, n, gen)
         starts.append(torch.cat([torch.eye(n, dtype=torch.float64)[None], rots]))
     a = torch.stack(starts).to(dev)                                   # [b, R, n, n]
+    if frames is not None:
+        a = frames.to(dev, torch.float64)[:, None] @ a
     # The float64 steps come from Y's fourth moments where that is faster (:func:`fourth_moments_pay`);
     # the float32 ones always from the products.
     if iteration_dtype == torch.float64:
@@ -295,4 +352,5 @@ def orthomax_objective(ypad: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
 
 
 __all__ = ["UntangledFields", "untangle", "MeshRotation", "orthomax_rotations", "untangled_from_rotations",
-           "random_rotations", "orthomax", "orthomax_objective", "DEFAULT_RESTARTS", "FLOAT32_PHASE_TOL"]
+           "random_rotations", "moment_frame", "orthomax", "orthomax_objective", "DEFAULT_RESTARTS",
+           "FLOAT32_PHASE_TOL", "START_FRAMES"]

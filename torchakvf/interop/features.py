@@ -54,7 +54,7 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
     from ..fields import untangle
     from ..fields.akvf import akvf_falling_back
     from ..fields.canonical import canonical_signs
-    from ..fields.descriptors import DESCRIPTOR_SEED, counts_for
+    from ..fields.descriptors import DESCRIPTOR_FRAME, DESCRIPTOR_SEED, counts_for
     from ..operators.killing import DEFAULT_REMEDY
     from ..parts.input_descriptors import descriptor_batch, input_face_descriptors, solve_descriptor_batch
 
@@ -62,7 +62,9 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
     fields, _ = solve_descriptor_batch(descriptor_batch(batch),
                                        lambda mb: akvf_falling_back(mb, n=n, seed=seed, tol=tol, remedy=remedy))
     fields = canonical_signs(fields)
-    unt = untangle(fields, seed=seed, restarts=restarts)
+    # started in the fields' moment frame, as the descriptors are: the same features whatever
+    # basis of the fields' span the eigensolver returned
+    unt = untangle(fields, seed=seed, restarts=restarts, frame=DESCRIPTOR_FRAME)
     counts = counts_for(n) if descriptors else ()
     # the descriptors untangle with their own seed, so that they do not depend on the solve's
     desc = input_face_descriptors(fields, counts, untangled={n: unt} if seed == DESCRIPTOR_SEED else None,

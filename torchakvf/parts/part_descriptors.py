@@ -24,7 +24,8 @@ column                      meaning, range
 ==========================  =====================================================================
 
 The segmentations read the fields with their canonical signs
-(:func:`~torchakvf.fields.canonical.canonical_signs`) and cut a decimated mesh's
+(:func:`~torchakvf.fields.canonical.canonical_signs`), untangle them from starts in their
+moment frame (:data:`~torchakvf.fields.descriptors.DESCRIPTOR_FRAME`) and cut a decimated mesh's
 full-resolution mesh numbered from its surface
 (:func:`fine_meshes_numbered_canonically`), so another solver start, eigensolver, pose or
 numbering gives the same cuts wherever the fields repeat (a scaled copy does not: the merge
@@ -46,6 +47,7 @@ from scipy.sparse.csgraph import dijkstra
 from ..errors import ParameterError
 from ..fields.akvf_result import AKVFResult
 from ..fields.canonical import canonical_signs
+from ..fields.descriptors import DESCRIPTOR_FRAME
 from ..mesh.batch import MeshBatch
 from ..mesh.clean import face_areas
 from ..mesh.coarse import canonical_numbering
@@ -189,7 +191,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     for s, seed in enumerate(seeds):
         each = [{} for _ in range(len(batch))]
         for rnd in segment_rounds(fields, [sorted(set(kb)) for kb in ks_of], segment_options(opts, seed=int(seed)),
-                                  n_fields=n_fields, mesh_caches=caches):
+                                  n_fields=n_fields, mesh_caches=caches, untangle_frame=DESCRIPTOR_FRAME):
             for b in rnd.active:
                 each[b][rnd.ks[b]] = rnd.meshes[b].labels
         for b in range(len(batch)):

@@ -59,7 +59,7 @@ class KRound:
 
 def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=None,
                    untangled: UntangledFields | None = None, cut: bool = True,
-                   mesh_caches: list[MeshCache] | None = None):
+                   mesh_caches: list[MeshCache] | None = None, untangle_frame: str = "eigen"):
     """Yields one :class:`KRound` per round: round r segments every mesh with its r-th k.
 
     ks : one list of k's per mesh (or one int, or one int per mesh); meshes with fewer k's sit
@@ -72,6 +72,8 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
     mesh_caches : [B] a :class:`~torchakvf.parts.cut.MeshCache` per mesh of ``fields.batch``, to
         keep what the cut makes of each mesh alone (crease patches, thickness, dual edges) for
         later calls on the same batch (other seeds or k's); None: made for this call
+    untangle_frame : the frame of the untangling's starts
+        (:data:`~torchakvf.fields.untangle.START_FRAMES`; the part descriptors' "moments")
     """
     batch = fields.batch
     ks = check_ks(batch, ks)
@@ -80,7 +82,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         mesh_caches = [MeshCache() for _ in range(nb)]
     elif len(mesh_caches) != nb:
         raise ParameterError(f"mesh_caches has {len(mesh_caches)} entries for a batch of {nb} meshes")
-    state = _RoundsState(mesh_caches=list(mesh_caches), prev_labels=[None] * nb)
+    state = _RoundsState(mesh_caches=list(mesh_caches), prev_labels=[None] * nb, frame=untangle_frame)
     if untangled is not None:
         state.assembled[tuple(int(v) for v in untangled.n_fields)] = untangled
     plans = {}          # round -> its round_plan, made once: read by the round and the one before
@@ -100,7 +102,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
                                      f"of other AKVFs; these k need n = {list(ns)} of the AKVFs passed")
             unt = untangled
         else:
-            unt = _round_untangled(fields, ns, active, state.rotations, state.assembled, opts)
+            unt = _round_untangled(fields, ns, active, state.rotations, state.assembled, opts, state.frame)
         t1 = time.perf_counter()
         km = _round_kmeans(unt, r, km_ks, ns, active, state, opts)
         following = None
@@ -135,6 +137,7 @@ class _RoundsState:
 
     mesh_caches: list
     prev_labels: list
+    frame: str = "eigen"
     rotations: dict = field(default_factory=dict)
     assembled: dict = field(default_factory=dict)
     clusterings: dict = field(default_factory=dict)
@@ -272,7 +275,7 @@ def _round_clustering(unt: UntangledFields, km_ks: list, ns: list, active: list,
 
 
 def _round_untangled(fields: AKVFResult, ns: list, active: list, rotations: dict, assembled: dict,
-                     opts: SegmentOptions) -> UntangledFields:
+                     opts: SegmentOptions, frame: str = "eigen") -> UntangledFields:
     """The untangled fields of one round: each active mesh b at ns[b], from ``rotations``
     {(b, n): MeshRotation} where known, the others untangled now (together) and added to it.
 
@@ -290,7 +293,7 @@ def _round_untangled(fields: AKVFResult, ns: list, active: list, rotations: dict
     key = tuple(counts)
     if key not in assembled:
         missing = {b: counts[b] for b in range(len(counts)) if (b, counts[b]) not in rotations}
-        new = orthomax_rotations(fields, missing, seed=opts.seed, restarts=opts.untangle_restarts)
+        new = orthomax_rotations(fields, missing, seed=opts.seed, restarts=opts.untangle_restarts, frame=frame)
         rotations.update({(b, counts[b]): rot for b, rot in new.items()})
         assembled[key] = untangled_from_rotations(fields, [rotations[(b, counts[b])] for b in range(len(counts))])
     return assembled[key]
