@@ -23,7 +23,7 @@ import numpy as np
 
 from torchakvf.io.outputs import write_off
 from torchakvf.shapes.marching import marching_cubes
-from torchakvf.shapes.sdf import Box, Union, cylinder
+from torchakvf.shapes.sdf import Box, Ellipsoid, Torus, Union, capsule, cylinder, frame
 
 
 def _save(out: Path, name: str, parts: list, h: float, lo=None, hi=None) -> None:
@@ -76,6 +76,43 @@ def write_all(out: Path) -> None:
     _save(out, "hub_grid", [disc, hub], 0.03, (-1.1, -1.1, -0.17), (1.1, 1.1, 0.8))
 
 
+def assemblies() -> dict:
+    """{name: primitives} of the second set (``--more``): everyday assemblies, organic and
+    mechanical, each part a primitive: spheres stacked, a dumbbell, an L bracket, a T of pipes,
+    a mug with a ring handle, a four-legged creature, a lamp, a rocket with three fins, a chair."""
+    fins = [Box(center=(0.35 * np.cos(a), 0.35 * np.sin(a), 0.25),
+                rotation=frame((0, 0, 1), (np.cos(a), np.sin(a), 0)), half=(0.2, 0.03, 0.25))
+            for a in (0, 2 * np.pi / 3, 4 * np.pi / 3)]
+    return {
+        "snowman": [Ellipsoid(axes=(0.5, 0.5, 0.5)), Ellipsoid(center=(0, 0, 0.7), axes=(0.35, 0.35, 0.35)),
+                    Ellipsoid(center=(0, 0, 1.18), axes=(0.22, 0.22, 0.22))],
+        "dumbbell": [Ellipsoid(center=(-1, 0, 0), axes=(0.4, 0.4, 0.4)), cylinder((-0.7, 0, 0), (0.7, 0, 0), 0.12),
+                     Ellipsoid(center=(1, 0, 0), axes=(0.4, 0.4, 0.4))],
+        "lbracket": [Box(center=(0, 0, 0.05), half=(0.8, 0.5, 0.05)),
+                     Box(center=(-0.75, 0, 0.5), half=(0.05, 0.5, 0.5))],
+        "tpipe": [cylinder((-1.2, 0, 0), (1.2, 0, 0), 0.25), cylinder((0, 0, 0), (0, 1.0, 0), 0.2)],
+        "mug": [cylinder((0, 0, 0), (0, 0, 1.0), 0.4),
+                Torus(center=(0.5, 0, 0.5), rotation=frame((0, 1, 0)), major=0.25, minor=0.06)],
+        "creature": [Ellipsoid(center=(0, 0, 0.8), axes=(0.7, 0.3, 0.3)),
+                     Ellipsoid(center=(0.85, 0, 1.1), axes=(0.22, 0.17, 0.17))]
+        + [capsule((x, y, 0.75), (x, y, 0.05), 0.08) for x in (-0.45, 0.45) for y in (-0.17, 0.17)],
+        "lamp": [cylinder((0, 0, 0), (0, 0, 0.08), 0.5), cylinder((0, 0, 0.08), (0, 0, 1.3), 0.04),
+                 Ellipsoid(center=(0, 0, 1.4), axes=(0.35, 0.35, 0.15))],
+        "rocket": [cylinder((0, 0, 0), (0, 0, 1.6), 0.25),
+                   Ellipsoid(center=(0, 0, 1.6), axes=(0.25, 0.25, 0.5))] + fins,
+        "chair": [Box(center=(0, 0, 0.5), half=(0.4, 0.4, 0.04)), Box(center=(0, -0.37, 0.95), half=(0.4, 0.03, 0.42))]
+        + [cylinder((x, y, 0), (x, y, 0.46), 0.04) for x in (-0.33, 0.33) for y in (-0.33, 0.33)],
+    }
+
+
+def write_more(out: Path, spacings=(0.02, 0.04)) -> None:
+    """The second set at each grid spacing (NAME_h002.off, NAME_h004.off, ...)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for name, parts in assemblies().items():
+        for h in spacings:
+            _save(out, f"{name}_h{round(h * 100):03d}", parts, h)
+
+
 def score(folder: Path, subs: list) -> None:
     from torchakvf.evaluate.metrics import rand_index_error
 
@@ -92,10 +129,11 @@ def score(folder: Path, subs: list) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, help="folder to write the shapes to")
+    ap.add_argument("--more", action="store_true", help="write the second set (assemblies) instead")
     ap.add_argument("--score", nargs="+", metavar=("DIR", "SUB"), help="score DIR/SUB/*.seg against DIR/*.seg")
     a = ap.parse_args()
     if a.out:
-        write_all(a.out)
+        (write_more if a.more else write_all)(a.out)
     if a.score:
         score(Path(a.score[0]), a.score[1:])
 

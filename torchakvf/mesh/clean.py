@@ -4,11 +4,14 @@ What is repaired (and counted in ``CleanMesh.report``): exact duplicate vertices
 distinct vertices within round-off of each other (:data:`WELD_DISTANCE`) are welded, faces with
 a repeated vertex index, faces reaching an outlier vertex (:data:`OUTLIER_DISTANCE`),
 zero-area faces and repeated faces are dropped (with
-``zip_cracks=True`` the crack a dropped needle face leaves is zipped shut), faces are
-re-oriented consistently per component and closed components turned to face outward
+``zip_cracks=True`` the crack a dropped needle face leaves is zipped shut), edges shared by two
+sheets touching along them (an even number of faces, alternating in direction around the edge)
+are split into edges of two faces (:func:`split_non_manifold_edges`), faces are re-oriented
+consistently per component and closed components turned to face outward
 (:func:`orient_outward`), unreferenced vertices are removed.
-What is refused (``MeshError``): non-manifold edges (shared by more than two faces),
-non-orientable surfaces, and meshes with nothing left after clean-up.
+What is refused (``MeshError``): other non-manifold edges (an odd number of faces on them, or
+faces that do not pair into sheets), non-orientable surfaces, and meshes with nothing left
+after clean-up.
 Open boundaries and several connected components are supported as they are.
 """
 from __future__ import annotations
@@ -189,12 +192,20 @@ def clean_mesh(mesh: Mesh, zip_cracks: bool = True, weld: bool = True) -> CleanM
 
     edge_faces = undirected_edges(faces)
     counts = np.bincount(edge_faces.inverse)
+    report["split_edges"] = 0
     if counts.max() > 2:
-        e = int(np.argmax(counts))
-        i, j = sorted(int(first_input[v]) for v in edge_faces.unique[e])   # the file's vertex numbers
-        raise MeshError(name, f"non-manifold edge ({i}, {j}) is shared by "
-                              f"{int(counts[e])} faces ({int((counts > 2).sum())} such edges); "
-                              "repair the mesh (e.g. split it into manifold pieces) first")
+        split = split_non_manifold_edges(verts, faces, edge_faces, counts)
+        if split is None:
+            e = int(np.argmax(counts))
+            i, j = sorted(int(first_input[v]) for v in edge_faces.unique[e])   # the file's vertex numbers
+            raise MeshError(name, f"non-manifold edge ({i}, {j}) is shared by "
+                                  f"{int(counts[e])} faces ({int((counts > 2).sum())} such edges) that do not "
+                                  "pair into sheets; repair the mesh (e.g. split it into manifold pieces) first")
+        report["split_edges"] = int((counts > 2).sum())
+        faces, source = split
+        verts, first_input = verts[source], first_input[source]
+        edge_faces = undirected_edges(faces)
+        counts = np.bincount(edge_faces.inverse)
 
     # Renumber the vertices the faces use, in their order (np.unique(faces, return_inverse)'s
     # numbering, by a count instead of a sort). The renumbering keeps the order of vertex pairs,
@@ -218,6 +229,90 @@ def clean_mesh(mesh: Mesh, zip_cracks: bool = True, weld: bool = True) -> CleanM
     report["boundary_edges"] = int((counts == 1).sum())
     return CleanMesh(vertices=verts, faces=faces, face_index=keep, n_input_faces=mesh.n_faces,
                      face_component=face_comp, name=name, input_faces=mesh.faces, report=report)
+
+
+def split_non_manifold_edges(vertices: np.ndarray, faces: np.ndarray, table: EdgeTable,
+                             counts: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(faces [F, 3], source [V']) with every edge shared by more than two faces split into
+    edges of two, or None where one cannot be (an odd number of faces on it, or faces whose
+    directions along it do not alternate around it).
+
+    Where two sheets of a surface touch along an edge (marching cubes leaves such edges where a
+    part is about a grid cell thin: scikit-image's as well), the faces around the edge,
+    taken in angular order about it, alternate in the direction they traverse it. Each face
+    is paired with its angular neighbour across the wedge its orientation puts inside the solid
+    (the wedge after a face traversing the edge backwards, counter-clockwise about it), so each
+    solid wedge keeps its own two faces. The edge's two vertices are then copied once per fan of
+    faces around them (faces joined across edges of two faces or across a pairing): the sheets
+    touch where they did, as separate surfaces there, with no opening. ``source`` gives the
+    vertex each new vertex copies (the first V are the input's own, in order).
+    vertices : [V, 3]; faces : [F, 3]; table : :func:`undirected_edges` of faces;
+    counts : [E] faces on each edge."""
+    half = half_edges(faces)
+    by_edge = np.argsort(table.inverse, kind="stable")          # half-edges grouped by edge
+    start = np.concatenate([[0], np.cumsum(counts)])
+    partner = {}
+    for e in np.flatnonzero(counts > 2):
+        hs = by_edge[start[e]:start[e + 1]]
+        if len(hs) % 2:
+            return None
+        a, b = table.unique[e]
+        u = vertices[b] - vertices[a]
+        u = u / np.linalg.norm(u)
+        third = faces[hs // 3, (hs % 3 + 2) % 3]
+        w = vertices[third] - vertices[a]
+        w = w - np.outer(w @ u, u)
+        ref = w[0] / np.linalg.norm(w[0])
+        ring = np.argsort(np.arctan2(w @ np.cross(u, ref), w @ ref), kind="stable")
+        backward = (half[hs, 0] == b)[ring]                     # traverses b -> a
+        if np.any(backward == np.roll(backward, -1)):
+            return None
+        for i in range(0 if backward[0] else 1, len(ring), 2):
+            h1, h2 = int(hs[ring[i]]), int(hs[ring[(i + 1) % len(ring)]])
+            partner[h1], partner[h2] = h2, h1
+    faces = faces.copy()
+    n_vertices = len(vertices)
+    source = list(range(n_vertices))
+    corners = faces.ravel()
+    by_vertex = np.argsort(corners, kind="stable")
+    first = np.searchsorted(corners[by_vertex], np.arange(n_vertices + 1))
+    touched = np.unique(table.unique[counts > 2])
+    for v in touched:
+        at = by_vertex[first[v]:first[v + 1]]                   # corners 3f + k holding v
+        fs = at // 3
+        local = {int(f): i for i, f in enumerate(fs)}
+        parent = list(range(len(fs)))
+
+        def root(i):
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        for i, c in enumerate(at):
+            f, k = divmod(int(c), 3)
+            for h in (3 * f + k, 3 * f + (k + 2) % 3):          # the face's two edges at v
+                e = table.inverse[h]
+                if counts[e] == 2:
+                    pair = by_edge[start[e]:start[e + 1]]
+                    other = int(pair[0] if pair[1] == h else pair[1])
+                elif counts[e] > 2:
+                    other = partner[h]
+                else:
+                    continue
+                j = local.get(other // 3)
+                if j is not None:
+                    parent[root(i)] = root(j)
+        roots = [root(i) for i in range(len(fs))]
+        keep = roots[int(np.argmin(fs))]
+        copies = {}
+        for i, c in enumerate(at):
+            if roots[i] != keep:
+                if roots[i] not in copies:
+                    copies[roots[i]] = len(source)
+                    source.append(int(v))
+                faces.flat[int(c)] = copies[roots[i]]
+    return faces, np.asarray(source, dtype=np.int64)
 
 
 def orient_outward(vertices: np.ndarray, faces: np.ndarray, face_component: np.ndarray,
