@@ -98,3 +98,23 @@ def test_features_checks_gpu_memory_on_a_gpu(tmp_path, monkeypatch):
         task.check_size("m.off", 320)
     assert estimate_device_bytes(320, 4) > 2**20 > estimate_device_bytes(10, 4) / 100
     FeaturesTask(4, device="cuda", memory_bytes=2**34).check_size("m.off", 320)    # fits
+
+
+def test_features_file_holds_what_face_features_computes(tmp_path):
+    """The ``features`` command and ``interop.face_features`` are one computation: on a mesh
+    solved as it is, the file's untangled norms and descriptors are face_features' (float32).
+    The ellipsoid's equal eigenvalues make the frame of the untangling's starts matter, so
+    a path that started in another frame would give other columns here."""
+    from torchakvf.interop import face_features
+    from torchakvf.mesh import MeshBatch
+
+    s = shapes.ellipsoid(level=2)                                 # 320 faces, solved as it is
+    src = write_off(tmp_path / "in" / "e.off", s.vertices, s.faces)
+    out = tmp_path / "out"
+    summary = run_corpus([src], out, FeaturesTask(N, part_descriptors=False), progress=False)
+    assert summary.ok == 1, summary.failures
+    z = ta.data.load_feature_file(out / "e.npz")
+    ref = face_features(MeshBatch.from_meshes([ta.load_mesh(src)]), N, part_descriptors=False)[0]
+    assert list(z["descriptor_names"]) == ref.descriptor_names
+    np.testing.assert_allclose(z["features"], ref.features, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(z["descriptors"], ref.descriptors, rtol=1e-4, atol=1e-5)

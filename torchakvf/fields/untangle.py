@@ -166,7 +166,8 @@ def untangle(fields: AKVFResult, n: int | list[int] | None = None, *, restarts: 
         applied to the raw fields ("eigen") or to the fields in their moment frame ("moments",
         :func:`moment_frame`): then any orthogonal mix of the same n fields (another
         eigensolver start on an exactly or nearly symmetric shape, flipped signs) untangles to
-        the same fields, up to round-off.
+        the same fields, up to round-off, wherever that frame is decided (its moment's
+        eigenvalues distinct, its columns' signs set by the surface).
     """
     nb = len(fields.batch)
     ns = [fields.n] * nb if n is None else ([int(n)] * nb if isinstance(n, numbers.Integral) else [int(v) for v in n])

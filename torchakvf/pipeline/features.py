@@ -124,8 +124,10 @@ class FeaturesTask:
 
     @property
     def params(self) -> dict:
+        from ..fields.descriptors import DESCRIPTOR_FRAME
+
         params = {"n": self.n, "seed": self.seed, "remedy": self.remedy,
-                  "untangle_restarts": self.untangle_restarts, "tol": self.tol,
+                  "untangle_restarts": self.untangle_restarts, "untangle_frame": DESCRIPTOR_FRAME, "tol": self.tol,
                   "face_vectors": self.face_vectors, "coarse_faces": self.coarse_faces,
                   "descriptor_counts": list(counts_for(self.n)), "part_descriptors": self.part_descriptors}
         if self.batched is not None:    # the default leaves earlier manifests resumable
@@ -214,7 +216,7 @@ class FeaturesTask:
         (one dict of arrays per mesh, {"akvf": s, "untangle": s})."""
         from ..fields import akvf, untangle
         from ..fields.canonical import canonical_signs
-        from ..fields.descriptors import DESCRIPTOR_SEED
+        from ..fields.descriptors import DESCRIPTOR_FRAME, DESCRIPTOR_SEED
         from ..parts.input_descriptors import input_face_descriptors, solve_descriptor_batch
 
         t0 = time.perf_counter()
@@ -223,7 +225,8 @@ class FeaturesTask:
         batch = fields.batch        # a mesh whose canonical decimation failed is packed as segmentations pack it
         t1 = time.perf_counter()
         fields = canonical_signs(fields)
-        unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts)
+        # in the fields' moment frame, as face_features and the descriptors untangle
+        unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts, frame=DESCRIPTOR_FRAME)
         counts = counts_for(self.n)
         # the descriptors untangle with their own seed, so that they do not depend on the solve's
         desc = input_face_descriptors(fields, counts,
