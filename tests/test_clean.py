@@ -398,7 +398,8 @@ def test_two_solids_touching_along_an_edge_are_split_there():
 def test_a_marching_cubes_mug_whose_thin_handle_touches_along_edges_is_segmented():
     """A cylinder with a ring handle 0.12 thick, meshed by marching cubes at a 0.04 grid: the
     handle is three cells thick, and its surface touches itself along two edges of four faces.
-    Such a mesh was refused; split, it is one closed surface and segments into body and handle."""
+    Refused, the whole shape would be lost; split, it is one closed surface and segments into
+    body and handle."""
     from torchakvf.evaluate.metrics import rand_index_error
     from torchakvf.shapes.marching import marching_cubes
     from torchakvf.shapes.sdf import Torus, Union, cylinder, frame, union_bounds
