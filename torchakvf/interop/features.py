@@ -51,24 +51,16 @@ def face_features(batch, n: int = 32, *, seed: int = 0, remedy: str | None = Non
     0.5 s of one core on a mesh of 4000 faces); ``part_descriptors=False`` keeps the field
     descriptors without the part ones (those segment the mesh 18 times, about 1 s of one core
     on a mesh decimated to 4000 faces)."""
-    from ..fields import untangle
     from ..fields.akvf import akvf_falling_back
-    from ..fields.canonical import canonical_signs
-    from ..fields.descriptors import DESCRIPTOR_FRAME, DESCRIPTOR_SEED, counts_for
+    from ..fields.descriptors import counts_for
     from ..operators.killing import DEFAULT_REMEDY
-    from ..parts.input_descriptors import descriptor_batch, input_face_descriptors, solve_descriptor_batch
+    from ..parts.input_descriptors import descriptor_batch, solve_descriptor_batch, untangled_with_descriptors
 
     remedy = DEFAULT_REMEDY if remedy is None else remedy
     fields, _ = solve_descriptor_batch(descriptor_batch(batch),
                                        lambda mb: akvf_falling_back(mb, n=n, seed=seed, tol=tol, remedy=remedy))
-    fields = canonical_signs(fields)
-    # started in the fields' moment frame, as the descriptors are: the same features whatever
-    # basis of the fields' span the eigensolver returned
-    unt = untangle(fields, seed=seed, restarts=restarts, frame=DESCRIPTOR_FRAME)
-    counts = counts_for(n) if descriptors else ()
-    # the descriptors untangle with their own seed, so that they do not depend on the solve's
-    desc = input_face_descriptors(fields, counts, untangled={n: unt} if seed == DESCRIPTOR_SEED else None,
-                                  restarts=restarts, parts=part_descriptors) if descriptors else None
+    fields, unt, desc = untangled_with_descriptors(fields, counts_for(n) if descriptors else None, seed=seed,
+                                                   restarts=restarts, parts=part_descriptors)
     batch = fields.batch              # the fallback may have re-packed meshes at full resolution
     raw = fields.face_vectors.norm(dim=-1)
     out = []

@@ -14,8 +14,9 @@ import torch
 
 from ..errors import SolverError, TorchAKVFError
 from ..fields.akvf_result import AKVFResult
-from ..fields.descriptors import DEFAULT_COUNTS, descriptor_names, face_descriptors
-from ..fields.untangle import DEFAULT_RESTARTS, UntangledFields
+from ..fields.canonical import canonical_signs
+from ..fields.descriptors import DEFAULT_COUNTS, DESCRIPTOR_FRAME, DESCRIPTOR_SEED, descriptor_names, face_descriptors
+from ..fields.untangle import DEFAULT_RESTARTS, UntangledFields, untangle
 from ..mesh.batch import MeshBatch, coarse_or_none
 from ..mesh.clean import CleanMesh
 from ..mesh.coarse import DECIMATE_ABOVE, CoarseMesh, canonical_numbering, coarse_mesh
@@ -154,6 +155,24 @@ def input_face_descriptors(fields: AKVFResult, counts: Sequence[int], *,
     return InputDescriptors(values=values, names=names + (list(CUE_NAMES) + [PROBABILITY_NAME] if probability else []))
 
 
+def untangled_with_descriptors(fields: AKVFResult, counts: Sequence[int] | None, *, seed: int = 0,
+                               restarts: int = DEFAULT_RESTARTS, parts: bool = True
+                               ) -> tuple[AKVFResult, UntangledFields, InputDescriptors | None]:
+    """(the fields with their canonical signs, their untangling at all ``fields.n``, the
+    descriptors at ``counts`` or None where ``counts`` is None): what ``interop.face_features``
+    and the ``features`` command hand out, made one way. The untangling starts from ``seed``'s
+    rotations in the fields' moment frame (:data:`~torchakvf.fields.descriptors.DESCRIPTOR_FRAME`),
+    as the descriptors' own do, and serves them at ``fields.n`` when ``seed`` is their seed."""
+    fields = canonical_signs(fields)
+    unt = untangle(fields, seed=seed, restarts=restarts, frame=DESCRIPTOR_FRAME)
+    if counts is None:
+        return fields, unt, None
+    # the descriptors untangle with their own seed, so that they do not depend on the solve's
+    desc = input_face_descriptors(fields, counts, untangled={fields.n: unt} if seed == DESCRIPTOR_SEED else None,
+                                  restarts=restarts, parts=parts)
+    return fields, unt, desc
+
+
 def _boundary_columns(batch: MeshBatch, b: int, columns: np.ndarray) -> np.ndarray:
     """[F_input, 7] the crease cues of the packed (solved) mesh b carried to its input faces, and
     the boundary probability of those faces from their field and part ``columns`` [F_input, 41]
@@ -166,4 +185,4 @@ def _boundary_columns(batch: MeshBatch, b: int, columns: np.ndarray) -> np.ndarr
 
 
 __all__ = ["InputDescriptors", "descriptor_batch", "descriptor_coarse", "input_face_descriptors",
-           "pack_for_descriptors", "solve_descriptor_batch"]
+           "pack_for_descriptors", "solve_descriptor_batch", "untangled_with_descriptors"]

@@ -214,24 +214,16 @@ class FeaturesTask:
     def descriptors_of(self, batch):
         """The AKVFs, their untangling and the descriptors of a batch packed for descriptors:
         (one dict of arrays per mesh, {"akvf": s, "untangle": s})."""
-        from ..fields import akvf, untangle
-        from ..fields.canonical import canonical_signs
-        from ..fields.descriptors import DESCRIPTOR_FRAME, DESCRIPTOR_SEED
-        from ..parts.input_descriptors import input_face_descriptors, solve_descriptor_batch
+        from ..fields import akvf
+        from ..parts.input_descriptors import solve_descriptor_batch, untangled_with_descriptors
 
         t0 = time.perf_counter()
         fields = solve_descriptor_batch(batch, lambda mb: akvf(mb, n=self.n, seed=self.seed, remedy=self.remedy,
                                                                tol=self.tol, batched=self.batched))
         batch = fields.batch        # a mesh whose canonical decimation failed is packed as segmentations pack it
         t1 = time.perf_counter()
-        fields = canonical_signs(fields)
-        # in the fields' moment frame, as face_features and the descriptors untangle
-        unt = untangle(fields, seed=self.seed, restarts=self.untangle_restarts, frame=DESCRIPTOR_FRAME)
-        counts = counts_for(self.n)
-        # the descriptors untangle with their own seed, so that they do not depend on the solve's
-        desc = input_face_descriptors(fields, counts,
-                                      untangled={self.n: unt} if self.seed == DESCRIPTOR_SEED else None,
-                                      restarts=self.untangle_restarts, parts=self.part_descriptors)
+        fields, unt, desc = untangled_with_descriptors(fields, counts_for(self.n), seed=self.seed,
+                                                       restarts=self.untangle_restarts, parts=self.part_descriptors)
         names = np.array(desc.names)
         raw_norms = fields.face_vectors.norm(dim=-1)
         outs = []
