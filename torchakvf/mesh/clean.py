@@ -251,7 +251,8 @@ def split_non_manifold_edges(vertices: np.ndarray, faces: np.ndarray, table: Edg
     half = half_edges(faces)
     by_edge = np.argsort(table.inverse, kind="stable")          # half-edges grouped by edge
     start = np.concatenate([[0], np.cumsum(counts)])
-    partner = {}
+    two = start[:-1][counts == 2]
+    joined = [np.stack([by_edge[two], by_edge[two + 1]], axis=1)]    # half-edge pairs, one per sheet
     for e in np.flatnonzero(counts > 2):
         hs = by_edge[start[e]:start[e + 1]]
         if len(hs) % 2:
@@ -263,55 +264,38 @@ def split_non_manifold_edges(vertices: np.ndarray, faces: np.ndarray, table: Edg
         w = vertices[third] - vertices[a]
         w = w - np.outer(w @ u, u)
         ref = w[0] / np.linalg.norm(w[0])
-        ring = np.argsort(np.arctan2(w @ np.cross(u, ref), w @ ref), kind="stable")
-        backward = (half[hs, 0] == b)[ring]                     # traverses b -> a
+        ring = hs[np.argsort(np.arctan2(w @ np.cross(u, ref), w @ ref), kind="stable")]
+        backward = half[ring, 0] == b                           # traverses b -> a
         if np.any(backward == np.roll(backward, -1)):
             return None
-        for i in range(0 if backward[0] else 1, len(ring), 2):
-            h1, h2 = int(hs[ring[i]]), int(hs[ring[(i + 1) % len(ring)]])
-            partner[h1], partner[h2] = h2, h1
-    faces = faces.copy()
-    n_vertices = len(vertices)
-    source = list(range(n_vertices))
+        lead = 0 if backward[0] else 1
+        joined.append(np.stack([ring[lead::2], np.roll(ring, -1)[lead::2]], axis=1))
+    joined = np.concatenate(joined)
+    # The corners (3f + k: face f at its k-th vertex) of a pair's two faces at each end of their
+    # edge lie in one fan; a vertex's fans are the components of those links.
+    ends = half[joined[:, 0]]                                   # [P, 2] each pair's edge
+
+    def corner(f, v):
+        return 3 * f + np.argmax(faces[f] == v[:, None], axis=1)
+
+    i = np.concatenate([corner(joined[:, 0] // 3, ends[:, k]) for k in (0, 1)])
+    j = np.concatenate([corner(joined[:, 1] // 3, ends[:, k]) for k in (0, 1)])
+    n_corners = faces.size
+    _, fan = connected_components(sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n_corners, n_corners)),
+                                  directed=False)
+    # Each vertex of a split edge keeps the fan of its lowest corner; its other fans, in the order
+    # of their lowest corners, get copies numbered after the vertices.
     corners = faces.ravel()
     by_vertex = np.argsort(corners, kind="stable")
-    first = np.searchsorted(corners[by_vertex], np.arange(n_vertices + 1))
-    touched = np.unique(table.unique[counts > 2])
-    for v in touched:
-        at = by_vertex[first[v]:first[v + 1]]                   # corners 3f + k holding v
-        fs = at // 3
-        local = {int(f): i for i, f in enumerate(fs)}
-        parent = list(range(len(fs)))
-
-        def root(i):
-            while parent[i] != i:
-                parent[i] = parent[parent[i]]
-                i = parent[i]
-            return i
-
-        for i, c in enumerate(at):
-            f, k = divmod(int(c), 3)
-            for h in (3 * f + k, 3 * f + (k + 2) % 3):          # the face's two edges at v
-                e = table.inverse[h]
-                if counts[e] == 2:
-                    pair = by_edge[start[e]:start[e + 1]]
-                    other = int(pair[0] if pair[1] == h else pair[1])
-                elif counts[e] > 2:
-                    other = partner[h]
-                else:
-                    continue
-                j = local.get(other // 3)
-                if j is not None:
-                    parent[root(i)] = root(j)
-        roots = [root(i) for i in range(len(fs))]
-        keep = roots[int(np.argmin(fs))]
-        copies = {}
-        for i, c in enumerate(at):
-            if roots[i] != keep:
-                if roots[i] not in copies:
-                    copies[roots[i]] = len(source)
-                    source.append(int(v))
-                faces.flat[int(c)] = copies[roots[i]]
+    first = np.searchsorted(corners[by_vertex], np.arange(len(vertices) + 1))
+    faces = faces.copy()
+    source = list(range(len(vertices)))
+    for v in np.unique(table.unique[counts > 2]):
+        at = by_vertex[first[v]:first[v + 1]]                   # its corners, ascending
+        fans = fan[at]
+        for f in fans[np.sort(np.unique(fans, return_index=True)[1])][1:]:      # by lowest corner
+            faces.flat[at[fans == f]] = len(source)
+            source.append(int(v))
     return faces, np.asarray(source, dtype=np.int64)
 
 
