@@ -8,16 +8,7 @@ import math
 import numpy as np
 import trimesh
 
-from torchakvf.parts.merge_terms import (
-    TERM_NAMES,
-    MergeState,
-    ThicknessRays,
-    cone_directions,
-    face_thickness,
-    pair_terms,
-    part_sums,
-    thickness_rays,
-)
+from torchakvf.parts.merge_terms import TERM_NAMES, MergeState, cone_directions, face_thickness, pair_terms, part_sums
 
 
 def test_cone_directions_are_unit_and_within_60_degrees_of_the_inward_normal():
@@ -132,47 +123,3 @@ def test_part_sums_of_labelled_faces():
     np.testing.assert_allclose(s["thick"], [1.0, 6.0])          # NaN left out
     np.testing.assert_allclose(s["thick_area"], [1.0, 2.0])
     assert s["thick_median"] == 2.0
-
-
-def test_facing_term_counts_thickness_rays_across_a_slab_and_merges_add_them():
-    # a thin slab: the rays shot from its top go straight through to its bottom, and back
-    box = trimesh.creation.box(extents=(4.0, 4.0, 0.2))
-    box = box.subdivide().subdivide()
-    rays = thickness_rays(box.vertices, box.faces)
-    np.testing.assert_array_equal(rays.thickness, face_thickness(box.vertices, box.faces))
-    assert len(rays.source) == len(rays.target) > 0
-    nz = box.face_normals[:, 2]
-    labels = np.where(nz > 0.5, 0, np.where(nz < -0.5, 1, 2))          # top, bottom, rim
-    area = box.area_faces
-    cent = box.triangles_center
-    s = part_sums(labels, 3, area, cent, rays)
-    np.testing.assert_array_equal(s["rays"], np.bincount(labels[rays.source], minlength=3))
-    assert s["facing"].sum() == len(rays.source)
-    # by hand: the share of the top's rays that land on the bottom
-    top = labels[rays.source] == 0
-    share = (labels[rays.target[top]] == 1).mean()
-    assert share > 0.95
-    st = MergeState(area=np.bincount(labels, weights=area), mean=np.eye(3), length=np.ones((3, 3)) - np.eye(3),
-                    concave=np.zeros((3, 3)), convex=np.zeros((3, 3)), facing=s["facing"].copy(), rays=s["rays"].copy())
-    col = TERM_NAMES.index("facing")
-    T, _ = pair_terms(st, np.array([0, 1, 2]), k=3)
-    from_bottom = (labels[rays.target[labels[rays.source] == 1]] == 0).mean()
-    np.testing.assert_allclose(T[0, 1, col], max(share, from_bottom))
-    np.testing.assert_allclose(T[1, 0, col], T[0, 1, col])              # symmetric in the pair
-    # the top's rays seldom reach the thin rim; the rim's own rays, tilted up or down, land on
-    # the top or the bottom (the rim bounds the same slab)
-    top_to_rim = (labels[rays.target[top]] == 2).mean()
-    rim_to_top = (labels[rays.target[labels[rays.source] == 2]] == 0).mean()
-    assert top_to_rim < 0.05 and rim_to_top > 0.3
-    np.testing.assert_allclose(T[0, 2, col], max(top_to_rim, rim_to_top))
-    # merging the top into the rim: the counts of the union are those of its labels
-    st.merge(0, 2)
-    merged = part_sums(np.where(labels == 2, 0, labels), 3, area, cent, rays)
-    np.testing.assert_array_equal(st.facing[[0, 1]][:, [0, 1]], merged["facing"][:2, :2])
-    np.testing.assert_array_equal(st.rays[:2], merged["rays"][:2])
-    assert st.facing[2].sum() == st.facing[:, 2].sum() == st.rays[2] == 0
-
-
-def test_thickness_rays_of_an_empty_mesh():
-    r = thickness_rays(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
-    assert isinstance(r, ThicknessRays) and len(r.thickness) == len(r.source) == len(r.target) == 0

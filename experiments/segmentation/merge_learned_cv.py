@@ -69,8 +69,7 @@ def default_vector(w: MergeWeights | None = None) -> np.ndarray:
 
 def over_graphs(rec: dict, thick: np.ndarray) -> list[dict]:
     """Per over-segmentation of a capture (merge_capture.py's record): its region graph's arrays,
-    its parts' sums (``thick`` [F] the face thickness, or its ThicknessRays; the lines of sight
-    between the parts) and
+    its parts' sums (``thick`` [F] the face thickness; the lines of sight between the parts) and
     its labels on the input faces. Shared with experiments/generality/merge_cv.py."""
     mesh = rec["mesh"]
     dual = dual_edges(mesh.vertices, mesh.faces)
@@ -135,9 +134,7 @@ def new_state(over: dict) -> MergeState:
                       thick=s["thick"].copy(), thick_area=s["thick_area"].copy(), centroid=s["centroid"].copy(),
                       center=s["center"], radius=s["radius"], thick_median=s["thick_median"],
                       seen=None if s.get("seen") is None else s["seen"].copy(),
-                      lines=None if s.get("lines") is None else s["lines"].copy(),
-                      facing=None if s.get("facing") is None else s["facing"].copy(),
-                      rays=None if s.get("rays") is None else s["rays"].copy())
+                      lines=None if s.get("lines") is None else s["lines"].copy())
 
 
 # ---------------------------------------------------------------- the greedy merge on a state

@@ -29,7 +29,6 @@ from .merge import (
     merge_parts,
     merged_distances,
     mesh_sums_inputs,
-    needs_facing,
     needs_part_sums,
     needs_sight,
     needs_thickness,
@@ -38,7 +37,6 @@ from .merge import (
     region_graph,
     unit_rows,
 )
-from .merge_terms import ThicknessRays
 from .pieces import limit_parts
 from .results import MeshSegmentation
 from .sightlines import PartSight, SightLines
@@ -275,23 +273,19 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
     centroids = thickness = None
     if needs_part_sums(opts.merge):
         have = cache.sums_inputs
-        if have is None or (needs_thickness(opts.merge) and have[1] is None) or \
-                (needs_facing(opts.merge) and not isinstance(have[1], ThicknessRays)):
+        if have is None or (needs_thickness(opts.merge) and have[1] is None):
             # made once per mesh; weights that read the thickness where earlier ones did not add it
             cache.sums_inputs = mesh_sums_inputs(clean.vertices, clean.faces, opts.merge,
                                                  thickness=None if have is None else have[1])
         centroids, thickness = cache.sums_inputs
         thickness = thickness if needs_thickness(opts.merge) else None
-        if isinstance(thickness, ThicknessRays) and not needs_facing(opts.merge):
-            thickness = thickness.thickness
     sight = None
     if needs_sight(opts.merge):
         if cache.sight is None:
             cache.sight = SightLines(clean.vertices, clean.faces)
         sight = cache.sight
     if opts.merges_parts:
-        key = (crease, centroids is not None, thickness is not None, isinstance(thickness, ThicknessRays),
-               sight is not None)
+        key = (crease, centroids is not None, thickness is not None, sight is not None)
         if key not in over.graphs:
             over.graphs[key] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
                                             centroids=centroids, thickness=thickness, sight=sight)

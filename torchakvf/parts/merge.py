@@ -38,7 +38,7 @@ from ..options import MergeWeights
 from ..restarts import first_near_min
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
-from .merge_terms import TERM_NAMES, MergeState, ThicknessRays, pair_terms, part_sums, thickness_rays
+from .merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
 from .sightlines import PartSight, SightLines
 
 
@@ -88,7 +88,7 @@ class RegionGraph:
                           thick=copy("thick"), thick_area=copy("thick_area"), centroid=copy("centroid"),
                           center=sums.get("center"), radius=float(sums.get("radius", 1.0)),
                           thick_median=float(sums.get("thick_median", 1.0)), seen=copy("seen"),
-                          lines=copy("lines"), facing=copy("facing"), rays=copy("rays"))
+                          lines=copy("lines"))
 
 
 #: The :class:`MergeWeights` field weighing each column of
@@ -96,8 +96,7 @@ class RegionGraph:
 #: :func:`term_weights`).
 FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
                      small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
-                     thin="thin", centricity="centricity", sight="sight", sight_excess="sight_excess",
-                     facing="facing")
+                     thin="thin", centricity="centricity", sight="sight", sight_excess="sight_excess")
 
 
 def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
@@ -110,13 +109,7 @@ def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
 
 def needs_thickness(weights: MergeWeights) -> bool:
     """Whether the cost reads the parts' thickness (then each mesh's is computed)."""
-    return weights.thickness != 0 or weights.thin != 0 or needs_facing(weights)
-
-
-def needs_facing(weights: MergeWeights) -> bool:
-    """Whether the cost reads where the thickness rays land (then they are kept:
-    :class:`~torchakvf.parts.merge_terms.ThicknessRays`)."""
-    return weights.facing != 0
+    return weights.thickness != 0 or weights.thin != 0
 
 
 def needs_sight(weights: MergeWeights) -> bool:
@@ -157,10 +150,8 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     crease_angle : bending (radians) at which a crease counts fully (:func:`crease_weights`).
     unit, bends : :func:`unit_rows` (features) and :func:`boundary_bends` (dual, crease_angle)
         if at hand (then ``features`` is not read).
-    centroids : [F, 3] face centroids and thickness [F] (:func:`~torchakvf.parts.merge_terms.face_thickness`,
-        or its :class:`~torchakvf.parts.merge_terms.ThicknessRays` where the facing term is
-        wanted) where the centricity and thickness terms are wanted (:func:`needs_part_sums`);
-        None: not read.
+    centroids : [F, 3] face centroids and thickness [F] (:func:`face_thickness`, or None) where
+        the centricity and thickness terms are wanted (:func:`needs_part_sums`); None: not read.
     sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` where the sight term is
         wanted (:func:`needs_sight`), or the counts of these labels by their ids
         (:class:`~torchakvf.parts.sightlines.PartSight`) where they are at hand; None: not read.
@@ -267,8 +258,7 @@ class MergeCache:
     dual : :func:`dual_edges` of the mesh; unit : [F, n] :func:`unit_rows` of the features;
     bends : :func:`boundary_bends` (dual, the weights' crease angle); graph :
     :func:`region_graph` of the labels at the weights' crease angle (it does not depend on k);
-    thickness : [F] :func:`~torchakvf.parts.merge_terms.face_thickness` of the mesh, or its
-    :class:`~torchakvf.parts.merge_terms.ThicknessRays` (read where the weights read it and no
+    thickness : [F] :func:`face_thickness` of the mesh (read where the weights read it and no
     graph is given); sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` (read
     where the weights read the lines of sight and no graph is given).
     """
@@ -315,20 +305,14 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
 
 def mesh_sums_inputs(vertices: np.ndarray, faces: np.ndarray, weights: MergeWeights,
                      thickness: np.ndarray | None = None) -> tuple:
-    """(centroids [F, 3], thickness) :func:`region_graph` needs for ``weights`` (None where
-    not read): thickness the :class:`~torchakvf.parts.merge_terms.ThicknessRays` of the mesh
-    where the cost reads where its rays land (:func:`needs_facing`), else its [F] thickness;
-    ``thickness``: either, if at hand."""
+    """(centroids [F, 3], thickness [F]) :func:`region_graph` needs for ``weights`` (None where
+    not read); thickness: :func:`face_thickness` of the mesh if at hand."""
     if not needs_part_sums(weights):
         return None, None
     centroids = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)].mean(axis=1)
-    if not needs_thickness(weights):
-        return centroids, None
-    if thickness is None or (needs_facing(weights) and not isinstance(thickness, ThicknessRays)):
-        thickness = thickness_rays(vertices, faces)
-    if isinstance(thickness, ThicknessRays) and not needs_facing(weights):
-        thickness = thickness.thickness
-    return centroids, thickness
+    if needs_thickness(weights) and thickness is None:
+        thickness = face_thickness(vertices, faces)
+    return centroids, (thickness if needs_thickness(weights) else None)
 
 
 def next_merge_cost(labels: np.ndarray, dual: DualEdges, features: np.ndarray, face_area: np.ndarray,

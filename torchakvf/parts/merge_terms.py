@@ -23,7 +23,7 @@ from .sightlines import join_counts
 
 #: names of the columns of :func:`pair_terms`, in order (the learned merge's inputs)
 TERM_NAMES = ("symmetry", "concavity", "convexity", "share", "small", "size_ratio", "short_cut",
-              "thickness", "thin", "centricity", "sight", "sight_excess", "facing")
+              "thickness", "thin", "centricity", "sight", "sight_excess")
 
 #: rays shot per sampled face by :func:`face_thickness` (in a 60° cone around the inward normal)
 THICKNESS_RAYS = 8
@@ -41,31 +41,10 @@ def cone_directions(n_rays: int) -> np.ndarray:
     return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), -cos_t], axis=1)
 
 
-@dataclass(frozen=True)
-class ThicknessRays:
-    """The shape diameter function of a mesh and the rays it was measured with.
-
-    thickness : [F] as :func:`face_thickness` gives it (NaN where not measured);
-    source, target : [R] the face each ray the thickness kept was shot from and the face it hit
-    (the rays within half the median of their face's hits): the two sides of the solid across
-    it, which :func:`part_sums` counts per pair of parts (the ``facing`` term)."""
-
-    thickness: np.ndarray
-    source: np.ndarray
-    target: np.ndarray
-
-
 def face_thickness(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKNESS_RAYS,
                    max_faces: int = THICKNESS_FACES) -> np.ndarray:
     """[F] shape diameter function (mesh units) at the centroids of about ``max_faces`` faces
-    taken evenly by index, NaN at the others and where no ray hit (:func:`thickness_rays`)."""
-    return thickness_rays(vertices, faces, n_rays, max_faces).thickness
-
-
-def thickness_rays(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKNESS_RAYS,
-                   max_faces: int = THICKNESS_FACES) -> ThicknessRays:
-    """:class:`ThicknessRays` of the mesh: the shape diameter function at about ``max_faces``
-    faces taken evenly by index, and the rays it kept.
+    taken evenly by index, NaN at the others and where no ray hit.
 
     Each sampled face shoots ``n_rays`` fixed rays (:func:`cone_directions`) inwards, opposite
     its outward normal (faces counter-clockwise from outside); the thickness is the mean hit
@@ -77,9 +56,8 @@ def thickness_rays(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKN
     V = np.ascontiguousarray(vertices, dtype=np.float64)
     F = np.ascontiguousarray(faces, dtype=np.int64)
     out = np.full(len(F), np.nan)
-    none = np.zeros(0, dtype=np.int64)
     if len(F) == 0:
-        return ThicknessRays(out, none, none)
+        return out
     pick = np.unique(np.linspace(0, len(F) - 1, min(int(max_faces), len(F))).astype(np.int64))
     tri = V[F[pick]]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -99,8 +77,7 @@ def thickness_rays(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKN
     tree = igl.AABB()
     tree.init(V, F)
     hit, t, _ = tree.intersect_ray_first(V, F, origin, dirs)
-    hit = np.asarray(hit).reshape(-1, n_rays)
-    t = np.where(hit >= 0, np.asarray(t).reshape(-1, n_rays), np.nan)
+    t = np.where(np.asarray(hit) >= 0, np.asarray(t), np.nan).reshape(-1, n_rays)
     t[~np.isfinite(t)] = np.nan
     # the median of the hits of each face (NaN where none hit), without nanmedian's warning
     n_hit = np.isfinite(t).sum(axis=1)
@@ -111,8 +88,7 @@ def thickness_rays(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKN
     with np.errstate(invalid="ignore"):
         near = np.abs(t - med[:, None]) <= 0.5 * med[:, None]
     out[pick] = np.where(n_hit > 0, np.where(near, t, 0.0).sum(axis=1) / np.maximum(near.sum(axis=1), 1), np.nan)
-    source = np.broadcast_to(pick[:, None], near.shape)[near]
-    return ThicknessRays(out, source.astype(np.int64), hit[near].astype(np.int64))
+    return out
 
 
 @dataclass
@@ -125,9 +101,7 @@ class MergeState:
     centroid : [K, 3] Σ a_f c_f; center : [3] the surface's area centroid; radius : its RMS
     distance to it; total : the surface area; seen, lines : [K, K] of the segments between the
     parts' samples (the diagonal: between a part's own samples), those that stay inside the solid
-    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`); facing : [K, K] of the
-    thickness rays (:class:`ThicknessRays`) shot from part i, those that hit part j, and rays :
-    [K] those shot from each part. (thick, centroid, seen, facing None: not computed.)
+    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`). (thick, centroid, seen None: not computed.)
     """
 
     area: np.ndarray
@@ -143,8 +117,6 @@ class MergeState:
     thick_median: float = 1.0
     seen: np.ndarray | None = None
     lines: np.ndarray | None = None
-    facing: np.ndarray | None = None
-    rays: np.ndarray | None = None
 
     @property
     def total(self) -> float:
@@ -156,17 +128,13 @@ class MergeState:
         self.mean[i] = (self.area[i] * self.mean[i] + self.area[j] * self.mean[j]) / max(tot, 1e-300)
         self.area[i], self.area[j] = tot, 0.0
         self.mean[j] = 0.0
-        for vec in (self.thick, self.thick_area, self.centroid, self.rays):
+        for vec in (self.thick, self.thick_area, self.centroid):
             if vec is not None:
                 vec[i] += vec[j]
                 vec[j] = 0.0
         for mat in (self.seen, self.lines):
             if mat is not None:
                 join_counts(mat, i, j)
-        if self.facing is not None:          # not symmetric: rays from a part, rays into it
-            self.facing[i, :] += self.facing[j, :]
-            self.facing[:, i] += self.facing[:, j]
-            self.facing[j, :] = self.facing[:, j] = 0.0
         for mat in (self.length, self.concave, self.convex):
             mat[i, :] += mat[j, :]
             mat[:, i] = mat[i, :]
@@ -175,11 +143,10 @@ class MergeState:
 
 
 def part_sums(labels: np.ndarray, n_parts: int, face_area: np.ndarray, centroids: np.ndarray,
-              thickness: np.ndarray | ThicknessRays | None) -> dict:
+              thickness: np.ndarray | None) -> dict:
     """The per-part sums :class:`MergeState` adds beyond a region graph's: labels [F] compact
     part ids (negative: left out), face_area [F], centroids [F, 3] face centroids, thickness [F]
-    (:func:`face_thickness`, NaN where not known; None: not computed) or the
-    :class:`ThicknessRays` it came from (then also ``facing`` and ``rays``)."""
+    (:func:`face_thickness`, NaN where not known; None: not computed)."""
     keep = labels >= 0
     lab, a = labels[keep], face_area[keep]
     c = centroids[keep]
@@ -188,13 +155,6 @@ def part_sums(labels: np.ndarray, n_parts: int, face_area: np.ndarray, centroids
     radius = math.sqrt(float((a * ((c - center) ** 2).sum(axis=1)).sum()) / total) or 1.0
     out = dict(centroid=np.stack([np.bincount(lab, weights=a * c[:, d], minlength=n_parts) for d in range(3)], axis=1),
                center=center, radius=radius)
-    if isinstance(thickness, ThicknessRays):
-        src, dst = labels[thickness.source], labels[thickness.target]
-        both = (src >= 0) & (dst >= 0)
-        out["facing"] = np.bincount(src[both] * n_parts + dst[both], minlength=n_parts * n_parts).reshape(
-            n_parts, n_parts).astype(np.float64)
-        out["rays"] = np.bincount(src[src >= 0], minlength=n_parts).astype(np.float64)
-        thickness = thickness.thickness
     if thickness is not None:
         s = thickness[keep]
         known = np.isfinite(s)
@@ -218,10 +178,7 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
     further out); sight 1 - seen_ij / lines_ij, the share of the segments between the two parts'
     samples that leave the solid (:mod:`torchakvf.parts.sightlines`); sight_excess that share less
     the mean of the two parts' own (a hollow part's inside and outside never see each other, a
-    flat or convex one's always do); facing max(R_ij / N_i, R_ji / N_j), of the N_i thickness rays
-    shot from part i the share R_ij / N_i that hit part j (the two sides of a wall, a tube's inside
-    and outside, two halves of a limb face each other across the solid; a leg's rays hit the leg).
-    Terms whose sums are missing are 0."""
+    flat or convex one's always do). Terms whose sums are missing are 0."""
     rows = np.asarray(rows)
     area, length = state.area, state.length
     L = length[rows]
@@ -260,14 +217,9 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
         own_lines = np.diag(state.lines)
         own = np.where(own_lines > 0, 1.0 - np.diag(state.seen) / np.maximum(own_lines, 1.0), 0.0)
         T[..., 11] = blocked - 0.5 * (own[rows][:, None] + own[None, :])
-    if state.facing is not None:
-        n = state.rays
-        out_share = state.facing[rows] / np.maximum(n[rows], 1.0)[:, None]       # from the row's part
-        in_share = state.facing[:, rows].T / np.maximum(n, 1.0)[None, :]         # from the other part
-        T[..., 12] = np.maximum(out_share, in_share)
     T[~adjacent] = 0.0
     return T, adjacent
 
 
 __all__ = ["TERM_NAMES", "THICKNESS_RAYS", "THICKNESS_FACES", "cone_directions", "face_thickness",
-           "thickness_rays", "ThicknessRays", "MergeState", "part_sums", "pair_terms"]
+           "MergeState", "part_sums", "pair_terms"]
