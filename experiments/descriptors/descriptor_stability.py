@@ -43,12 +43,14 @@ from torchakvf.mesh.clean import face_areas
 from torchakvf.shapes.procedural import procedural_shape
 
 PSB_IDS = (1, 21, 121)
-SHAPES = ("quadruped", "table", "fish")
+SHAPES = ("quadruped", "table", "fish", "dumbbell", "three_blobs", "sphere_with_two_ellipsoids", "torus_chain")
 #: Shapes of the procedural corpus (family, seed) outside the boundary probability's fitted ten.
 PROCEDURAL = (("humanoid", 123), ("chair", 123), ("octopus", 321))
 COARSE = 4000
-#: Built-in shapes below 1.25 x COARSE faces, solved as they are (and exactly symmetric).
-UNDECIMATED = ("table",)
+#: Built-in shapes with exact symmetries (surfaces of revolution, mirror and rotation
+#: symmetric arrangements): their principal axes, fields and segmentations have ties that
+#: round-off decides, reported apart.
+SYMMETRIC = ("table", "dumbbell", "three_blobs", "sphere_with_two_ellipsoids", "torus_chain")
 
 
 def moved_renumbered(mesh: Mesh, seed: int = 3) -> tuple[Mesh, np.ndarray]:
@@ -181,9 +183,10 @@ def main():
 def report(rows, names, cpu, args):
     kinds = ("seed", "solver", "motion")
     every = list(dict.fromkeys(k[0] for k in rows))
+    plain = [m for m in every if m not in SYMMETRIC]
     text = "Worst over all meshes:\n\n" + group_table(rows, names, every) + \
-        f"\n\nWorst over the decimated meshes ({', '.join(m for m in every if m not in UNDECIMATED)}):\n\n" + \
-        group_table(rows, names, [m for m in every if m not in UNDECIMATED])
+        f"\n\nWorst over the meshes without exact symmetries ({', '.join(plain)}):\n\n" + \
+        group_table(rows, names, plain)
     per_mesh = ["| mesh | " + " | ".join(kinds) + " |", "|---|" + "---:|" * len(kinds)]
     for lab in every:
         per_mesh.append(f"| {lab} | " + " | ".join(f"{rows[(lab, k)][0].max():.2g}" for k in kinds) + " |")
