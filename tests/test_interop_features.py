@@ -80,11 +80,14 @@ def test_field_descriptors_of_an_exactly_symmetric_shape_repeat_under_another_se
     """The built-in table (4320 faces, solved as it is) is exactly symmetric: eigenvalues come
     in near-equal groups (three within 0.01 near 173.7) and many fields have no sign the
     surface decides, so another solver start returns another basis of their span. The
-    untangling starts in the fields' moment frame, which turns with that basis: the 33 field
-    columns repeat to the eigenvectors' accuracy inside those groups (measured 2.7e-3 with two
-    threads, 1.4e-4 with one; started in the raw eigenbasis they moved by 0.40). The part
-    columns cut this shape where k-means and the merge meet ties that round-off decides, so
-    they are not claimed here (docs/descriptors.md, Stability)."""
+    untangling starts in the fields' moment frame, which turns with that basis: started in the
+    raw eigenbasis the 33 field columns moved by 0.40. What is left is not set by the
+    eigenvectors' accuracy: mirror-image untanglings of this shape reach the same objective to
+    1e-13, so round-off (the CPU, the thread count) picks one, and the columns moved by 1.4e-4
+    and 2.7e-3 (one and two threads on one machine) and 0.013 (one thread, an AMD EPYC). The
+    bound is the descriptors' stability target, 0.10. The part columns cut this shape where
+    k-means and the merge meet such ties, so they are not claimed here (docs/descriptors.md,
+    Stability)."""
     from torchakvf.mesh.clean import face_areas
     s = shapes.table()
     v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
@@ -94,7 +97,7 @@ def test_field_descriptors_of_an_exactly_symmetric_shape_repeat_under_another_se
     field = [i for i, name in enumerate(first.descriptor_names) if "@" in name and not name.startswith("cut_")]
     assert len(field) == 33
     rel = _relative_difference(run(1).descriptors[:, field], first.descriptors[:, field], face_areas(v, f))
-    assert rel.max() <= 10 * STABLE, rel
+    assert rel.max() <= 0.10, rel
 
 
 def test_psb_mesh_descriptors_repeat_under_another_seed_and_a_moved_renumbered_copy(psb):
