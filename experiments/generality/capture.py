@@ -43,6 +43,7 @@ OVERSEG = {
     "crease60r4": dict(crease_split=math.radians(60), crease_rings=4, crease_concave=False),
     "concave60": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True),
     "concave45": dict(crease_split=math.radians(45), crease_rings=3, crease_concave=True),
+    "concave60r4": dict(crease_split=math.radians(60), crease_rings=4, crease_concave=True),
 }
 
 
