@@ -27,10 +27,9 @@ descriptors' own untangling seed, as :func:`torchakvf.interop.face_features` com
   time: field descriptors with the solve, part descriptors with the cues and probability,
   classical).
 
-Cache version 6 adds the cues, the probability and the packed mesh to version 5;
-``--upgrade-from`` completes a version 5 cache instead of computing every mesh again
-(:func:`upgrade_from_v5`: the packed mesh made again and recognised by its face areas, the
-probability from the cached float32 columns).
+Cache version 7: the columns with the descriptors' untangling started in the fields' moment
+frame, as ``face_features`` computes them since (version 6 untangled from the raw eigenbasis;
+it also added the cues, the probability and the packed mesh to version 5).
 
 Meshes with human segmentations are visited first, category-interleaved (1st mesh of every
 category, then the 2nd, ...), so a pass stopped early covers every category about equally. Run::
@@ -57,7 +56,7 @@ SEED = 0
 #: Geodesic radius (lengths at unit area) within which a face counts as on a person's cut:
 #: about one and a half face rings of a mesh decimated to 4000 faces.
 BOUNDARY_RADIUS = 0.02
-CACHE_VERSION = "6"
+CACHE_VERSION = "7"
 
 #: Per labelled category, the learned merge weights fitted without it: the part descriptors of
 #: a labelled mesh are cut with them, so no held-out category's labels shape its own columns.
@@ -182,50 +181,6 @@ def cache_path(cache: Path, entry, version: str = CACHE_VERSION) -> Path:
     return cache / f"{entry.mesh_id}_{h.hexdigest()[:16]}.npz"
 
 
-def packed_mesh_of(entry, area: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices [V, 3], faces [F, 3]) of the mesh :func:`one_mesh` solved ``entry`` on, made again
-    (the descriptors' canonical decimation; where that did not solve, the segmentations'
-    decimation; a mesh solved at full resolution, canonically numbered or as cleaned) and
-    recognised by its unit-area face areas ``area`` [F] from the cache."""
-    import torch
-
-    from torchakvf import MeshBatch, load_mesh
-    from torchakvf.mesh import clean_mesh
-    from torchakvf.mesh.batch import coarse_or_none
-    from torchakvf.parts.input_descriptors import _pack, pack_for_descriptors
-
-    mesh = clean_mesh(load_mesh(entry.mesh_path))
-    first = pack_for_descriptors([mesh], COARSE_FACES)
-    coarse = first.coarse_of(0)
-    makers = [lambda: first, lambda: _pack([mesh], [None], "cpu", torch.float64),
-              lambda: MeshBatch.from_meshes([mesh])]
-    if coarse is not None:
-        makers.insert(1, lambda: _pack([mesh], [coarse_or_none(coarse.fine, coarse.faces_asked)], "cpu", torch.float64))
-    for make in makers:
-        packed = make().meshes[0]
-        v, f = np.asarray(packed.vertices, dtype=np.float64), np.asarray(packed.faces, dtype=np.int64)
-        if len(f) == len(area) and np.allclose(classical.unit_area(v, f)[1], area, rtol=1e-9, atol=1e-15):
-            return v, f
-    raise ValueError(f"mesh {entry.mesh_id}: no packed mesh has the cached face areas")
-
-
-def upgrade_from_v5(entry, old: Path) -> dict:
-    """The cache version 5 entry of ``entry`` in ``old`` with what version 6 adds: the packed mesh,
-    its crease cues and the boundary probability, computed from the cached (float32) columns."""
-    from torchakvf.parts.boundary_cues import CUE_NAMES, crease_cues
-    from torchakvf.parts.boundary_probability import boundary_probability
-
-    with np.load(cache_path(old, entry, "5")) as z:
-        d = {k: z[k] for k in z.files}
-    v, f = packed_mesh_of(entry, d["area"])
-    cues = crease_cues(v, f)
-    columns = np.concatenate([d["akvf"], d["akvf_parts"]], axis=1).astype(np.float64)
-    d.update(packed_vertices=v, packed_faces=f.astype(np.int32), cues=cues.astype(np.float32),
-             cue_names=np.array(CUE_NAMES),
-             akvf_boundary=boundary_probability(columns, cues)[:, None].astype(np.float32))
-    return d
-
-
 def ordered_entries(psb: str, reverse: bool = False) -> list:
     """Meshes with human segmentations first, then the others; each group category-interleaved
     (``reverse``: each group in the opposite order, for a second worker sharing the cache)."""
@@ -237,11 +192,8 @@ def ordered_entries(psb: str, reverse: bool = False) -> list:
     return [e for g in groups for e in (g[::-1] if reverse else g)]
 
 
-def load_all(psb: str, cache: Path, compute: bool = True, reverse: bool = False,
-             upgrade: Path | None = None) -> tuple[list[dict], list[int]]:
-    """(one dict per mesh with mesh_id and category added, ids that failed or are not cached);
-    ``upgrade``: a version 5 cache whose entries are completed (:func:`upgrade_from_v5`) instead
-    of computed."""
+def load_all(psb: str, cache: Path, compute: bool = True, reverse: bool = False) -> tuple[list[dict], list[int]]:
+    """(one dict per mesh with mesh_id and category added, ids that failed or are not cached)."""
     from torchakvf import TorchAKVFError
 
     cache.mkdir(parents=True, exist_ok=True)
@@ -251,7 +203,7 @@ def load_all(psb: str, cache: Path, compute: bool = True, reverse: bool = False,
         if not path.exists() and compute:
             t = time.perf_counter()
             try:
-                d = one_mesh(e) if upgrade is None else upgrade_from_v5(e, upgrade)
+                d = one_mesh(e)
             except (TorchAKVFError, RuntimeError, ValueError) as exc:
                 log.warning("mesh %d: %s (left out)", e.mesh_id, exc)
                 missing.append(e.mesh_id)
@@ -302,8 +254,6 @@ def main(argv=None) -> int:
     ap = cache_parser(__doc__.split("\n")[0])
     ap.add_argument("--reverse", action="store_true",
                     help="visit the meshes in the opposite order (a second worker on the same cache)")
-    ap.add_argument("--upgrade-from", default=None,
-                    help="a cache of version 5: complete its entries with the version 6 columns instead of computing")
     ap.add_argument("--cpu-sample", action="store_true",
                     help="only time the first mesh of each category in CPU seconds (nothing cached)")
     args = ap.parse_args(argv)
@@ -315,8 +265,7 @@ def main(argv=None) -> int:
         cpu_sample(args.psb)
         return 0
     t = time.perf_counter()
-    data, missing = load_all(args.psb, Path(args.cache), reverse=args.reverse,
-                             upgrade=None if args.upgrade_from is None else Path(args.upgrade_from))
+    data, missing = load_all(args.psb, Path(args.cache), reverse=args.reverse)
     log.info("%d meshes in %.0f s; left out: %s", len(data), time.perf_counter() - t, missing)
     return 0
 
