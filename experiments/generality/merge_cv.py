@@ -35,7 +35,7 @@ import numpy as np
 from torchakvf.evaluate.metrics import rand_index_error as rand_error
 from torchakvf.options import MergeWeights
 from torchakvf.parts.merge import FIELD_OF_TERM, term_weights
-from torchakvf.parts.merge_terms import TERM_NAMES, face_occlusion, face_thickness
+from torchakvf.parts.merge_terms import TERM_NAMES, face_thickness
 
 # the capture preparation, merge state and pair recorder of the PSB sweep, shared
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "segmentation"))
@@ -55,7 +55,7 @@ def prepare(args) -> str:
         return f"{cap_file.stem} cached"
     rec = pickle.load(open(cap_file, "rb"))
     mesh = rec["mesh"]
-    overs = over_graphs(rec, face_thickness(mesh.vertices, mesh.faces), face_occlusion(mesh.vertices, mesh.faces, with_hits=True))
+    overs = over_graphs(rec, face_thickness(mesh.vertices, mesh.faces))
     data = dict(key=rec["key"], group=rec["group"], kind=rec["kind"], overs=overs,
                 gts=truth_rows(rec, overs, rand_error))
     with open(out, "wb") as fh:

@@ -67,7 +67,7 @@ def default_vector(w: MergeWeights | None = None) -> np.ndarray:
 
 # ---------------------------------------------------------------- preparation (once per mesh)
 
-def over_graphs(rec: dict, thick: np.ndarray, occlusion: np.ndarray | None = None) -> list[dict]:
+def over_graphs(rec: dict, thick: np.ndarray) -> list[dict]:
     """Per over-segmentation of a capture (merge_capture.py's record): its region graph's arrays,
     its parts' sums (``thick`` [F] the face thickness; the lines of sight between the parts) and
     its labels on the input faces. Shared with experiments/generality/merge_cv.py."""
@@ -80,7 +80,7 @@ def over_graphs(rec: dict, thick: np.ndarray, occlusion: np.ndarray | None = Non
     for o in rec["overs"]:
         unit = o["unit"].astype(np.float64)
         g = region_graph(o["labels"], dual, unit, o["area"], unit=unit, bends=bends)
-        sums = part_sums(g.labels, g.n_parts, o["area"], cent, thick, occlusion)
+        sums = part_sums(g.labels, g.n_parts, o["area"], cent, thick)
         sums["seen"], sums["lines"] = sight.counts(g.labels, g.n_parts)
         lab_in = mesh.labels_to_input_faces(g.labels)
         overs.append(dict(graph=(g.area, g.mean, g.length, g.concave, g.convex), sums=sums, lab_in=lab_in))
@@ -134,10 +134,7 @@ def new_state(over: dict) -> MergeState:
                       thick=s["thick"].copy(), thick_area=s["thick_area"].copy(), centroid=s["centroid"].copy(),
                       center=s["center"], radius=s["radius"], thick_median=s["thick_median"],
                       seen=None if s.get("seen") is None else s["seen"].copy(),
-                      lines=None if s.get("lines") is None else s["lines"].copy(),
-                      occl=None if s.get("occl") is None else s["occl"].copy(),
-                      occl_area=None if s.get("occl_area") is None else s["occl_area"].copy(),
-                      hits=None if s.get("hits") is None else s["hits"].copy())
+                      lines=None if s.get("lines") is None else s["lines"].copy())
 
 
 # ---------------------------------------------------------------- the greedy merge on a state

@@ -88,8 +88,7 @@ class RegionGraph:
                           thick=copy("thick"), thick_area=copy("thick_area"), centroid=copy("centroid"),
                           center=sums.get("center"), radius=float(sums.get("radius", 1.0)),
                           thick_median=float(sums.get("thick_median", 1.0)), seen=copy("seen"),
-                          lines=copy("lines"), occl=copy("occl"), occl_area=copy("occl_area"),
-                          hits=copy("hits"))
+                          lines=copy("lines"))
 
 
 #: The :class:`MergeWeights` field weighing each column of
@@ -97,15 +96,13 @@ class RegionGraph:
 #: :func:`term_weights`).
 FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
                      small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
-                     thin="thin", centricity="centricity", sight="sight", sight_excess="sight_excess",
-                     occluded="occluded", overhang="overhang", sight_concave="sight_concave",
-                     sight_symmetry="sight_symmetry")
+                     thin="thin", centricity="centricity", sight="sight", sight_excess="sight_excess")
 
 
 def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
     """[T] the weights of :data:`~torchakvf.parts.merge_terms.TERM_NAMES` the cost is the dot
     product with (the size terms folded into the ``small`` column, min(A_i, A_j) k / A)."""
-    values = {name: getattr(weights, field, 0.0) for name, field in FIELD_OF_TERM.items()}
+    values = {name: getattr(weights, field) for name, field in FIELD_OF_TERM.items()}
     values["small"] = weights.size / max(int(k), 1) + weights.part_size
     return np.array([values[name] for name in TERM_NAMES], dtype=np.float64)
 

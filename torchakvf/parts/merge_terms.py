@@ -23,8 +23,7 @@ from .sightlines import join_counts
 
 #: names of the columns of :func:`pair_terms`, in order (the learned merge's inputs)
 TERM_NAMES = ("symmetry", "concavity", "convexity", "share", "small", "size_ratio", "short_cut",
-              "thickness", "thin", "centricity", "sight", "sight_excess", "occluded", "overhang",
-              "sight_concave", "sight_symmetry")
+              "thickness", "thin", "centricity", "sight", "sight_excess")
 
 #: rays shot per sampled face by :func:`face_thickness` (in a 60° cone around the inward normal)
 THICKNESS_RAYS = 8
@@ -40,68 +39,6 @@ def cone_directions(n_rays: int) -> np.ndarray:
     sin_t = np.sqrt(1.0 - cos_t ** 2)
     phi = i * math.pi * (3.0 - math.sqrt(5.0))
     return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), -cos_t], axis=1)
-
-
-#: rays shot per sampled face by :func:`face_occlusion` (over the hemisphere of the outward normal)
-OCCLUSION_RAYS = 16
-
-
-def hemisphere_directions(n_rays: int) -> np.ndarray:
-    """[n_rays, 3] fixed unit directions over the hemisphere around +z (local frame: z the
-    outward normal), uniform in solid angle on a golden-angle spiral."""
-    i = np.arange(n_rays) + 0.5
-    cos_t = 1.0 - i / n_rays
-    sin_t = np.sqrt(1.0 - cos_t ** 2)
-    phi = i * math.pi * (3.0 - math.sqrt(5.0))
-    return np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t], axis=1)
-
-
-def _sampled_frames(V: np.ndarray, F: np.ndarray, max_faces: int):
-    """(pick [S] face ids taken evenly by index with a normal, centroids [S, 3], frames
-    (t1, t2, n) [S, 3] each, n the unit outward normal)."""
-    pick = np.unique(np.linspace(0, len(F) - 1, min(int(max_faces), len(F))).astype(np.int64))
-    tri = V[F[pick]]
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(normal, axis=1)
-    ok = norm > 0
-    pick, tri, normal = pick[ok], tri[ok], normal[ok] / norm[ok, None]
-    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    t1 = np.cross(normal, helper)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(normal, t1)
-    return pick, tri.mean(axis=1), (t1, t2, normal)
-
-
-def face_occlusion(vertices: np.ndarray, faces: np.ndarray, n_rays: int = OCCLUSION_RAYS,
-                   max_faces: int = THICKNESS_FACES, with_hits: bool = False):
-    """[F] share of the outward rays of a face that meet the surface again, at the centroids of
-    about ``max_faces`` faces taken evenly by index, NaN at the others.
-
-    Each sampled face shoots ``n_rays`` fixed rays (:func:`hemisphere_directions`) over the
-    hemisphere of its outward normal: 0 on a convex surface, near 1 at the floor of a hole or
-    the bottom of a crevice (ambient occlusion without a distance bound). Cast on libigl's AABB
-    tree."""
-    import igl
-
-    V = np.ascontiguousarray(vertices, dtype=np.float64)
-    F = np.ascontiguousarray(faces, dtype=np.int64)
-    out = np.full(len(F), np.nan)
-    if len(F) == 0:
-        return out
-    pick, centroid, (t1, t2, normal) = _sampled_frames(V, F, max_faces)
-    hemi = hemisphere_directions(n_rays)
-    dirs = (hemi[None, :, 0:1] * t1[:, None] + hemi[None, :, 1:2] * t2[:, None]
-            + hemi[None, :, 2:3] * normal[:, None]).reshape(-1, 3)
-    scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) or 1.0
-    origin = np.repeat(centroid, n_rays, axis=0) + 1e-6 * scale * dirs
-    tree = igl.AABB()
-    tree.init(V, F)
-    hit, _, _ = tree.intersect_ray_first(V, F, np.ascontiguousarray(origin), np.ascontiguousarray(dirs))
-    hit = np.asarray(hit).reshape(-1, n_rays)
-    out[pick] = (hit >= 0).mean(axis=1)
-    if with_hits:
-        return out, pick, hit
-    return out
 
 
 def face_thickness(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKNESS_RAYS,
@@ -180,9 +117,6 @@ class MergeState:
     thick_median: float = 1.0
     seen: np.ndarray | None = None
     lines: np.ndarray | None = None
-    occl: np.ndarray | None = None
-    occl_area: np.ndarray | None = None
-    hits: np.ndarray | None = None
 
     @property
     def total(self) -> float:
@@ -194,18 +128,13 @@ class MergeState:
         self.mean[i] = (self.area[i] * self.mean[i] + self.area[j] * self.mean[j]) / max(tot, 1e-300)
         self.area[i], self.area[j] = tot, 0.0
         self.mean[j] = 0.0
-        for vec in (self.thick, self.thick_area, self.centroid, self.occl, self.occl_area):
+        for vec in (self.thick, self.thick_area, self.centroid):
             if vec is not None:
                 vec[i] += vec[j]
                 vec[j] = 0.0
         for mat in (self.seen, self.lines):
             if mat is not None:
                 join_counts(mat, i, j)
-        if self.hits is not None:
-            h = self.hits
-            h[i, :] += h[j, :]
-            h[:, i] += h[:, j]
-            h[j, :] = h[:, j] = 0.0
         for mat in (self.length, self.concave, self.convex):
             mat[i, :] += mat[j, :]
             mat[:, i] = mat[i, :]
@@ -214,7 +143,7 @@ class MergeState:
 
 
 def part_sums(labels: np.ndarray, n_parts: int, face_area: np.ndarray, centroids: np.ndarray,
-              thickness: np.ndarray | None, occlusion=None) -> dict:
+              thickness: np.ndarray | None) -> dict:
     """The per-part sums :class:`MergeState` adds beyond a region graph's: labels [F] compact
     part ids (negative: left out), face_area [F], centroids [F, 3] face centroids, thickness [F]
     (:func:`face_thickness`, NaN where not known; None: not computed)."""
@@ -232,22 +161,6 @@ def part_sums(labels: np.ndarray, n_parts: int, face_area: np.ndarray, centroids
         out["thick"] = np.bincount(lab[known], weights=(a * s)[known], minlength=n_parts)
         out["thick_area"] = np.bincount(lab[known], weights=a[known], minlength=n_parts)
         out["thick_median"] = float(np.median(s[known])) if known.any() else 1.0
-    if occlusion is not None:
-        occlusion, pick, hit = occlusion
-        # hits[i, j]: area-weighted share of part i's sampled outward rays landing on part j
-        src = labels[pick]
-        n_rays = hit.shape[1]
-        ok = (src[:, None] >= 0) & (hit >= 0)
-        dst = np.where(hit >= 0, labels[np.maximum(hit, 0)], -1)
-        ok &= dst >= 0
-        wgt = np.broadcast_to((face_area[pick] / n_rays)[:, None], hit.shape)
-        srcs = np.broadcast_to(src[:, None], hit.shape)
-        out["hits"] = np.bincount((srcs * n_parts + dst)[ok], weights=wgt[ok],
-                                  minlength=n_parts * n_parts).reshape(n_parts, n_parts)
-        o = occlusion[keep]
-        known = np.isfinite(o)
-        out["occl"] = np.bincount(lab[known], weights=(a * o)[known], minlength=n_parts)
-        out["occl_area"] = np.bincount(lab[known], weights=a[known], minlength=n_parts)
     return out
 
 
@@ -304,16 +217,6 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
         own_lines = np.diag(state.lines)
         own = np.where(own_lines > 0, 1.0 - np.diag(state.seen) / np.maximum(own_lines, 1.0), 0.0)
         T[..., 11] = blocked - 0.5 * (own[rows][:, None] + own[None, :])
-    if state.occl is not None:
-        o = np.where(state.occl_area > 0, state.occl / np.maximum(state.occl_area, 1e-300), 0.0)
-        T[..., 12] = np.where(i_small, o[rows][:, None], o[None, :])
-    if state.hits is not None:
-        sampled = np.maximum(state.occl_area, 1e-300)
-        ij = state.hits[rows] / sampled[rows][:, None]
-        ji = state.hits[:, rows].T / sampled[None, :]
-        T[..., 13] = np.maximum(ij, ji)
-    T[..., 14] = T[..., 10] * np.minimum(T[..., 1], 1.0)
-    T[..., 15] = T[..., 10] * T[..., 0]
     T[~adjacent] = 0.0
     return T, adjacent
 
