@@ -114,6 +114,21 @@ def test_ks_below_the_floor_share_one_kmeans_and_equal_each_k_alone(blobs, monke
         assert got.params["merge_min_k"] == 4
 
 
+def test_labels_only_rounds_cut_the_same_labels_without_generators_refinement_or_costs(blobs):
+    """labels_only (what the part descriptors read): at every k the labels of the whole cut
+    (merge and graph cut), without the symmetry generators, the refined mesh or the costs."""
+    opts = SegmentOptions(overseg=OverSegmentation(min_k=4), **{**FAST, "refine": True})
+    whole = {r.ks[0]: r.meshes[0] for r in segment_rounds(blobs, [[2, 3, 5]], opts)}
+    bare = {r.ks[0]: r.meshes[0] for r in segment_rounds(blobs, [[2, 3, 5]], opts, labels_only=True)}
+    for k in (2, 3, 5):
+        np.testing.assert_array_equal(bare[k].labels, whole[k].labels)
+        assert len(np.unique(bare[k].labels)) == k
+        assert whole[k].generators and whole[k].refined is not None and np.isfinite(whole[k].cost)
+        assert "merge_next" in whole[k].params
+        assert bare[k].generators == [] and bare[k].refined is None and np.isnan(bare[k].cost)
+        assert "merge_next" not in bare[k].params
+
+
 def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
     ms = [ta.Mesh(s.vertices, s.faces) for s in (shapes.three_blobs(n_around=20), shapes.dumbbell())]
     batch = ta.MeshBatch.from_meshes(ms)
@@ -184,8 +199,8 @@ def test_segment_rounds_drops_an_over_segmentation_no_later_k_shares(monkeypatch
     opts = SegmentOptions(refine=False)
     seen, real = [], rounds.cut_parts
 
-    def spy(*a):
-        out = real(*a)
+    def spy(*a, **kw):
+        out = real(*a, **kw)
         seen.append((a[4], a[5], a[7]))          # mesh, k, its cache (as cut_parts leaves it)
         return out
 

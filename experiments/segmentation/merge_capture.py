@@ -34,7 +34,7 @@ def capture_rounds(fields, ks: list, opts, label_dtype) -> dict:
     record = {"overs": [], "k_over": {}, "final": {}}
     original = C.segmentation_labels
 
-    def recording(over, cache, o, k, floor, cost, n_solved):
+    def recording(over, cache, o, k, floor, cost, n_solved, **kw):
         ids = [i for i, s in enumerate(record["overs"]) if s["labels"] is over.labels]
         if not ids:
             record["overs"].append({"labels": over.labels, "unit": over.unit.astype(np.float32),
@@ -43,7 +43,7 @@ def capture_rounds(fields, ks: list, opts, label_dtype) -> dict:
             ids = [len(record["overs"]) - 1]
         record["k_over"][int(k)] = ids[0]
         record["mesh"] = over.mesh
-        return original(over, cache, o, k, floor, cost, n_solved)
+        return original(over, cache, o, k, floor, cost, n_solved, **kw)
 
     C.segmentation_labels = recording
     try:

@@ -59,7 +59,8 @@ class KRound:
 
 def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=None,
                    untangled: UntangledFields | None = None, cut: bool = True,
-                   mesh_caches: list[MeshCache] | None = None, untangle_frame: str = "eigen"):
+                   mesh_caches: list[MeshCache] | None = None, untangle_frame: str = "eigen",
+                   labels_only: bool = False):
     """Yields one :class:`KRound` per round: round r segments every mesh with its r-th k.
 
     ks : one list of k's per mesh (or one int, or one int per mesh); meshes with fewer k's sit
@@ -74,6 +75,8 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         later calls on the same batch (other seeds or k's); None: made for this call
     untangle_frame : the frame of the untangling's starts
         (:data:`~torchakvf.fields.untangle.START_FRAMES`; the part descriptors' "moments")
+    labels_only : the meshes' parts without generators, refined meshes or costs
+        (:func:`~torchakvf.parts.cut.cut_parts`; the part descriptors read the labels alone)
     """
     batch = fields.batch
     ks = check_ks(batch, ks)
@@ -113,7 +116,8 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
                 pass
         meshes = [None] * nb
         for b in (active if cut else ()):
-            meshes[b] = cut_parts(batch, fields, unt, km, b, round_ks[b], opts, state.mesh_caches[b])
+            meshes[b] = cut_parts(batch, fields, unt, km, b, round_ks[b], opts, state.mesh_caches[b],
+                                  labels_only=labels_only)
             if following is None or b not in following.active or \
                     (following.n_fields[b], following.clusters[b]) != (ns[b], km_ks[b]):
                 # the mesh's next k clusters otherwise (or it has none): its over-segmentation
