@@ -154,18 +154,28 @@ def write_off(path, vertices, faces) -> Path:
     return path
 
 
-def write_npz(path, **arrays) -> None:
-    """An uncompressed-safe .npz of plain arrays (loadable with ``allow_pickle=False``)."""
-    import io
+#: zlib level of the .npz files: per-face float32 columns (features, descriptors) barely compress
+#: at any level; level 1 writes them in 60 % of the default level's time (6), 1-2 % larger
+NPZ_COMPRESSLEVEL = 1
 
-    buf = io.BytesIO()
+
+def write_npz(path, **arrays) -> None:
+    """A compressed .npz of plain arrays (loadable with ``allow_pickle=False``), as
+    ``numpy.savez_compressed`` writes one but at zlib level :data:`NPZ_COMPRESSLEVEL`."""
+    import io
+    import zipfile
+
     clean = {}
     for key, val in arrays.items():
         arr = np.asarray(val)
         if arr.dtype == object:
             raise TorchAKVFError(f"{path}: npz field {key!r} is not a plain array")
         clean[key] = arr
-    np.savez_compressed(buf, **clean)
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=NPZ_COMPRESSLEVEL) as zf:
+        for key, arr in clean.items():
+            with zf.open(f"{key}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, arr, allow_pickle=False)
     atomic_write_bytes(path, buf.getvalue())
 
 
