@@ -114,19 +114,19 @@ def test_ks_below_the_floor_share_one_kmeans_and_equal_each_k_alone(blobs, monke
         assert got.params["merge_min_k"] == 4
 
 
-def test_labels_only_rounds_cut_the_same_labels_without_generators_refinement_or_costs(blobs):
-    """labels_only (what the part descriptors read): at every k the labels of the whole cut
-    (merge and graph cut), without the symmetry generators, the refined mesh or the costs."""
+def test_rounds_without_extras_cut_the_same_labels_and_costs_without_generators(blobs):
+    """extras=False (what the part descriptors and the eval read): at every k the labels and the
+    cost of the whole cut (merge and graph cut), without the symmetry generators, the refined
+    mesh or the next merge's cost."""
     opts = SegmentOptions(overseg=OverSegmentation(min_k=4), **{**FAST, "refine": True})
     whole = {r.ks[0]: r.meshes[0] for r in segment_rounds(blobs, [[2, 3, 5]], opts)}
-    bare = {r.ks[0]: r.meshes[0] for r in segment_rounds(blobs, [[2, 3, 5]], opts, labels_only=True)}
+    bare = {r.ks[0]: r.meshes[0] for r in segment_rounds(blobs, [[2, 3, 5]], opts, extras=False)}
     for k in (2, 3, 5):
         np.testing.assert_array_equal(bare[k].labels, whole[k].labels)
         assert len(np.unique(bare[k].labels)) == k
-        assert whole[k].generators and whole[k].refined is not None and np.isfinite(whole[k].cost)
-        assert "merge_next" in whole[k].params
-        assert bare[k].generators == [] and bare[k].refined is None and np.isnan(bare[k].cost)
-        assert "merge_next" not in bare[k].params
+        assert bare[k].cost == whole[k].cost and np.isfinite(bare[k].cost)
+        assert whole[k].generators and whole[k].refined is not None and "merge_next" in whole[k].params
+        assert bare[k].generators == [] and bare[k].refined is None and "merge_next" not in bare[k].params
 
 
 def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):

@@ -190,7 +190,7 @@ class EvalTask:
         job, meta = cut_input
         t0 = time.perf_counter()
         labels, costs = {}, {}
-        for k, seg in cut_mesh_rounds(job, self.options):
+        for k, seg in cut_mesh_rounds(job, self.options, extras=False):
             labels[k], costs[str(k)] = seg.labels, float(seg.cost)
         meta = {**meta, "costs": costs, "seconds": meta["seconds"] + time.perf_counter() - t0}
         return EvalOutput(labels, meta)

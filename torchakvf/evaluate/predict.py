@@ -113,7 +113,8 @@ def predict_batch(batch, settings: PredictSettings, *, timings=None, loaded=None
         missing = [sorted(p.missing(False)) for p in batch]
         n_rounds = max(len(m) for m in missing)
         t1 = time.perf_counter()
-        for rnd in segment_rounds(fields, missing, opts, n_fields=settings.n_fields):
+        # labels and costs are what the eval keeps: no generators nor next merge's costs
+        for rnd in segment_rounds(fields, missing, opts, n_fields=settings.n_fields, extras=False):
             tick("segment", [(rnd.ks[b], faces[b]) for b in rnd.active])
             for b in rnd.active:
                 write_seg(batch[b].pred_path(rnd.ks[b]), rnd.meshes[b].labels)

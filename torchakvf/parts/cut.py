@@ -202,7 +202,7 @@ class CutParts:
 
 
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
-              opts: SegmentOptions, mesh_cache: MeshCache | None = None, labels_only: bool = False
+              opts: SegmentOptions, mesh_cache: MeshCache | None = None, extras: bool = True
               ) -> MeshSegmentation:
     """Mesh b's parts from its clustering: boundaries, (ε > 0) connecting region, clean-up of
     small pieces and symmetry generators, on the input's faces.
@@ -211,9 +211,9 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
     :class:`~torchakvf.cluster.spherical_kmeans.KMeansResult` of the round (with
     :func:`~torchakvf.parts.field_counts.cluster_count` clusters for mesh b), k : mesh b's k in it.
     mesh_cache : the :class:`MeshCache` kept for mesh b across the rounds of one solve.
-    labels_only : the same labels without what only a caller of the whole result reads: no
-        symmetry generators, refined mesh or costs (``generators`` empty, ``refined`` None,
-        ``cost`` NaN, no ``merge_next`` in ``params``)
+    extras : False: the same labels and cost without what only some callers read: no symmetry
+        generators, refined mesh or next merge's cost (``generators`` empty, ``refined`` None, no
+        ``merge_next`` in ``params``; the part descriptors and the eval read neither)
     """
     cache = MeshCache() if mesh_cache is None else mesh_cache
     unt = untangled
@@ -234,18 +234,17 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
     if opts.eps > 0:
         cut = CutParts(labels=_discovery_labels(over, cache, opts, floor), vdist=over.vdist, cost=float(km.cost[b]))
     else:
-        cut = segmentation_labels(over, cache, opts, k, floor, float(km.cost[b]), f1 - f0, costs=not labels_only)
+        cut = segmentation_labels(over, cache, opts, k, floor, float(km.cost[b]), f1 - f0, next_cost=extras)
     clean, feats = over.mesh, over.feats
     labels = limit_parts(cut.labels, clean.vertices, clean.faces, k)
-    gens = [] if labels_only else \
+    gens = [] if not extras else \
         part_generators(labels, feats, over.area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
     converged, residual = solve_quality(fields, b)
     return MeshSegmentation(
         name=clean.name, k=k, labels=clean.labels_to_input_faces(labels),
         features=clean.to_input_faces(feats), eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
         generators=gens,
-        refined=refine_along_isolines(clean.vertices, clean.faces, cut.vdist) if opts.refine and not labels_only
-        else None,
+        refined=refine_along_isolines(clean.vertices, clean.faces, cut.vdist) if opts.refine and extras else None,
         cost=cut.cost, params={**recorded_params(batch, b, k, n_b, k_cluster, floor, opts, cut.merge_next),
                                "remedy": fields.remedies[b]},
         converged=converged, max_residual=residual)
@@ -262,14 +261,13 @@ def _discovery_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOptio
 
 
 def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOptions, k: int, floor: float,
-                        cost: float, n_solved: int, costs: bool = True) -> CutParts:
+                        cost: float, n_solved: int, next_cost: bool = True) -> CutParts:
     """Plain segmentation (ε = 0): with method "merge", adjacent parts merged down to k and the
     boundaries re-decided by the graph cut; the cost of the next merge either way. The one place
     an over-segmentation becomes k parts, so the merge's training captures record its inputs
     here (experiments/segmentation/merge_capture.py).
     n_solved : the faces of the solved mesh (the cost's unit).
-    costs : False: the labels alone (the merged parts' k-means cost and the next merge's cost
-        are not computed: cost NaN, merge_next None)."""
+    next_cost : False: the next merge's cost is not computed (merge_next None)."""
     clean, vdist, feats, labels, area, unit = over.mesh, over.vdist, over.feats, over.labels, over.area, over.unit
     if cache.dual is None:
         cache.dual = dual_edges(clean.vertices, clean.faces)
@@ -300,7 +298,7 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
         graph = over.graphs[key]
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
                              MergeCache(dual=dual, unit=unit, bends=bends, graph=graph))
-        if sight is not None and costs:
+        if sight is not None and next_cost:
             # the next merge reads the merged parts' lines of sight, summed from the pieces'
             # (those the merge itself saw) rather than cast again for the cut's labels
             owner = np.zeros(graph.n_parts, dtype=np.int64)
@@ -311,7 +309,7 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
                                  patches=over.labels % over.n_patches if over.n_patches > 1 else None)
         labels = merged
         # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
-        cost = partition_cost(labels, feats, unit=unit) * n_solved / len(labels) if costs else float("nan")
+        cost = partition_cost(labels, feats, unit=unit) * n_solved / len(labels)
         if opts.graphcut is not None:
             # data term: each face's distance to each part, the mean over its corners
             # (made for the faces the cut reads: those near a boundary)
@@ -320,8 +318,8 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
                 cache.cut_costs[opts.graphcut] = edge_weights(dual, opts.graphcut)
             labels = graphcut_labels(labels, face_dist, dual, area, opts.graphcut,
                                      cut_cost=cache.cut_costs[opts.graphcut], min_fraction=floor)
-    if not costs:
-        return CutParts(labels=labels, vdist=vdist, cost=float("nan"))
+    if not next_cost:
+        return CutParts(labels=labels, vdist=vdist, cost=cost)
     # what merging two of these parts would cost (k auto's "merge" rule reads it)
     merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends,
                                  centroids=centroids, thickness=thickness, sight=sight)

@@ -192,7 +192,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
         each = [{} for _ in range(len(batch))]
         for rnd in segment_rounds(fields, [sorted(set(kb)) for kb in ks_of], segment_options(opts, seed=int(seed)),
                                   n_fields=n_fields, mesh_caches=caches, untangle_frame=DESCRIPTOR_FRAME,
-                                  labels_only=True):
+                                  extras=False):
             for b in rnd.active:
                 each[b][rnd.ks[b]] = rnd.meshes[b].labels
         for b in range(len(batch)):

@@ -60,7 +60,7 @@ class KRound:
 def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=None,
                    untangled: UntangledFields | None = None, cut: bool = True,
                    mesh_caches: list[MeshCache] | None = None, untangle_frame: str = "eigen",
-                   labels_only: bool = False):
+                   extras: bool = True):
     """Yields one :class:`KRound` per round: round r segments every mesh with its r-th k.
 
     ks : one list of k's per mesh (or one int, or one int per mesh); meshes with fewer k's sit
@@ -75,8 +75,9 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         later calls on the same batch (other seeds or k's); None: made for this call
     untangle_frame : the frame of the untangling's starts
         (:data:`~torchakvf.fields.untangle.START_FRAMES`; the part descriptors' "moments")
-    labels_only : the meshes' parts without generators, refined meshes or costs
-        (:func:`~torchakvf.parts.cut.cut_parts`; the part descriptors read the labels alone)
+    extras : False: the meshes' parts without symmetry generators, refined meshes or next
+        merge's costs (:func:`~torchakvf.parts.cut.cut_parts`; what the part descriptors and the
+        eval skip)
     """
     batch = fields.batch
     ks = check_ks(batch, ks)
@@ -117,7 +118,7 @@ def segment_rounds(fields: AKVFResult, ks, opts: SegmentOptions, *, n_fields=Non
         meshes = [None] * nb
         for b in (active if cut else ()):
             meshes[b] = cut_parts(batch, fields, unt, km, b, round_ks[b], opts, state.mesh_caches[b],
-                                  labels_only=labels_only)
+                                  extras=extras)
             if following is None or b not in following.active or \
                     (following.n_fields[b], following.clusters[b]) != (ns[b], km_ks[b]):
                 # the mesh's next k clusters otherwise (or it has none): its over-segmentation
@@ -384,13 +385,13 @@ def mesh_cut_job(fields: AKVFResult, rounds: list, b: int) -> MeshCutJob:
     return job
 
 
-def cut_mesh_rounds(job: MeshCutJob, opts: SegmentOptions):
+def cut_mesh_rounds(job: MeshCutJob, opts: SegmentOptions, extras: bool = True):
     """Yields (k, MeshSegmentation) for each round of ``job`` in order: the parts
-    ``segment_rounds(..., cut=True)`` cuts for that mesh, bit for bit (one MeshCache across the
-    rounds, as there)."""
+    ``segment_rounds(..., cut=True, extras=extras)`` cuts for that mesh, bit for bit (one
+    MeshCache across the rounds, as there)."""
     cache = MeshCache()
     for k, unt, km in job.rounds:
-        yield k, cut_parts(job.batch, job.fields, unt, km, 0, k, opts, cache)
+        yield k, cut_parts(job.batch, job.fields, unt, km, 0, k, opts, cache, extras=extras)
 
 
 __all__ = ["mesh_cut_job", "cut_mesh_rounds", "MeshCutJob", "segment_rounds", "round_plan", "RoundPlan", "KRound",
