@@ -135,6 +135,30 @@ def test_rasterize_equals_a_plain_z_buffer_with_ties_and_nan_depths(chunk):
     np.testing.assert_array_equal(zbuf, want_z)
 
 
+def test_rasterize_row_spans_keep_every_fragment_of_skinny_and_tiny_triangles():
+    """The row spans the test runs on lose no pixel the barycentric test accepts: slivers along
+    and across the rows, near-horizontal and near-vertical edges, sub-pixel and pixel-sized
+    triangles, centres on edges, at several scales: the plain z-buffer's ids and depths."""
+    rng = np.random.default_rng(11)
+    tris = []
+    for _ in range(60):
+        p = rng.random(2) * 40
+        d = rng.standard_normal(2) * rng.choice([0.3, 3, 30])
+        tris.append([p, p + d, p + d * rng.random() + rng.standard_normal(2) * rng.choice([1e-7, 1e-3, 0.5])])
+    tris.append([[2.0, 5.0], [30.0, 5.0 + 1e-9], [16.0, 9.0]])          # an edge along a row of centres' y
+    tris.append([[10.5, 1.0], [10.5 + 1e-9, 30.0], [14.0, 12.0]])       # an edge through pixel centres
+    tris.append([[3.5, 3.5], [4.5, 3.5], [3.5, 4.5]])                   # corners on centres
+    xy = np.asarray(tris, dtype=float).reshape(-1, 2)
+    faces = np.arange(len(xy)).reshape(-1, 3)
+    depth = rng.integers(0, 5, len(xy)).astype(float)
+    for scale in (1.0, 3.7):
+        ids, zbuf = rasterize(xy * scale, depth, faces, int(45 * scale), int(45 * scale))
+        want_ids, want_z = _rasterize_by_sorting(xy * scale, depth, faces, int(45 * scale), int(45 * scale))
+        np.testing.assert_array_equal(ids, want_ids)
+        np.testing.assert_array_equal(zbuf, want_z)
+        assert (ids >= 0).sum() > 100 * scale ** 2       # the triangles cover pixels: a real test
+
+
 def test_sphere_fills_its_picture(tmp_path):
     s = shapes.icosphere(level=3)
     labels = np.zeros(len(s.faces), dtype=np.int64)
