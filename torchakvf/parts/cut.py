@@ -237,8 +237,8 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         cut = segmentation_labels(over, cache, opts, k, floor, float(km.cost[b]), f1 - f0, next_cost=extras)
     clean, feats = over.mesh, over.feats
     labels = limit_parts(cut.labels, clean.vertices, clean.faces, k)
-    gens = [] if not extras else \
-        part_generators(labels, feats, over.area, unt.energies[b, :n_b].detach().cpu().numpy(), k)
+    gens = part_generators(labels, feats, over.area, unt.energies[b, :n_b].detach().cpu().numpy(), k) \
+        if extras else []
     converged, residual = solve_quality(fields, b)
     return MeshSegmentation(
         name=clean.name, k=k, labels=clean.labels_to_input_faces(labels),
