@@ -318,11 +318,9 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
                 cache.cut_costs[opts.graphcut] = edge_weights(dual, opts.graphcut)
             labels = graphcut_labels(labels, face_dist, dual, area, opts.graphcut,
                                      cut_cost=cache.cut_costs[opts.graphcut], min_fraction=floor)
-    if not next_cost:
-        return CutParts(labels=labels, vdist=vdist, cost=cost)
     # what merging two of these parts would cost (k auto's "merge" rule reads it)
     merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends,
-                                 centroids=centroids, thickness=thickness, sight=sight)
+                                 centroids=centroids, thickness=thickness, sight=sight) if next_cost else None
     return CutParts(labels=labels, vdist=vdist, cost=cost, merge_next=merge_next)
 
 
