@@ -60,7 +60,7 @@ def rasterize(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray, width: int, 
     # one entry per (face, row of its bounding box): faces in order, rows ascending
     rows = span[order, 1]
     row_face = np.repeat(order, rows)
-    row_y = lo[row_face, 1] + np.arange(int(rows.sum())) - np.repeat(np.cumsum(rows) - rows, rows)
+    row_y = lo[row_face, 1] + _run_offsets(rows)
     col_lo, col_hi = _row_spans(row_face, row_y, lo[:, 0], hi[:, 0], x0, y0, e1x, e1y, e2x, e2y, det)
     width_r = np.maximum(col_hi - col_lo + 1, 0)
     keep = np.flatnonzero(width_r > 0)
@@ -72,7 +72,7 @@ def rasterize(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray, width: int, 
         stop = max(stop, start + 1)
         c = width_r[start:stop]
         face = np.repeat(row_face[start:stop], c)
-        px = np.repeat(col_lo[start:stop], c) + np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
+        px = np.repeat(col_lo[start:stop], c) + _run_offsets(c)
         py = np.repeat(row_y[start:stop], c)
         start = stop
         # each face's values gathered once per fragment (a[face] - b[face] is (a - b)[face] to
@@ -101,6 +101,11 @@ def rasterize(xy: np.ndarray, depth: np.ndarray, faces: np.ndarray, width: int, 
         zbuf[pix[nearer]] = zz[nearer]
         ids[pix[nearer]] = face[nearer]
     return ids.reshape(height, width), zbuf.reshape(height, width)
+
+
+def _run_offsets(counts: np.ndarray) -> np.ndarray:
+    """[sum(counts)] 0, 1, ..., counts[i] - 1 for each run i in turn (a run's rows or pixels)."""
+    return np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
 def _row_spans(face, py, col_lo, col_hi, x0, y0, e1x, e1y, e2x, e2y, det):
