@@ -39,6 +39,20 @@ def test_a_dumbbell_is_two_parts_by_options_or_keywords():
     assert by_options.chosen == [2] and by_options.costs.tolist() == scan_k([mesh], (1, 3), **fast).costs.tolist()
 
 
+def test_the_scan_keeps_the_over_segmentation_its_threshold_was_chosen_with():
+    """Without an over-segmentation given, the scan cuts each k into 3 pieces per part (at most
+    16 beyond k), every k on its own, whatever the segmentation's default is."""
+    from torchakvf.options import OverSegmentation
+
+    d = shapes.dumbbell(n_around=16)
+    mesh = Mesh(d.vertices, d.faces, name="dumbbell")
+    fast = dict(kmeans_restarts=2, untangle_restarts=1)
+    pinned = OverSegmentation(ratio=3.0, extra_max=16, min_k=1)
+    assert scan_overseg(None) == pinned and OverSegmentation().ratio != pinned.ratio
+    given = scan_k([mesh], (1, 3), overseg=pinned, **fast)
+    assert scan_k([mesh], (1, 3), **fast).costs.tolist() == given.costs.tolist()
+
+
 def test_the_evaluation_imports_the_same_algorithm():
     from torchakvf.evaluate import k_auto as old
     from torchakvf.parts import k_auto as new

@@ -16,6 +16,7 @@ from torchakvf.parts.part_descriptors import (
     DISTANCE_FLOOR,
     NEAR_RADII,
     PART_KS,
+    PART_OVERSEGMENTATION,
     cut_distance,
     describe_labelings,
     dual_graph,
@@ -89,7 +90,7 @@ def test_cut_distance_is_zero_exactly_where_the_segmentation_cuts(blobs):
     assert d.shape == (len(mesh.faces), len(KS) + len(NEAR_RADII))
     pairs = face_adjacency(np.asarray(mesh.faces))
     for j, k in enumerate(KS):
-        labels = segment(fields, k, seed=0).meshes[0].labels
+        labels = segment(fields, k, seed=0, overseg=PART_OVERSEGMENTATION).meshes[0].labels
         differ = labels[pairs[:, 0]] != labels[pairs[:, 1]]
         on_cut = np.zeros(len(labels), dtype=bool)
         on_cut[pairs[differ].ravel()] = True
@@ -99,6 +100,15 @@ def test_cut_distance_is_zero_exactly_where_the_segmentation_cuts(blobs):
         assert np.all(d[:, j] <= math.log(DISTANCE_CAP + DISTANCE_FLOOR) + 1e-12)
     # three blobs on a line: two parts cut one neck, three parts both necks
     assert (d[:, 1] == d[:, 1].min()).sum() > (d[:, 0] == d[:, 0].min()).sum()
+
+
+def test_the_columns_keep_their_own_over_segmentation(blobs):
+    """Without options the segmentations merge from PART_OVERSEGMENTATION, whatever the
+    segmentation's own default is: the same columns as asked for with it explicitly."""
+    _, fields, d = blobs
+    pinned = part_descriptors(fields, ks=KS, seeds=(0,), options=SegmentOptions(overseg=PART_OVERSEGMENTATION))[0]
+    np.testing.assert_array_equal(d, pinned)
+    assert (PART_OVERSEGMENTATION.ratio, PART_OVERSEGMENTATION.extra_max) == (3.0, 16)
 
 
 def test_seeds_share_the_meshs_cut_arrays_and_average_their_columns(blobs, monkeypatch):

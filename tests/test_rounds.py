@@ -96,7 +96,7 @@ def _count_kmeans(monkeypatch):
 
 
 def test_ks_below_the_floor_share_one_kmeans_and_equal_each_k_alone(blobs, monkeypatch):
-    overseg = OverSegmentation(min_k=4)
+    overseg = OverSegmentation(ratio=3.0, extra_max=16, min_k=4)
     calls = _count_kmeans(monkeypatch)
     res = segment_each_k(blobs, [[2, 3, 4, 5]], overseg=overseg, **FAST)
     # k = 2, 3, 4 share (n 16, k' 12); k = 5 has its own k' = 15
@@ -133,7 +133,7 @@ def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
     ms = [ta.Mesh(s.vertices, s.faces) for s in (shapes.three_blobs(n_around=20), shapes.dumbbell())]
     batch = ta.MeshBatch.from_meshes(ms)
     fields = ta.akvf(batch, n=20, remedy="smooth")
-    overseg = OverSegmentation(min_k=3)
+    overseg = OverSegmentation(ratio=3.0, extra_max=16, min_k=3)
     calls = _count_kmeans(monkeypatch)
     ks = [[2, 3, 4], [3, 2]]
     res = segment_each_k(fields, ks, overseg=overseg, **FAST)

@@ -67,11 +67,13 @@ class OverSegmentation:
     most max(k, min_k) + extra_max, cut along concave creases. Chosen by cross-validation
     (see docs/design.md); not fitted with the merge weights, so kept apart from them."""
 
-    #: over-segmentation factor k' = ceil(ratio k), >= 1: 3 leaves the merge room to choose
-    ratio: float = 3.0
-    #: at most this many clusters beyond k (None: ceil(ratio k) at every k); 16 keeps the merge
-    #: method's time near the paper mode's on meshes asking for many parts, at the same score
-    extra_max: int | None = 16
+    #: over-segmentation factor k' = ceil(ratio k), >= 1: 5 pieces per part leave pieces small
+    #: enough that few straddle a smooth junction (a leg and its body, a fin), where 3 left the
+    #: merge no piece to keep apart (chosen held out over 3-6, docs/design.md, "The merge method")
+    ratio: float = 5.0
+    #: at most this many clusters beyond k (None: ceil(ratio k) at every k): 32 lets the ratio
+    #: act up to k = 8, and keeps a mesh asking for many parts from asking for 5k clusters
+    extra_max: int | None = 32
     #: a k below this is over-segmented as this k is (its fields and clusters those of min_k),
     #: so the small k's of a mesh share one untangling and one k-means, merged down to each k;
     #: 1: every k its own. 8 scored better than 1 (see docs/design.md)

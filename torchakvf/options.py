@@ -52,13 +52,13 @@ BOUNDARIES = ("isoline", "faces")
 SEGMENT_UNTANGLE_RESTARTS = 1
 #: k-means++ restarts per clustering by method (the lowest cost is kept). "paper" 5: k-means has
 #: many near-equal optima and more restarts do not move the score beyond its noise; "merge" 3:
-#: its over-segmentation into 3k is merged afterwards (see docs/design.md).
+#: its over-segmentation into 5k is merged afterwards (see docs/design.md).
 KMEANS_RESTARTS_BY_METHOD = {"paper": 5, "merge": 3}
 #: Lloyd iterations per precision phase of each clustering (the function's own default is 100):
 #: 15 scores as 100 does; the restarts still moving by then creep by a few faces per iteration.
 KMEANS_MAX_ITER = 15
 #: Untangled fields per part, by method: "paper" the paper's N = 2k; "merge" 3k, since its
-#: k-means makes k' = 3k clusters from them (see docs/design.md).
+#: k-means makes k' = 5k clusters from them (see docs/design.md).
 FIELDS_PER_PART = {"paper": 2, "merge": 3}
 #: Field counts are rounded up to a multiple of this, by method, so that the k's of a mesh share
 #: fewer untanglings (one per distinct count); "merge" 8 gives counts 16, 24 and 32.

@@ -2,7 +2,8 @@
 
 The field descriptors (:mod:`torchakvf.fields.descriptors`) describe the untangled fields
 around a face; these describe what the whole method makes of them. The mesh is segmented with
-the package's defaults (untangling, k-means, merge, graph cut) at each part count k of ``ks``
+the package's defaults (untangling, k-means, merge, graph cut; the over-segmentation
+:data:`PART_OVERSEGMENTATION`) at each part count k of ``ks``
 and each seed of ``seeds``, from one AKVF solve, and each face is described by how close the
 cuts come to it. A part's labels have no order, so every column is a function of where the
 labels change, never of a label's value: the columns mean the same on every mesh. The seeds
@@ -52,7 +53,7 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import face_areas
 from ..mesh.coarse import canonical_numbering
 from ..mesh.surface_map import SurfacePoints
-from ..options import SegmentOptions, segment_options
+from ..options import OverSegmentation, SegmentOptions, segment_options
 from .field_counts import akvf_count
 from .topology import face_adjacency
 
@@ -61,6 +62,11 @@ from .topology import face_adjacency
 PART_KS = (2, 3, 4, 5, 6, 8)
 #: Seeds averaged over (the k-means' and the untangling's).
 PART_SEEDS = (0, 1, 2)
+#: The over-segmentation the segmentations merge from: the one the columns' usefulness,
+#: stability and cost were measured with (docs/descriptors.md), fixed here so that the columns
+#: a model was trained on do not move when the segmentation's own default is chosen again
+#: (a finer one costs the 18 segmentations about a tenth more, for no measured gain here).
+PART_OVERSEGMENTATION = OverSegmentation(ratio=3.0, extra_max=16)
 #: Distance (unit-area lengths) beyond which a cut is "far": about ten face widths at 4000 faces.
 DISTANCE_CAP = 0.2
 #: Added to a distance before the log, so a face on a cut (d = 0) has a finite value.
@@ -161,7 +167,8 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
         :func:`~torchakvf.parts.field_counts.akvf_count` of ``ks``, else all ``fields.n``
     ks : part counts (columns in ascending k; a mesh with fewer faces is cut at its face count
         there); seeds : seeds averaged over; options : the segmentation's settings (default
-        ``SegmentOptions()``; its seed is replaced by each of ``seeds``; ε must be 0)
+        ``SegmentOptions(overseg=PART_OVERSEGMENTATION)``; its seed is replaced by each of
+        ``seeds``; ε must be 0)
     Returns one float64 [F_b, len(ks) + len(radii)] array per mesh, on the faces the parts
     are cut on: those of ``fields.batch.input_mesh(b)`` (the full-resolution cleaned mesh of a
     decimated one; ``input_mesh(b).to_input_faces`` puts them on the file's faces).
@@ -169,7 +176,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     from .cut import MeshCache
     from .rounds import segment_rounds
 
-    opts = segment_options(options)
+    opts = segment_options(options) if options is not None else SegmentOptions(overseg=PART_OVERSEGMENTATION)
     if opts.eps != 0:
         raise ParameterError("part descriptors describe plain segmentations: eps must be 0")
     ks = sorted({int(k) for k in ks})
@@ -205,6 +212,6 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     return out
 
 
-__all__ = ["PART_KS", "PART_SEEDS", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII", "part_descriptor_names",
+__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII", "part_descriptor_names",
            "dual_graph", "cut_distance", "distance_to_faces", "fine_meshes_numbered_canonically", "describe_labelings",
            "part_descriptors"]
