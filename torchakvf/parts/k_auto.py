@@ -78,7 +78,8 @@ def scan_options(options: SegmentOptions | None, overrides: dict) -> SegmentOpti
         return segment_options(**{**overrides, "overseg": scan_overseg(overrides.get("overseg"))})
     return segment_options(options, **overrides)
 
-__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "SCAN_RATIO", "SCAN_EXTRA_MAX", "scan_overseg", "scan_options", "DEFAULT_K_RANGE",
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "SCAN_RATIO", "SCAN_EXTRA_MAX", "scan_overseg",
+           "scan_options", "DEFAULT_K_RANGE",
            "KScan", "KChoice", "AutoSegmentation", "scan_k", "scan_akvf_count", "scan_field_counts", "choose_k",
            "segment_auto", "auto_segmentation", "pick_k", "check_k_range", "is_auto"]
 

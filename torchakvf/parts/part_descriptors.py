@@ -212,6 +212,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     return out
 
 
-__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII", "part_descriptor_names",
+__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII",
+           "part_descriptor_names",
            "dual_graph", "cut_distance", "distance_to_faces", "fine_meshes_numbered_canonically", "describe_labelings",
            "part_descriptors"]
