@@ -67,9 +67,9 @@ class OverSegmentation:
     most max(k, min_k) + extra_max, cut along concave creases. Chosen by cross-validation
     (see docs/design.md); not fitted with the merge weights, so kept apart from them."""
 
-    #: over-segmentation factor k' = ceil(ratio k), >= 1: 5 pieces per part leave pieces small
-    #: enough that few straddle a smooth junction (a leg and its body, a fin), where 3 left the
-    #: merge no piece to keep apart (chosen held out over 3-6, docs/design.md, "The merge method")
+    #: over-segmentation factor k' = ceil(ratio k), >= 1: the merge can only join pieces, and
+    #: with 5 per part fewer of them straddle a smooth junction (a leg and its body, a fin) than
+    #: with 3 (chosen held out over 3-6: docs/design.md, "The merge method")
     ratio: float = 5.0
     #: at most this many clusters beyond k (None: ceil(ratio k) at every k): 32 lets the ratio
     #: act up to k = 8, and keeps a mesh asking for many parts from asking for 5k clusters

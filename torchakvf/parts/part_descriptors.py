@@ -64,8 +64,8 @@ PART_KS = (2, 3, 4, 5, 6, 8)
 PART_SEEDS = (0, 1, 2)
 #: The over-segmentation the segmentations merge from: the one the columns' usefulness,
 #: stability and cost were measured with (docs/descriptors.md), fixed here so that the columns
-#: a model was trained on do not move when the segmentation's own default is chosen again
-#: (a finer one costs the 18 segmentations about a tenth more, for no measured gain here).
+#: a model was trained on do not move when the segmentation's own default is chosen again (a
+#: finer one would make the 18 segmentations cost more, and its columns were not measured).
 PART_OVERSEGMENTATION = OverSegmentation(ratio=3.0, extra_max=16)
 #: Distance (unit-area lengths) beyond which a cut is "far": about ten face widths at 4000 faces.
 DISTANCE_CAP = 0.2
