@@ -150,7 +150,8 @@ def test_floor_in_a_batch_equals_each_mesh_alone(monkeypatch):
 
 def test_reused_clustering_is_the_recomputed_one(blobs):
     """A round served from the kept clustering equals k-means run again on its features."""
-    opts = options.SegmentOptions(overseg=OverSegmentation(min_k=4),
+    # k' = 3 min_k = 12, the k-means run again below
+    opts = options.SegmentOptions(overseg=OverSegmentation(ratio=3.0, extra_max=16, min_k=4),
                                   **{k: v for k, v in FAST.items() if k != "untangle_restarts"})
     made = list(rounds.segment_rounds(blobs, [[3, 2]], opts))
     unt = made[1].untangled
@@ -167,7 +168,7 @@ def test_segment_rounds_with_caches_kept_across_k_equal_one_k_at_a_time(monkeypa
     """cut_parts keeps per-mesh arrays (dual edges, bending sums, cut costs) across the rounds
     of one solve, and the over-segmentation carried to the mesh (boundaries, clean-up, region
     graph) across the k's clustered alike: segmenting at k = 2, 3, 4 in one go (one k-means at
-    k' = 3 min_k, one over-segmentation) gives each k's labels and costs as a solve-free run at
+    k' = ratio · min_k, one over-segmentation) gives each k's labels and costs as a solve-free run at
     that k alone (fresh caches)."""
     pytest.importorskip("gco")
 
