@@ -44,16 +44,10 @@ OVERSEG = {
     "concave60": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True),
     "concave45": dict(crease_split=math.radians(45), crease_rings=3, crease_concave=True),
     "concave60r4": dict(crease_split=math.radians(60), crease_rings=4, crease_concave=True),
-    # the over-segmentation's size (k' = min(ceil(ratio max(k, 8)), max(k, 8) + extra_max)); the
-    # variants above take the package's default ratio
-    "concave60_ratio3": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True, ratio=3.0,
-                             extra_max=16),
-    "concave60_ratio4": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True, ratio=4.0,
-                             extra_max=24),
-    "concave60_ratio5": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True, ratio=5.0,
-                             extra_max=32),
-    "concave60_ratio6": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True, ratio=6.0,
-                             extra_max=40),
+    # the over-segmentation's size, k' = min(ceil(ratio max(k, 8)), max(k, 8) + extra_max), the cap
+    # 8 ratio - 8 so that the ratio acts up to k = 8; the variants above take the package's ratio
+    **{f"concave60_ratio{r}": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True,
+                                   ratio=float(r), extra_max=8 * r - 8) for r in (3, 4, 5, 6)},
 }
 
 
