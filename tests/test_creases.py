@@ -13,7 +13,13 @@ from helpers.planar_meshes import hinge
 from torchakvf import shapes
 from torchakvf.mesh.clean import face_areas
 from torchakvf.parts.concavity import dual_edges
-from torchakvf.parts.creases import crease_band, crease_patches, split_by_patches, unit_face_normals
+from torchakvf.parts.creases import (
+    crease_band,
+    crease_patches,
+    split_by_patches,
+    unit_face_normals,
+    unite_patch_fragments,
+)
 from torchakvf.parts.topology import face_adjacency
 
 
@@ -111,3 +117,46 @@ def test_split_by_patches_keeps_the_label_and_separates_the_pairs():
     assert n == 2
     np.testing.assert_array_equal(split // n, labels)
     assert len(np.unique(split)) == 4            # (0,0) (0,1) (1,1) (2,0)
+
+
+def test_unite_patch_fragments_by_hand():
+    """Faces 0-9 in a chain (face i shares an edge with i + 1), each of area 1 (floor 0.25: 2.5
+    faces). Patch 0 (faces 0-4) holds a large piece: left as it is. Patch 1 (faces 5-7, at the
+    floor) is cut into pieces of 1 and 2 faces, both small: one piece, labelled as the larger.
+    Patch 2 (faces 8-9, below the floor) is cut in two: left as it is."""
+    adjacency = np.stack([np.arange(9), np.arange(1, 10)], axis=1)
+    patches = np.array([0, 0, 0, 0, 0, 1, 1, 1, 2, 2])
+    labels = np.array([3, 3, 3, 4, 4, 5, 6, 6, 7, 8])
+    got = unite_patch_fragments(labels, patches, adjacency, np.ones(10), 0.25)
+    np.testing.assert_array_equal(got, [3, 3, 3, 4, 4, 6, 6, 6, 7, 8])
+    # a floor below every piece changes nothing; at 0.2 (2 faces) patch 2 is one piece too
+    np.testing.assert_array_equal(unite_patch_fragments(labels, patches, adjacency, np.ones(10), 0.05), labels)
+    np.testing.assert_array_equal(unite_patch_fragments(labels, patches, adjacency, np.ones(10), 0.2),
+                                  [3, 3, 3, 4, 4, 5, 6, 6, 7, 7])
+    # above every patch but the first, only the first (5 faces, all pieces small) is united
+    np.testing.assert_array_equal(unite_patch_fragments(labels, patches, adjacency, np.ones(10), 0.45),
+                                  [3, 3, 3, 3, 3, 5, 6, 6, 7, 8])
+
+
+def test_a_leg_cut_across_by_k_means_is_one_piece_again():
+    """A table's legs, each cut across into three bands (k-means pieces below the floor, as on a
+    thin table): after the split by the concave creases' patches each leg is one piece; the slab's
+    pieces, above the floor, are left as they are."""
+    s = shapes.table(0.05)
+    a = face_areas(s.vertices, s.faces)
+    d = dual_edges(s.vertices, s.faces)
+    patches = crease_patches(s.vertices, s.faces, d, concave_only=True)
+    height = s.vertices[s.faces].mean(axis=1)[:, 2]
+    # bands across the legs by height; the slab in two halves by x
+    bands = np.digitize(height, np.quantile(height[s.part_labels > 0], [1 / 3, 2 / 3]))
+    halves = (s.vertices[s.faces].mean(axis=1)[:, 0] > 0).astype(np.int64)
+    labels = np.where(s.part_labels > 0, 2 + bands, halves)
+    split, _ = split_by_patches(labels, patches)
+    leg_share = np.bincount(s.part_labels, weights=a) / a.sum()
+    floor = 0.9 * leg_share[1:].min()
+    got = unite_patch_fragments(split, patches, face_adjacency(s.faces), a, floor)
+    for part in range(1, s.n_parts):
+        assert len(np.unique(split[s.part_labels == part])) == 3
+        assert len(np.unique(got[s.part_labels == part])) == 1
+    slab = s.part_labels == 0
+    np.testing.assert_array_equal(got[slab], split[slab])

@@ -1,6 +1,6 @@
 """Cutting one mesh's parts (:mod:`torchakvf.parts.cut`): the kept over-segmentation serves only
-an identical clustering, the part floor, and the default's concave crease cut on shapes whose
-parts only a crease separates."""
+an identical clustering, the crease patches' fragments united as the option says, the part floor,
+and the default's concave crease cut on shapes whose parts only a crease separates."""
 from __future__ import annotations
 
 import numpy as np
@@ -29,6 +29,34 @@ def test_cached_over_segmentation_serves_only_an_identical_clustering():
     wider = SegmentOptions(min_part_fraction=0.02)
     assert not entry.made_from((feats, centers, labels), wider, part_floor(3, wider))
     assert not entry.made_from((feats, centers, labels), opts, part_floor(40, opts))
+    from torchakvf.options import OverSegmentation
+    apart = SegmentOptions(overseg=OverSegmentation(unite_fragments=False))
+    assert not entry.made_from((feats, centers, labels), apart, floor)
+
+
+def test_the_over_segmentation_unites_patch_fragments_as_its_option_says(monkeypatch):
+    """With the merge method the crease patches' fragments are united
+    (:func:`~torchakvf.parts.creases.unite_patch_fragments`, at the k's part floor) unless
+    ``OverSegmentation.unite_fragments`` is False."""
+    import torchakvf as ta
+    from torchakvf import shapes
+    from torchakvf.options import OverSegmentation, SegmentOptions
+    from torchakvf.parts import cut
+
+    floors = []
+
+    def spy(labels, patches, adjacency, face_area, floor):
+        floors.append(floor)
+        return labels
+
+    monkeypatch.setattr(cut, "unite_patch_fragments", spy)
+    s = shapes.table(0.1)
+    mesh = ta.Mesh(s.vertices, s.faces)
+    fast = dict(kmeans_restarts=2, untangle_restarts=1)
+    ta.segment(mesh, 5, seed=0, options=SegmentOptions(**fast))
+    assert floors == [cut.part_floor(5, SegmentOptions())]
+    ta.segment(mesh, 5, seed=0, options=SegmentOptions(overseg=OverSegmentation(unite_fragments=False), **fast))
+    assert len(floors) == 1
 
 
 def test_part_floor_is_the_fraction_up_to_a_quarter_of_the_mean_part():

@@ -41,14 +41,16 @@ def test_a_dumbbell_is_two_parts_by_options_or_keywords():
 
 def test_the_scan_keeps_the_over_segmentation_its_threshold_was_chosen_with():
     """Without an over-segmentation given, the scan cuts each k into 3 pieces per part (at most
-    16 beyond k), every k on its own, whatever the segmentation's default is."""
+    16 beyond k), every k on its own, crease patches' fragments not united, whatever the
+    segmentation's default is."""
     from torchakvf.options import OverSegmentation
 
     d = shapes.dumbbell(n_around=16)
     mesh = Mesh(d.vertices, d.faces, name="dumbbell")
     fast = dict(kmeans_restarts=2, untangle_restarts=1)
-    pinned = OverSegmentation(ratio=3.0, extra_max=16, min_k=1)
+    pinned = OverSegmentation(ratio=3.0, extra_max=16, min_k=1, unite_fragments=False)
     assert scan_overseg(None) == pinned and OverSegmentation().ratio != pinned.ratio
+    assert OverSegmentation().unite_fragments != pinned.unite_fragments
     given = scan_k([mesh], (1, 3), overseg=pinned, **fast)
     assert scan_k([mesh], (1, 3), **fast).costs.tolist() == given.costs.tolist()
 

@@ -203,6 +203,8 @@ def test_oversegment_k_and_parameter_errors():
         OverSegmentation(crease_rings=0)
     with pytest.raises(ParameterError, match="crease_concave"):
         OverSegmentation(crease_concave=1)
+    with pytest.raises(ParameterError, match="unite_fragments"):
+        OverSegmentation(unite_fragments=None)
     s = shapes.table()
     with pytest.raises(ParameterError, match="method"):
         ta.segment(ta.Mesh(s.vertices, s.faces), k=5, method="nope")

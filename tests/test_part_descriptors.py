@@ -109,6 +109,7 @@ def test_the_columns_keep_their_own_over_segmentation(blobs):
     pinned = part_descriptors(fields, ks=KS, seeds=(0,), options=SegmentOptions(overseg=PART_OVERSEGMENTATION))[0]
     np.testing.assert_array_equal(d, pinned)
     assert (PART_OVERSEGMENTATION.ratio, PART_OVERSEGMENTATION.extra_max) == (3.0, 16)
+    assert not PART_OVERSEGMENTATION.unite_fragments
 
 
 def test_seeds_share_the_meshs_cut_arrays_and_average_their_columns(blobs, monkeypatch):

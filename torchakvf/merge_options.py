@@ -91,6 +91,10 @@ class OverSegmentation:
     #: only concave creases cut the over-segmentation (people cut where the surface turns
     #: inward, the minima rule; a convex crease is usually the edge of one part: a box leg's)
     crease_concave: bool = True
+    #: a crease patch that k-means cut into pieces all below the small-piece floor is one
+    #: piece (:func:`~torchakvf.parts.creases.unite_patch_fragments`): a thin part delimited by
+    #: creases (a leg, a spoke, a fin) is kept for the merge, not absorbed piece by piece
+    unite_fragments: bool = True
 
     def __post_init__(self):
         if not self.ratio >= 1:
@@ -105,6 +109,8 @@ class OverSegmentation:
             raise ParameterError(f"crease_rings must be an integer >= 1, got {self.crease_rings!r}")
         if not isinstance(self.crease_concave, bool):
             raise ParameterError(f"crease_concave must be True or False, got {self.crease_concave!r}")
+        if not isinstance(self.unite_fragments, bool):
+            raise ParameterError(f"unite_fragments must be True or False, got {self.unite_fragments!r}")
 
 
 @dataclass(frozen=True)
@@ -219,7 +225,7 @@ OVERSEG_FIELDS = tuple(f.name for f in dataclass_fields(OverSegmentation))
 MERGE_RECORD_FIELDS = ("symmetry", "concavity", "size", "ratio", "part_size", "convexity", "cut", "crease_angle",
                        "extra_max", "min_k", "size_ratio", "short_cut", "thickness", "thin", "crease_split",
                        "crease_rings", "crease_concave", "centricity", "rand_gamma", "intercept", "sight",
-                       "sight_excess")
+                       "sight_excess", "unite_fragments")
 
 
 __all__ = ["MergeWeights", "OverSegmentation", "LEARNED_WEIGHTS", "LEARNED_FIELDS", "OVERSEG_FIELDS",

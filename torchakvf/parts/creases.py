@@ -26,6 +26,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 
 from ..mesh.clean import face_cross_products
 from .concavity import DualEdges
+from .topology import labelled_pieces
 
 #: Normal change (radians) that makes a crease: well above the bending of smooth surface over a
 #: few triangles, well below the right angles where primitives meet.
@@ -153,5 +154,47 @@ def split_by_patches(labels: np.ndarray, patches: np.ndarray) -> tuple[np.ndarra
     return np.asarray(labels, dtype=np.int64) * n_patches + patches, n_patches
 
 
+def unite_patch_fragments(labels: np.ndarray, patches: np.ndarray, adjacency: np.ndarray,
+                          face_area: np.ndarray, floor: float) -> np.ndarray:
+    """[F] ``labels`` (split by ``patches``, :func:`split_by_patches`) where every crease patch of
+    at least ``floor`` of the area (a share) that k-means cut into pieces all below ``floor`` is
+    one piece, labelled as its largest piece.
+
+    A thin part delimited by creases (a table's leg, a spoke, a fin) is a few percent of the
+    surface, and k-means may cut it across into pieces each below the small-piece floor; removed
+    one by one, they would join the large piece across the crease, and the part would be lost
+    before the merge sees it. United, the patch is a piece of its own size. A patch with a piece
+    above the floor, or one below the floor as a whole (its pieces are removed either way), is
+    left as it is.
+
+    labels, patches : [F] int; adjacency : [P, 2] face pairs sharing an edge; face_area : [F].
+    """
+    labels = np.asarray(labels)
+    patches = np.asarray(patches)
+    if len(labels) == 0:
+        return labels
+    n_pieces, piece = labelled_pieces(labels, adjacency)
+    area = np.asarray(face_area, dtype=np.float64)
+    piece_area = np.bincount(piece, weights=area, minlength=n_pieces)
+    piece_patch = np.empty(n_pieces, dtype=np.int64)
+    piece_patch[piece] = patches
+    n_patches = int(patches.max()) + 1
+    large = piece_area >= floor * area.sum()
+    has_large = np.zeros(n_patches, dtype=bool)
+    has_large[piece_patch[large]] = True
+    # each patch's largest piece (the first of equal ones), and its label
+    order = np.lexsort((np.arange(n_pieces), -piece_area, piece_patch))
+    first = order[np.r_[True, piece_patch[order][1:] != piece_patch[order][:-1]]]
+    piece_label = np.empty(n_pieces, dtype=labels.dtype)
+    piece_label[piece] = labels
+    patch_label = np.full(n_patches, -1, dtype=labels.dtype)
+    patch_label[piece_patch[first]] = piece_label[first]
+    patch_area = np.bincount(patches, weights=area, minlength=n_patches)
+    unite = ~has_large & (patch_area >= floor * area.sum())
+    unite = unite[patches]
+    return np.where(unite, patch_label[patches], labels)
+
+
 __all__ = ["CREASE_SPLIT_ANGLE", "CREASE_RINGS", "unit_face_normals", "dual_graph", "dual_ball", "least_cosine",
-           "crease_band", "crease_patches", "split_by_patches"]
+           "crease_band", "crease_patches", "split_by_patches",
+           "unite_patch_fragments"]

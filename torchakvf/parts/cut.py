@@ -17,7 +17,7 @@ from ..mesh import MeshBatch
 from ..options import PART_FLOOR_OF_MEAN, GraphCut, SegmentOptions
 from .boundaries import face_margins, isoline_face_labels, refine_along_isolines, vertex_distances
 from .concavity import DualEdges, dual_edges
-from .creases import crease_patches, split_by_patches
+from .creases import crease_patches, split_by_patches, unite_patch_fragments
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .field_counts import cluster_count
 from .generators import part_generators
@@ -115,7 +115,7 @@ class MeshCache:
 def over_settings(opts: SegmentOptions, floor: float) -> tuple:
     """The options an :class:`ClusteredParts` depends on besides its clustering (floor:
     :func:`part_floor` of its k)."""
-    split = crease_key(opts) if crease_split_on(opts) else None
+    split = (*crease_key(opts), opts.overseg.unite_fragments) if crease_split_on(opts) else None
     return (opts.boundary, opts.eps > 0, floor, split)
 
 
@@ -172,6 +172,8 @@ def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: t
             cache.patches[key] = crease_patches(clean.vertices, clean.faces, cache.dual, *key)
         patches = cache.patches[key]
         labels, n_patches = split_by_patches(labels, patches)
+        if opts.overseg.unite_fragments:
+            labels = unite_patch_fragments(labels, patches, cache.adjacency, area, floor)
         # A small piece joins a piece of its own patch where it has one (the k-means boundary is
         # the weaker of the two it was cut by), else the neighbour across its least concave
         # boundary (creases where primitives meet are concave; convex ones run inside parts).

@@ -65,8 +65,9 @@ PART_SEEDS = (0, 1, 2)
 #: The over-segmentation the segmentations merge from: the one the columns' usefulness,
 #: stability and cost were measured with (docs/descriptors.md), fixed here so that the columns
 #: a model was trained on do not move when the segmentation's own default is chosen again (a
-#: finer one would make the 18 segmentations cost more, and its columns were not measured).
-PART_OVERSEGMENTATION = OverSegmentation(ratio=3.0, extra_max=16)
+#: finer one would make the 18 segmentations cost more; neither its columns nor those with the
+#: crease patches' fragments united were measured).
+PART_OVERSEGMENTATION = OverSegmentation(ratio=3.0, extra_max=16, unite_fragments=False)
 #: Distance (unit-area lengths) beyond which a cut is "far": about ten face widths at 4000 faces.
 DISTANCE_CAP = 0.2
 #: Added to a distance before the log, so a face on a cut (d = 0) has a finite value.
