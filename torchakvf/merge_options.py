@@ -91,9 +91,10 @@ class OverSegmentation:
     #: only concave creases cut the over-segmentation (people cut where the surface turns
     #: inward, the minima rule; a convex crease is usually the edge of one part: a box leg's)
     crease_concave: bool = True
-    #: a crease patch that k-means cut into pieces all below the small-piece floor is one
-    #: piece (:func:`~torchakvf.parts.creases.unite_patch_fragments`): a thin part delimited by
-    #: creases (a leg, a spoke, a fin) is kept for the merge, not absorbed piece by piece
+    #: a crease patch of at least the small-piece floor that k-means cut into pieces all below
+    #: it is one piece (:func:`~torchakvf.parts.creases.unite_patch_fragments`): a thin part
+    #: delimited by creases (a leg, a spoke, a fin) is kept for the merge, not absorbed piece by
+    #: piece (docs/design.md, "Creases")
     unite_fragments: bool = True
 
     def __post_init__(self):

@@ -15,6 +15,8 @@ connected pieces of the other faces, and each band face joins the patch nearest 
 hops), so a patch boundary runs along the middle of its crease. The segmentation's default cuts
 along concave creases only (``OverSegmentation.crease_concave``, ``concave_only`` here): people cut a
 shape where its surface turns inward, and a convex crease is most often the edge of one part.
+A patch that k-means cut into fragments all too small to keep is made one piece again
+(:func:`unite_patch_fragments`), so a thin part the creases delimit reaches the merge.
 """
 from __future__ import annotations
 
@@ -196,5 +198,4 @@ def unite_patch_fragments(labels: np.ndarray, patches: np.ndarray, adjacency: np
 
 
 __all__ = ["CREASE_SPLIT_ANGLE", "CREASE_RINGS", "unit_face_normals", "dual_graph", "dual_ball", "least_cosine",
-           "crease_band", "crease_patches", "split_by_patches",
-           "unite_patch_fragments"]
+           "crease_band", "crease_patches", "split_by_patches", "unite_patch_fragments"]
