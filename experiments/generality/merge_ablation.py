@@ -74,7 +74,8 @@ def main() -> None:
     print("| group | shapes | " + " | ".join(names) + " |")
     print("|---|---:|" + "---:|" * len(names))
     for group, rows_g in sorted(groups.items()):
-        print(f"| {group} | {len(rows_g)} | " + " | ".join(f"{np.mean([r[n] for r in rows_g]):.3f}" for n in names) + " |")
+        cells = " | ".join(f"{np.mean([r[n] for r in rows_g]):.3f}" for n in names)
+        print(f"| {group} | {len(rows_g)} | {cells} |")
     means = [np.mean([np.mean([r[n] for r in g]) for g in groups.values()]) for n in names]
     print("| **mean over groups** | | " + " | ".join(f"{m:.4f}" for m in means) + " |")
 
