@@ -33,22 +33,22 @@ from items import items as all_items  # noqa: E402
 from items import read_truth
 from merge_capture import capture_rounds
 
-#: over-segmentation variants: OverSegmentation changes (the merge weights do not matter here)
+#: over-segmentation variants: OverSegmentation changes (the merge weights do not matter here).
+#: Those measured before a crease patch's fragments were united keep them apart.
+_APART = dict(unite_fragments=False)
 OVERSEG = {
     "base": dict(crease_split=None),
-    "crease60": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=False, unite_fragments=False),
-    "crease45": dict(crease_split=math.radians(45), crease_rings=3, crease_concave=False, unite_fragments=False),
-    "crease75": dict(crease_split=math.radians(75), crease_rings=3, crease_concave=False, unite_fragments=False),
-    "crease60r2": dict(crease_split=math.radians(60), crease_rings=2, crease_concave=False, unite_fragments=False),
-    "crease60r4": dict(crease_split=math.radians(60), crease_rings=4, crease_concave=False, unite_fragments=False),
-    "concave60": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True, unite_fragments=False),
-    "concave45": dict(crease_split=math.radians(45), crease_rings=3, crease_concave=True, unite_fragments=False),
-    "concave60r4": dict(crease_split=math.radians(60), crease_rings=4, crease_concave=True, unite_fragments=False),
+    **{name: dict(crease_split=math.radians(angle), crease_rings=rings, crease_concave=concave, **_APART)
+       for name, angle, rings, concave in (("crease60", 60, 3, False), ("crease45", 45, 3, False),
+                                           ("crease75", 75, 3, False), ("crease60r2", 60, 2, False),
+                                           ("crease60r4", 60, 4, False), ("concave60", 60, 3, True),
+                                           ("concave45", 45, 3, True), ("concave60r4", 60, 4, True))},
     # the over-segmentation's size, k' = min(ceil(ratio max(k, 8)), max(k, 8) + extra_max), the cap
     # 8 ratio - 8 so that the ratio acts up to k = 8; the variants above take the package's ratio
     **{f"concave60_ratio{r}": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True,
-                                   ratio=float(r), extra_max=8 * r - 8, unite_fragments=False) for r in (3, 4, 5, 6)},
-    # a crease patch cut by k-means into pieces all below the floor united into one piece
+                                   ratio=float(r), extra_max=8 * r - 8, **_APART) for r in (3, 4, 5, 6)},
+    # a crease patch of at least the part floor cut by k-means into pieces all below it made one
+    # piece (the default since; experiments/results/generality_unite_fragments.md)
     "concave60_ratio5_unite": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True,
                                    ratio=5.0, extra_max=32, unite_fragments=True),
 }
