@@ -55,22 +55,18 @@ MERGE_TAU = 0.95
 #: over-segmentation and their next-merge costs read differently (a dumbbell's neck is left as
 #: a costly third part).
 SCAN_MIN_K = 1
-#: The scan's over-segmentation when the caller gives no ``overseg``: 3 pieces per part, at most
-#: 16 beyond k, crease patches' fragments not united, the one MERGE_TAU was chosen and
-#: re-validated with. The segmentation's own (:class:`~torchakvf.options.OverSegmentation`, 5 per
-#: part, fragments united) was chosen for a given k, not for where this rule stops: other pieces
-#: leave other merge costs at each k.
-SCAN_RATIO, SCAN_EXTRA_MAX, SCAN_UNITE_FRAGMENTS = 3.0, 16, False
+#: The scan's over-segmentation when the caller gives no ``overseg``: every k on its own
+#: (:data:`SCAN_MIN_K`), 3 pieces per part, at most 16 beyond k, crease patches' fragments not
+#: united, the one MERGE_TAU was chosen and re-validated with. The segmentation's own
+#: (:class:`~torchakvf.options.OverSegmentation`, 5 per part, fragments united) was chosen for a
+#: given k, not for where this rule stops: other pieces leave other merge costs at each k.
+SCAN_OVERSEGMENTATION = OverSegmentation(ratio=3.0, extra_max=16, min_k=SCAN_MIN_K, unite_fragments=False)
 DEFAULT_K_RANGE = (2, 10)
 
 
 def scan_overseg(overseg: OverSegmentation | None) -> OverSegmentation:
-    """The scan's over-segmentation: ``overseg`` as given, None: :data:`SCAN_RATIO`,
-    :data:`SCAN_EXTRA_MAX` and :data:`SCAN_UNITE_FRAGMENTS` at :data:`SCAN_MIN_K`."""
-    if overseg is None:
-        return OverSegmentation(ratio=SCAN_RATIO, extra_max=SCAN_EXTRA_MAX, min_k=SCAN_MIN_K,
-                                unite_fragments=SCAN_UNITE_FRAGMENTS)
-    return overseg
+    """The scan's over-segmentation: ``overseg`` as given, None: :data:`SCAN_OVERSEGMENTATION`."""
+    return SCAN_OVERSEGMENTATION if overseg is None else overseg
 
 
 def scan_options(options: SegmentOptions | None, overrides: dict) -> SegmentOptions:
@@ -80,8 +76,8 @@ def scan_options(options: SegmentOptions | None, overrides: dict) -> SegmentOpti
         return segment_options(**{**overrides, "overseg": scan_overseg(overrides.get("overseg"))})
     return segment_options(options, **overrides)
 
-__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "SCAN_RATIO", "SCAN_EXTRA_MAX",
-           "SCAN_UNITE_FRAGMENTS", "scan_overseg", "scan_options", "DEFAULT_K_RANGE",
+__all__ = ["RULES", "DEFAULT_RULE", "MERGE_TAU", "SCAN_MIN_K", "SCAN_OVERSEGMENTATION", "scan_overseg",
+           "scan_options", "DEFAULT_K_RANGE",
            "KScan", "KChoice", "AutoSegmentation", "scan_k", "scan_akvf_count", "scan_field_counts", "choose_k",
            "segment_auto", "auto_segmentation", "pick_k", "check_k_range", "is_auto"]
 
