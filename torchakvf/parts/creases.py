@@ -177,11 +177,12 @@ def unite_patch_fragments(labels: np.ndarray, patches: np.ndarray, adjacency: np
         return labels
     n_pieces, piece = labelled_pieces(labels, adjacency)
     area = np.asarray(face_area, dtype=np.float64)
+    threshold = floor * area.sum()
     piece_area = np.bincount(piece, weights=area, minlength=n_pieces)
     piece_patch = np.empty(n_pieces, dtype=np.int64)
     piece_patch[piece] = patches
     n_patches = int(patches.max()) + 1
-    large = piece_area >= floor * area.sum()
+    large = piece_area >= threshold
     has_large = np.zeros(n_patches, dtype=bool)
     has_large[piece_patch[large]] = True
     # each patch's largest piece (the first of equal ones), and its label
@@ -192,9 +193,8 @@ def unite_patch_fragments(labels: np.ndarray, patches: np.ndarray, adjacency: np
     patch_label = np.full(n_patches, -1, dtype=labels.dtype)
     patch_label[piece_patch[first]] = piece_label[first]
     patch_area = np.bincount(patches, weights=area, minlength=n_patches)
-    unite = ~has_large & (patch_area >= floor * area.sum())
-    unite = unite[patches]
-    return np.where(unite, patch_label[patches], labels)
+    unite = ~has_large & (patch_area >= threshold)
+    return np.where(unite[patches], patch_label[patches], labels)
 
 
 __all__ = ["CREASE_SPLIT_ANGLE", "CREASE_RINGS", "unit_face_normals", "dual_graph", "dual_ball", "least_cosine",
