@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..mesh.raycast import RayCaster
 from .sightlines import join_counts
 
 #: names of the columns of :func:`pair_terms`, in order (the learned merge's inputs)
@@ -50,9 +51,7 @@ def face_thickness(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKN
     its outward normal (faces counter-clockwise from outside); the thickness is the mean hit
     distance of the rays within 1.5 of their median (an SDF as Shapira et al. define it, without
     the random directions of libigl's, so the same mesh gets the same bits). Rays are cast on
-    libigl's AABB tree."""
-    import igl
-
+    libigl's AABB tree at any unit of length (:class:`~torchakvf.mesh.raycast.RayCaster`)."""
     V = np.ascontiguousarray(vertices, dtype=np.float64)
     F = np.ascontiguousarray(faces, dtype=np.int64)
     out = np.full(len(F), np.nan)
@@ -74,10 +73,8 @@ def face_thickness(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKN
             + cone[None, :, 2:3] * normal[:, None]).reshape(-1, 3)
     scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) or 1.0
     origin = np.repeat(tri.mean(axis=1), n_rays, axis=0) + 1e-7 * scale * dirs
-    tree = igl.AABB()
-    tree.init(V, F)
-    hit, t, _ = tree.intersect_ray_first(V, F, origin, dirs)
-    t = np.where(np.asarray(hit) >= 0, np.asarray(t), np.nan).reshape(-1, n_rays)
+    _, t = RayCaster(V, F).first_hit(origin, dirs)
+    t = t.reshape(-1, n_rays)
     t[~np.isfinite(t)] = np.nan
     # the median of the hits of each face (NaN where none hit), without nanmedian's warning
     n_hit = np.isfinite(t).sum(axis=1)

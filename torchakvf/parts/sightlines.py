@@ -15,7 +15,8 @@ counts over all pairs of parts, and over each part's own pairs of samples, are a
 merged part's counts are sums of its pieces' (:class:`~torchakvf.parts.merge_terms.MergeState`,
 :meth:`PartSight.merged`). The samples are chosen by geometry alone (farthest-point sampling
 from the face nearest the part's centroid), so a moved or renumbered mesh gets the same ones.
-Rays are cast on libigl's AABB tree (MPL-2.0), as the thickness is.
+Rays are cast on libigl's AABB tree (MPL-2.0) at any unit of length
+(:class:`~torchakvf.mesh.raycast.RayCaster`), as the thickness is.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..mesh.raycast import RayCaster
 from .creases import unit_face_normals
 
 #: face centroids sampled per part: 8 x 8 = 64 segments per pair of parts
@@ -38,15 +40,13 @@ SIGHT_OFFSET = 1e-4
 
 
 class SightLines:
-    """A mesh's ray-casting tree and inward-moved face centroids, made once per mesh and read
-    for every labelling of it (:meth:`counts`).
+    """A mesh's ray caster and inward-moved face centroids, made once per mesh and read for
+    every labelling of it (:meth:`counts`).
 
     vertices : [V, 3]; faces : [F, 3] outward-oriented (counter-clockwise from outside)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, samples: int = SIGHT_SAMPLES,
                  offset: float = SIGHT_OFFSET, budget: int = SIGHT_BUDGET):
-        import igl
-
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.samples = int(samples)
@@ -55,9 +55,7 @@ class SightLines:
         extent = np.ptp(self.vertices, axis=0) if len(self.vertices) else np.ones(3)
         diag = float(np.linalg.norm(extent))
         self.inside = self.centroids - offset * diag * unit_face_normals(self.vertices, self.faces)
-        self.tree = igl.AABB()
-        if len(self.faces):
-            self.tree.init(self.vertices, self.faces)
+        self.caster = RayCaster(self.vertices, self.faces)
 
     def samples_per_part(self, n_parts: int) -> int:
         """``samples``, fewer where n_parts of them would pass the budget (at least
@@ -110,12 +108,11 @@ class SightLines:
         visible = np.zeros(valid.shape, dtype=bool)
         if len(src):
             # the ray is src + t (dst - src): a face crossed with t < 1 blocks the segment. The
-            # search is bounded at t = 1 (min_t), so the tree skips every box beyond the far end
+            # search is bounded at t = 1 (max_t), so the tree skips every box beyond the far end
             # instead of looking for the first face along the whole ray (the same answers; 10 %
             # less time on the merge's segments, 30 % on random ones)
-            hit, t, _ = self.tree.intersect_ray_first(self.vertices, self.faces, np.ascontiguousarray(src),
-                                                      np.ascontiguousarray(dst - src), min_t=1.0)
-            visible[valid] = ~((np.asarray(hit) >= 0) & (np.asarray(t) < 1.0))
+            _, t = self.caster.first_hit(src, dst - src, max_t=1.0)
+            visible[valid] = ~(t < 1.0)
         seen[iu, ju] = visible.sum(axis=(1, 2))
         lines[iu, ju] = valid.sum(axis=(1, 2))
         diag = np.diag(seen).copy(), np.diag(lines).copy()
