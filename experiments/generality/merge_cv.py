@@ -19,6 +19,9 @@ shape the mean over its truths, per group the mean over its shapes.
     PYTHONPATH=$PWD nice python3 experiments/generality/merge_cv.py --capture /tmp/capture_concave60 \\
         --prep /tmp/prep_concave60 --corpus-share 0.5 --drop "sight,sight_excess;sight_excess;sight" \\
         --weights-out /tmp/folds.json      # experiments/results/generality_sight.md
+    PYTHONPATH=$PWD nice python3 experiments/generality/merge_cv.py --capture /tmp/capture_r5_unite \\
+        --prep /tmp/prep_r5_unite --corpus-share 0.5 --gammas 0,0.15,0.25,0.35,0.5,0.65,0.8 \\
+        --out /tmp/gammas.md               # experiments/results/generality_not_adopted.md
 """
 from __future__ import annotations
 
@@ -190,6 +193,20 @@ def held_out(policy: Cost, pool, corpus_share: float, cols=None, gamma=0.5, grou
     return scores, costs
 
 
+def held_out_gammas(policy: Cost, pool, corpus_share: float, gammas: list) -> dict:
+    """{"learned, γ g (held out)": {group: score}}: each group's weights fitted once without it
+    (the fit does not read γ) and its merge run at every γ of ``gammas``."""
+    out = {g: {} for g in gammas}
+    for grp in sorted({d["group"] for d in PREP.values()}):
+        train = [m for m, d in PREP.items() if d["group"] != grp]
+        test = [m for m, d in PREP.items() if d["group"] == grp]
+        cost = fitted_cost(train, policy, pool, corpus_share)
+        for g in gammas:
+            out[g][grp] = group_scores(test, Cost(cost.w, cost.b, g), pool)[grp]
+        print(f"  held out {grp}: " + " ".join(f"γ {g}: {out[g][grp]:.4f}" for g in gammas), flush=True)
+    return {f"learned, γ {g}, corpus share {corpus_share} (held out)": sc for g, sc in out.items()}
+
+
 def summary(scores: dict) -> dict:
     kinds = {g: PREP[next(m for m, d in PREP.items() if d["group"] == g)]["kind"] for g in scores}
     out = {}
@@ -224,6 +241,10 @@ def main():
     ap.add_argument("--stage", default="all", choices=["prep", "all"])
     ap.add_argument("--drop", default="", help="semicolon-separated term sets to fit without, each "
                     "comma-separated TERM_NAMES (e.g. 'sight;sight,thin'); each is a row beside the fit on all")
+    ap.add_argument("--gammas", default="",
+                    help="comma-separated Rand exponents γ of the stake (a_i a_j)^γ: with it, only the "
+                         "held-out table of each γ at the last corpus share (the weights fitted once "
+                         "per group)")
     ap.add_argument("--weights-out", default=None,
                     help="write {group: weights fitted without it, '*': fitted on all} of the last share, "
                          "every term in the fit (JSON)")
@@ -249,6 +270,14 @@ def main():
         results["package weights (MergeWeights()), merged"] = group_scores(keys, Cost.of(MergeWeights()), pool)
         results["hand-set weights, merged"] = group_scores(keys, Cost.of(MergeWeights.hand_set()), pool)
         policy = Cost.of(MergeWeights.hand_set())
+        if a.gammas:
+            share = float(a.corpus_share.split(",")[-1])
+            results.update(held_out_gammas(policy, pool, share, [float(g) for g in a.gammas.split(",")]))
+            text = table(results)
+            print(text)
+            if a.out:
+                Path(a.out).write_text(text + "\n")
+            return
         drops = [()] + [tuple(d.split(",")) for d in a.drop.split(";") if d]
         for share in [float(x) for x in a.corpus_share.split(",")]:
             for drop in drops:
