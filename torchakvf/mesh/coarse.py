@@ -437,5 +437,5 @@ def folded_share(cm: CoarseMesh, cos_below: float = 0.0) -> float:
 
 
 __all__ = ["CoarseMesh", "SurfaceIndex", "SurfacePoints", "canonical_frame", "canonical_numbering", "coarse_mesh",
-           "coarse_mesh_at", "decimate", "decimation_scale", "folded_share", "locate_on_surface", "DEFAULT_COARSE_FACES", "DECIMATE_ABOVE",
-           "DECIMATE_RETRIES", "DECIMATE_SIZE", "FOLDED_SHARE", "FRAME_GRID"]
+           "coarse_mesh_at", "decimate", "decimation_scale", "folded_share", "locate_on_surface",
+           "DEFAULT_COARSE_FACES", "DECIMATE_ABOVE", "DECIMATE_RETRIES", "DECIMATE_SIZE", "FOLDED_SHARE", "FRAME_GRID"]
