@@ -10,7 +10,7 @@ from torchakvf import shapes
 from torchakvf.errors import ParameterError
 from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh import MeshBatch, clean_mesh, face_areas
-from torchakvf.mesh.coarse import coarse_mesh, decimate, drop_non_manifold
+from torchakvf.mesh.coarse import DECIMATE_SIZE, coarse_mesh, decimate, decimation_scale, drop_non_manifold
 
 pytest.importorskip("fast_simplification")
 
@@ -30,6 +30,33 @@ def test_decimation_is_manifold_near_target_and_deterministic():
     assert np.all(np.abs(np.linalg.norm(c.vertices, axis=1) - 1) < 0.02)
     with pytest.raises(ParameterError):
         decimate(ta.Mesh(s.vertices, s.faces), 2)
+
+
+def test_decimation_scale_by_hand():
+    assert DECIMATE_SIZE == (0.25, 8.0)
+    v = np.array([[0.0, 0, 0], [2, 0, 0], [0, 1, 0]])       # area 1: inside, left as it is
+    f = np.array([[0, 1, 2]])
+    assert decimation_scale(v, f) == 1.0
+    assert decimation_scale(v * 0.25, f) == 1.0             # sqrt(area) 0.25: the lower bound
+    assert decimation_scale(v * 0.2, f) == 2.0              # 0.2 -> 0.4, in [0.25, 0.5)
+    assert decimation_scale(v * 1e-3, f) == 256.0           # 0.001 -> 0.256
+    assert decimation_scale(v * 8.0, f) == 0.5              # 8 is past the upper bound -> 4
+    assert decimation_scale(v * 250.0, f) == 2.0 ** -5      # -> 7.8, in [4, 8)
+    assert decimation_scale(v, np.zeros((0, 3), dtype=np.int64)) == 1.0
+
+
+def test_a_shape_decimates_alike_in_any_unit_of_length():
+    # The collapse's thresholds are absolute: unscaled, the dumbbell at 2^-12 of its size
+    # (sqrt(area) 0.0012) passes them all at once and collapses in sweep order. Outside
+    # DECIMATE_SIZE it is collapsed scaled by a power of two into it, exactly as the copy of
+    # that size (2^-4: 0.31) is, and a copy 2^12 as large as the dumbbell itself (5.0).
+    s = shapes.dumbbell()
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    for small, inside in ((2.0 ** -12, 2.0 ** -4), (2.0 ** 12, 1.0)):
+        a = decimate(ta.Mesh(v * small, f), 2000)
+        b = decimate(ta.Mesh(v * inside, f), 2000)
+        assert np.array_equal(a.faces, b.faces)
+        assert np.array_equal(a.vertices, b.vertices * (small / inside))
 
 
 def test_faces_on_edges_with_three_faces_are_removed():

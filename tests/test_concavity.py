@@ -1,5 +1,5 @@
 """Dual edges and crease weights (:mod:`torchakvf.parts.concavity`): the dihedral's sign and
-angle, a convex surface, the saturation at the crease angle."""
+angle, lengths in the unit-area frame, a convex surface, the saturation at the crease angle."""
 from __future__ import annotations
 
 import numpy as np
@@ -23,6 +23,19 @@ def test_hinge_dihedral_sign_and_angle(fold, expected):
     np.testing.assert_allclose(d.length, [1.0], rtol=1e-12)
     np.testing.assert_allclose(d.dihedral, [expected], atol=1e-12)
     np.testing.assert_allclose(d.concavity, [max(expected, 0.0) / np.pi], atol=1e-12)
+
+
+def test_lengths_are_in_the_unit_area_frame():
+    # the hinge's two faces have area 1/2 each and share an edge of length 1: in any unit of
+    # length the edge is 1 against a unit total area (what reads it is then free of the unit)
+    v, f = hinge(np.pi / 4)
+    for s in (2.0 ** -12, 1e-3, 7.5e4):
+        np.testing.assert_allclose(dual_edges(v * s, f).length, [1.0], rtol=1e-12)
+    # a unit square in two triangles: its diagonal sqrt(2) against area 1, whatever the size
+    sq = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    tri = np.array([[0, 1, 2], [0, 2, 3]])
+    for s in (1.0, 3.0, 2.0 ** -20):
+        np.testing.assert_allclose(dual_edges(sq * s, tri).length, [np.sqrt(2)], rtol=1e-12)
 
 
 def test_closed_convex_surface_is_convex_everywhere_and_pairs_match_adjacency():

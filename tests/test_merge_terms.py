@@ -39,6 +39,16 @@ def test_thickness_is_the_same_bits_every_call():
     np.testing.assert_array_equal(a, b)
 
 
+def test_thickness_in_any_unit_of_length():
+    # a capsule 4 micrometres long: unscaled, libigl's fixed threshold let every ray through
+    s = trimesh.creation.capsule(height=1.0, radius=0.3)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    t = face_thickness(v, f)
+    assert np.isfinite(t).sum() == min(len(f), 1000)
+    np.testing.assert_array_equal(face_thickness(v * 2.0 ** -18, f), t * 2.0 ** -18)
+    np.testing.assert_allclose(face_thickness(v * 1e9, f), t * 1e9, rtol=1e-6)
+
+
 def _state():
     # three parts in a row: 0 (area 1) - 1 (area 4) - 2 (area 1); 0 and 2 not adjacent
     length = np.array([[0, 1.0, 0], [1.0, 0, 2.0], [0, 2.0, 0]])

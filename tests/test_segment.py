@@ -113,6 +113,23 @@ def test_invariant_to_rigid_motion_and_scale(built):
     assert area_agreement(b.labels, a.labels, area, 3) >= 0.999
 
 
+@pytest.mark.parametrize("family,seed", [("chair", 3), ("fish", 1)])
+def test_a_shape_modelled_small_gets_the_same_parts(family, seed):
+    # A copy 1/1024 the size (a part modelled in metres, say) is cut exactly where the shape
+    # is. What depended on the unit: the lines of sight and the thickness are cast with
+    # libigl, whose ray test has a fixed threshold (unscaled, this chair saw through itself,
+    # cast no thickness and scored 0.40 against its parts instead of 0.02), and the merge read
+    # boundary lengths in mesh units against area shares (this fish was merged otherwise).
+    from torchakvf.evaluate.metrics import rand_index_error
+    from torchakvf.shapes.procedural import make_procedural
+
+    s = make_procedural(family, seed, detail=0.3).shape               # 7,892 and 4,600 faces
+    a = ta.segment(ta.Mesh(s.vertices, s.faces), k=s.n_parts, seed=0)[0]
+    b = ta.segment(ta.Mesh(s.vertices * 2.0 ** -10, s.faces), k=s.n_parts, seed=0)[0]
+    assert rand_index_error(np.asarray(a.labels), s.part_labels) < 0.1
+    np.testing.assert_array_equal(b.labels, a.labels)
+
+
 def test_near_isometric_bend_keeps_parts(built):
     s = shapes.bend(built["three_blobs"], angle=0.6)
     seg = ta.segment(ta.Mesh(s.vertices, s.faces), k=3, seed=0)[0]

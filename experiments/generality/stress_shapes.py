@@ -11,7 +11,10 @@ flanges with a hub on one or both sides, a disc exactly on the grid.
 
 Writes NAME.off and NAME.seg (one label per face: the primitive nearest the face's centroid) per
 shape; ``--score DIR SUB [SUB ...]`` prints 1 - Rand index of DIR/SUB/NAME.seg against each truth.
-Result: experiments/results/generality_decimation.md.
+``--units MESH.off [...] --out DIR`` writes each mesh (with its NAME.seg beside it) as it is
+(NAME_orig), turned by a seeded rotation and scaled by 250 and moved (NAME_big), and turned by
+the same rotation and scaled by 0.004 (NAME_small): the same shape in other units of length.
+Result: experiments/results/generality_stress_shapes.md.
 """
 from __future__ import annotations
 
@@ -113,6 +116,27 @@ def write_more(out: Path, spacings=(0.02, 0.04)) -> None:
             _save(out, f"{name}_h{round(h * 100):03d}", parts, h)
 
 
+def write_units(meshes: list, out: Path, seed: int = 7) -> None:
+    """NAME_orig, NAME_big (rotated, x 250, moved) and NAME_small (rotated, x 0.004) of each mesh,
+    its labels copied beside each (one seeded rotation per mesh, in the order given)."""
+    import shutil
+
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    for path in map(Path, meshes):
+        m = trimesh.load(path, process=False)
+        v, f = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces)
+        rot = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+        copies = {"orig": v, "big": v @ rot.T * 250.0 + np.array([1000.0, -500.0, 30.0]),
+                  "small": v @ rot.T * 0.004}
+        for tag, vt in copies.items():
+            write_off(out / f"{path.stem}_{tag}.off", vt, f)
+            shutil.copy(path.with_suffix(".seg"), out / f"{path.stem}_{tag}.seg")
+
+
 def score(folder: Path, subs: list) -> None:
     from torchakvf.evaluate.metrics import rand_index_error
 
@@ -131,8 +155,11 @@ def main() -> None:
     ap.add_argument("--out", type=Path, help="folder to write the shapes to")
     ap.add_argument("--more", action="store_true", help="write the second set (assemblies) instead")
     ap.add_argument("--score", nargs="+", metavar=("DIR", "SUB"), help="score DIR/SUB/*.seg against DIR/*.seg")
+    ap.add_argument("--units", nargs="+", metavar="MESH", help="write these meshes in other units of length to --out")
     a = ap.parse_args()
-    if a.out:
+    if a.units:
+        write_units(a.units, a.out)
+    elif a.out:
         (write_more if a.more else write_all)(a.out)
     if a.score:
         score(Path(a.score[0]), a.score[1:])

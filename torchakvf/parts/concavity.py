@@ -18,7 +18,9 @@ class DualEdges(NamedTuple):
 
     pairs : [P, 2] int64 faces sharing an edge (the order of
         :func:`torchakvf.parts.topology.face_adjacency`)
-    length : [P] length of the shared edge (mesh units)
+    length : [P] length of the shared edge in the unit-area frame (the mesh scaled to total area
+        1), so that what reads it (the merge's boundary lengths against its area shares, the
+        graph cut's cut costs) does not depend on the mesh's unit of length
     dihedral : [P] signed bending angle in radians, in [-π, π]: the angle between the two face
         normals, positive where the crease is concave (the surface folds towards its outward
         normals, a valley), negative where convex (a ridge), 0 on flat surface
@@ -73,7 +75,9 @@ def dual_edges(vertices: np.ndarray, faces: np.ndarray) -> DualEdges:
     height = np.einsum("ij,ij->i", na, opp_b - p0)
     degenerate = (norm[fa, 0] == 0) | (norm[fb, 0] == 0)
     dihedral = np.where(degenerate, 0.0, np.where(height > 0, angle, -angle))
-    return DualEdges(np.stack([fa, fb], axis=1), np.linalg.norm(p1 - p0, axis=1), dihedral)
+    total = 0.5 * float(norm.sum())
+    unit = 1.0 / np.sqrt(total) if total > 0 else 1.0
+    return DualEdges(np.stack([fa, fb], axis=1), np.linalg.norm(p1 - p0, axis=1) * unit, dihedral)
 
 
 __all__ = ["DualEdges", "crease_weights", "dual_edges"]

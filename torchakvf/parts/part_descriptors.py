@@ -29,8 +29,9 @@ The segmentations read the fields with their canonical signs
 moment frame (:data:`~torchakvf.fields.descriptors.DESCRIPTOR_FRAME`) and cut a decimated mesh's
 full-resolution mesh numbered from its surface
 (:func:`fine_meshes_numbered_canonically`), so another solver start, eigensolver, pose or
-numbering gives the same cuts wherever the fields repeat (a scaled copy does not: the merge
-reads absolute lengths).
+numbering gives the same cuts wherever the fields repeat. A scaled copy gets them where its
+decimation is the same (the collapse's thresholds are absolute: inside
+:data:`~torchakvf.mesh.coarse.DECIMATE_SIZE` a mesh is decimated at its own size).
 
 Cuts are those of the segmentation's own boundary step, which places them on concave creases
 (:mod:`torchakvf.parts.graphcut`): unlike the field descriptors, these columns are not purely
@@ -139,10 +140,9 @@ def fine_meshes_numbered_canonically(batch: MeshBatch) -> MeshBatch:
     frame at the input's scale, rounded to its grid; the packed meshes, and so the fields, are
     untouched). The cut's tie-breaks follow the numbering of the mesh it cuts and
     round-off of its coordinates: numbered and placed from the surface, a moved or renumbered
-    copy of a mesh is cut where the mesh is. The size stays the input's because the merge reads
-    absolute lengths with weights fitted at the PSB's own scales (a scaled copy is cut
-    elsewhere). Results on the input's faces (through ``face_index``) mean the same either
-    way."""
+    copy of a mesh is cut where the mesh is. The size stays the input's (the cut reads lengths
+    in the unit-area frame, so the size does not matter to it). Results on the input's faces
+    (through ``face_index``) mean the same either way."""
     coarse = []
     for b in range(len(batch)):
         c = batch.coarse_of(b)
