@@ -38,25 +38,26 @@ def test_decimation_scale_by_hand():
     f = np.array([[0, 1, 2]])
     assert decimation_scale(v, f) == 1.0
     assert decimation_scale(v * 0.25, f) == 1.0             # sqrt(area) 0.25: the lower bound
-    assert decimation_scale(v * 0.2, f) == 2.0              # 0.2 -> 0.4, in [0.25, 0.5)
-    assert decimation_scale(v * 1e-3, f) == 256.0           # 0.001 -> 0.256
-    assert decimation_scale(v * 8.0, f) == 0.5              # 8 is past the upper bound -> 4
-    assert decimation_scale(v * 250.0, f) == 2.0 ** -5      # -> 7.8, in [4, 8)
+    assert decimation_scale(v * 7.9, f) == 1.0
+    assert decimation_scale(v * 0.2, f) == 8.0              # outside: into [1, 2), 0.2 -> 1.6
+    assert decimation_scale(v * 1e-3, f) == 1024.0          # 0.001 -> 1.024
+    assert decimation_scale(v * 8.0, f) == 0.125            # 8 is past the upper bound -> 1
+    assert decimation_scale(v * 250.0, f) == 2.0 ** -7      # -> 1.95
     assert decimation_scale(v, np.zeros((0, 3), dtype=np.int64)) == 1.0
 
 
 def test_a_shape_decimates_alike_in_any_unit_of_length():
     # The collapse's thresholds are absolute: unscaled, the dumbbell at 2^-12 of its size
     # (sqrt(area) 0.0012) passes them all at once and collapses in sweep order. Outside
-    # DECIMATE_SIZE it is collapsed scaled by a power of two into it, exactly as the copy of
-    # that size (2^-4: 0.31) is, and a copy 2^12 as large as the dumbbell itself (5.0).
+    # DECIMATE_SIZE a mesh is collapsed scaled by a power of two to a size in [1, 2): the copies
+    # at 2^-12 and 2^12 of the dumbbell (5.0) exactly as the one at 2^-2 (1.25).
     s = shapes.dumbbell()
     v, f = np.asarray(s.vertices), np.asarray(s.faces)
-    for small, inside in ((2.0 ** -12, 2.0 ** -4), (2.0 ** 12, 1.0)):
-        a = decimate(ta.Mesh(v * small, f), 2000)
-        b = decimate(ta.Mesh(v * inside, f), 2000)
+    b = decimate(ta.Mesh(v * 0.25, f), 2000)
+    for scale in (2.0 ** -12, 2.0 ** 12):
+        a = decimate(ta.Mesh(v * scale, f), 2000)
         assert np.array_equal(a.faces, b.faces)
-        assert np.array_equal(a.vertices, b.vertices * (small / inside))
+        assert np.array_equal(a.vertices, b.vertices * (scale / 0.25))
 
 
 def test_faces_on_edges_with_three_faces_are_removed():

@@ -71,9 +71,10 @@ FOLD_LIMIT = np.pi / 4
 #: The collapse's error thresholds are absolute (squared lengths), so how a shape decimates
 #: depends on its unit of length. The defaults were chosen on meshes whose square root of the
 #: area lies between these bounds (all but one of the 380 PSB meshes, the procedural corpus but
-#: its largest pipe fittings, the built-in shapes); a mesh outside them is collapsed scaled into
-#: them by a power of two (:func:`decimation_scale`), so a part modelled in metres or in
-#: micrometres decimates as it would in the units of those meshes.
+#: its largest pipe fittings, the built-in shapes); a mesh outside them is collapsed scaled by a
+#: power of two to a size in [1, 2), where the PSB's meshes are typical (:func:`decimation_scale`),
+#: so a part modelled in metres or in micrometres decimates as it would in the units of those
+#: meshes, and a copy 1/1000 and one 1000 times the size decimate alike.
 DECIMATE_SIZE = (0.25, 8.0)
 
 
@@ -173,14 +174,13 @@ def decimate(mesh: Mesh | CleanMesh, faces: int, *, canonical: bool = False) -> 
 
 def decimation_scale(vertices: np.ndarray, faces: np.ndarray) -> float:
     """The power of two the collapse scales the mesh by: 1.0 where the square root of its area
-    lies in :data:`DECIMATE_SIZE` [lo, hi), else the one that brings it into [lo, 2 lo) from
-    below or [hi / 2, hi) from above. vertices : [V, 3]; faces : [F, 3]."""
+    lies in :data:`DECIMATE_SIZE` [lo, hi), else the one that brings it into [1, 2).
+    vertices : [V, 3]; faces : [F, 3]."""
     size = float(np.sqrt(face_areas(np.asarray(vertices, dtype=np.float64), np.asarray(faces)).sum()))
     lo, hi = DECIMATE_SIZE
     if not np.isfinite(size) or size <= 0.0 or lo <= size < hi:
         return 1.0
-    step = np.ceil(np.log2(lo / size)) if size < lo else -np.floor(np.log2(size / hi)) - 1.0
-    return float(2.0 ** step)
+    return float(2.0 ** -np.floor(np.log2(size)))
 
 
 def canonical_frame(vertices: np.ndarray, faces: np.ndarray):
