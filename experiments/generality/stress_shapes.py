@@ -157,6 +157,8 @@ def main() -> None:
     ap.add_argument("--score", nargs="+", metavar=("DIR", "SUB"), help="score DIR/SUB/*.seg against DIR/*.seg")
     ap.add_argument("--units", nargs="+", metavar="MESH", help="write these meshes in other units of length to --out")
     a = ap.parse_args()
+    if a.units and not a.out:
+        ap.error("--units needs --out")
     if a.units:
         write_units(a.units, a.out)
     elif a.out:
