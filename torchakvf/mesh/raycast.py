@@ -68,9 +68,11 @@ class RayCaster:
         o = np.ascontiguousarray(np.asarray(origins, dtype=np.float64)[ok] * self.scale)
         d = np.ascontiguousarray(directions[ok] * (self.scale * c))
         hit, t_scaled, _ = self.tree.intersect_ray_first(self.vertices, self.faces, o, d, min_t=float(max_t) / c)
-        hit = np.asarray(hit, dtype=np.int64)
+        t_given = np.asarray(t_scaled, dtype=np.float64) * c
+        # the bound prunes the search; a hit at or past it is not one
+        hit = np.where(t_given < max_t, np.asarray(hit, dtype=np.int64), -1)
         face[ok] = hit
-        t[ok] = np.where(hit >= 0, np.asarray(t_scaled, dtype=np.float64) * c, np.inf)
+        t[ok] = np.where(hit >= 0, t_given, np.inf)
         return face, t
 
 
