@@ -27,9 +27,11 @@ descriptors' own untangling seed, as :func:`torchakvf.interop.face_features` com
   time: field descriptors with the solve, part descriptors with the cues and probability,
   classical).
 
-Cache version 7: the columns with the descriptors' untangling started in the fields' moment
-frame, as ``face_features`` computes them since (version 6 untangled from the raw eigenbasis;
-it also added the cues, the probability and the packed mesh to version 5).
+Cache version 8: the descriptors' decimation collapses every mesh at one size
+(:data:`torchakvf.mesh.coarse.FRAME_SIZE`), so a copy in another unit of length gets the same
+columns (version 7 collapsed at the input's size; version 7 started the untangling in the
+fields' moment frame, version 6 from the raw eigenbasis, adding the cues, the probability and
+the packed mesh to version 5).
 
 Meshes with human segmentations are visited first, category-interleaved (1st mesh of every
 category, then the 2nd, ...), so a pass stopped early covers every category about equally. Run::
@@ -56,7 +58,7 @@ SEED = 0
 #: Geodesic radius (lengths at unit area) within which a face counts as on a person's cut:
 #: about one and a half face rings of a mesh decimated to 4000 faces.
 BOUNDARY_RADIUS = 0.02
-CACHE_VERSION = "7"
+CACHE_VERSION = "8"
 
 #: Per labelled category, the learned merge weights fitted without it: the part descriptors of
 #: a labelled mesh are cut with them, so no held-out category's labels shape its own columns.

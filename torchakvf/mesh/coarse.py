@@ -62,10 +62,17 @@ SMALL_HOLE_EDGES = 12
 #: not help: experiments/results/generality_decimation.md).
 FOLDED_SHARE = 0.05
 DECIMATE_RETRIES = 2
-#: Coordinate grid of the canonical frame (:func:`canonical_frame`), relative to the square
-#: root of the surface's area (to a power of two): far below a face width of any mesh worth
-#: decimating.
+#: Coordinate grid of the canonical frame (:func:`canonical_frame`), relative to its size
+#: (:data:`FRAME_SIZE`): far below a face width of any mesh worth decimating.
 FRAME_GRID = 2.0 ** -24
+#: The square root of the surface's area in the canonical frame: every copy of a shape, in any
+#: unit of length, is collapsed at this one size. The collapse's error thresholds are absolute,
+#: so at a small size they pass many edges at once and it collapses less evenly (an icosphere of
+#: 5,120 faces decimated to 1,000 keeps its three rotations from size 3 up, not at 2 or below);
+#: from 3 to 16 the 16 smallest eigenvalues of 17 procedural and built-in shapes decimated to
+#: 4,000 faces are as near their full-resolution values at every size (docs/descriptors.md,
+#: Units of length). The PSB's meshes are about 1.6.
+FRAME_SIZE = 8.0
 #: Largest turn of a face's normal a relaxation move may cause (radians).
 FOLD_LIMIT = np.pi / 4
 #: The collapse's error thresholds are absolute (squared lengths), so how a shape decimates
@@ -144,9 +151,9 @@ def decimate(mesh: Mesh | CleanMesh, faces: int, *, canonical: bool = False) -> 
     size = decimation_scale(clean.vertices, clean.faces)
     v = None
     if canonical:
-        u, g, to_input = canonical_frame(clean.vertices, clean.faces)
-        v, f = fast_simplification.simplify(u * size, g, target_count=int(faces))
-        v = to_input(np.asarray(v, dtype=np.float64) / size)
+        u, g, to_input = canonical_frame(clean.vertices, clean.faces)     # at FRAME_SIZE already
+        v, f = fast_simplification.simplify(u, g, target_count=int(faces))
+        v = to_input(np.asarray(v, dtype=np.float64))
         # The collapse is not rotation-invariant: on some meshes (PSB 141, any rotation of which
         # collapses less evenly than its modelling frame) it stalls in the principal frame above
         # the target, leaving faces of 100x the mean area. There the input's own collapse is the
@@ -188,8 +195,9 @@ def canonical_frame(vertices: np.ndarray, faces: np.ndarray):
     from the surface alone, so that a moved or renumbered copy gives the same arrays.
 
     The frame: centred on the area centroid, rotated onto the principal axes of the area (each
-    axis pointing where the third moment is positive, the third making a rotation), at the
-    input's scale, coordinates rounded to :data:`FRAME_GRID` times the size (the collapse then
+    axis pointing where the third moment is positive, the third making a rotation), scaled to
+    the area :data:`FRAME_SIZE` squared (so a copy in another unit of length gets the same frame
+    up to round-off), coordinates rounded to :data:`FRAME_GRID` times that size (the collapse then
     sees the same bits, not a rotation's rounding noise, which flips its many exact ties on flat
     regions). Vertices are numbered in lexicographic order of their coordinates there, faces
     by their vertices' numbers (each face starting at its lowest, orientation kept).
@@ -238,15 +246,15 @@ def _principal_frame(vertices: np.ndarray, faces: np.ndarray):
     axes = axes * np.where(third < 0, -1.0, 1.0)
     # a rotation, not a mirror, so that the frame keeps the faces' orientation
     axes[:, 2] = np.cross(axes[:, 0], axes[:, 1])
-    # the input's own scale: the collapse's error thresholds are absolute (an icosphere of area
-    # 4π scaled to about unit area decimates less evenly and loses its rotations); the grid is
-    # relative to the size, to a power of two, the same for any pose (round-off of the area
-    # crosses a rounding boundary only by a coincidence of 1e-16)
-    grid = FRAME_GRID * 2.0 ** np.round(np.log2(np.sqrt(total)))
-    u = np.round(((v - center) @ axes) / grid) * grid
+    # one size for every copy: the collapse's error thresholds are absolute, so a copy in
+    # another unit would otherwise decimate to another surface (not unit area: an icosphere
+    # of area 4π scaled to it decimates less evenly and loses its rotations)
+    scale = FRAME_SIZE / np.sqrt(total)
+    grid = FRAME_GRID * FRAME_SIZE
+    u = np.round(((v - center) @ axes) * scale / grid) * grid
 
     def to_input(points: np.ndarray) -> np.ndarray:
-        return np.asarray(points, dtype=np.float64) @ axes.T + center
+        return (np.asarray(points, dtype=np.float64) / scale) @ axes.T + center
     return u, to_input
 
 
@@ -438,4 +446,5 @@ def folded_share(cm: CoarseMesh, cos_below: float = 0.0) -> float:
 
 __all__ = ["CoarseMesh", "SurfaceIndex", "SurfacePoints", "canonical_frame", "canonical_numbering", "coarse_mesh",
            "coarse_mesh_at", "decimate", "decimation_scale", "folded_share", "locate_on_surface",
-           "DEFAULT_COARSE_FACES", "DECIMATE_ABOVE", "DECIMATE_RETRIES", "DECIMATE_SIZE", "FOLDED_SHARE", "FRAME_GRID"]
+           "DEFAULT_COARSE_FACES", "DECIMATE_ABOVE", "DECIMATE_RETRIES", "DECIMATE_SIZE", "FOLDED_SHARE", "FRAME_GRID",
+           "FRAME_SIZE"]

@@ -137,11 +137,11 @@ def describe_labelings(vertices: np.ndarray, faces: np.ndarray, labelings: Seque
 def fine_meshes_numbered_canonically(batch: MeshBatch) -> MeshBatch:
     """``batch`` with the full-resolution mesh of each decimated mesh numbered and placed by
     :func:`~torchakvf.mesh.coarse.canonical_numbering` (vertices and faces, in the principal
-    frame at the input's scale, rounded to its grid; the packed meshes, and so the fields, are
+    frame at its one size, rounded to its grid; the packed meshes, and so the fields, are
     untouched). The cut's tie-breaks follow the numbering of the mesh it cuts and
     round-off of its coordinates: numbered and placed from the surface, a moved or renumbered
-    copy of a mesh is cut where the mesh is. The size stays the input's (the cut reads lengths
-    in the unit-area frame, so the size does not matter to it). Results on the input's faces
+    copy of a mesh, in any unit of length, is cut where the mesh is (the cut reads lengths in
+    the unit-area frame and casts its rays at any unit). Results on the input's faces
     (through ``face_index``) mean the same either way."""
     coarse = []
     for b in range(len(batch)):
