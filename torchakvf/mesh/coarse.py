@@ -67,12 +67,13 @@ DECIMATE_RETRIES = 2
 FRAME_GRID = 2.0 ** -24
 #: The square root of the surface's area in the canonical frame: every copy of a shape, in any
 #: unit of length, is collapsed at this one size. The collapse's error thresholds are absolute,
-#: so at a small size they pass many edges at once and it collapses less evenly (an icosphere of
-#: 5,120 faces decimated to 1,000 keeps its three rotations from size 3 up, not at 2 or below);
-#: from 3 to 16 the 16 smallest eigenvalues of 17 procedural and built-in shapes decimated to
-#: 4,000 faces are as near their full-resolution values at every size (docs/descriptors.md,
-#: Units of length). The PSB's meshes are about 1.6.
-FRAME_SIZE = 8.0
+#: so at a small size they pass many edges at once and it collapses less evenly: an icosphere of
+#: 5,120 faces decimated to 1,000 keeps its three rotations from size 3 up, not at 2 or below.
+#: The smallest such size, nearest the sizes the descriptors' boundary model and evidence were
+#: made at (medians: the PSB 1.6, the procedural corpus 1.9); at 8 the coarse meshes' faces are
+#: less even and the PSB's Mech meshes lost most of their boundary precision (docs/descriptors.md,
+#: Units of length).
+FRAME_SIZE = 3.0
 #: Largest turn of a face's normal a relaxation move may cause (radians).
 FOLD_LIMIT = np.pi / 4
 #: The collapse's error thresholds are absolute (squared lengths), so how a shape decimates
