@@ -29,9 +29,9 @@ descriptors' own untangling seed, as :func:`torchakvf.interop.face_features` com
 
 Cache version 8: the descriptors' decimation collapses every mesh at one size
 (:data:`torchakvf.mesh.coarse.FRAME_SIZE`), so a copy in another unit of length gets the same
-columns (version 7 collapsed at the input's size; version 7 started the untangling in the
-fields' moment frame, version 6 from the raw eigenbasis, adding the cues, the probability and
-the packed mesh to version 5).
+columns. Version 7 collapsed each mesh at its own size and started the untangling in the
+fields' moment frame; version 6 started it from the raw eigenbasis and added the cues, the
+probability and the packed mesh to version 5.
 
 Meshes with human segmentations are visited first, category-interleaved (1st mesh of every
 category, then the 2nd, ...), so a pass stopped early covers every category about equally. Run::

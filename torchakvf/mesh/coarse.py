@@ -130,9 +130,10 @@ class CoarseMesh:
 def decimate(mesh: Mesh | CleanMesh, faces: int, *, canonical: bool = False) -> Mesh:
     """Quadric edge collapse of ``mesh`` to about ``faces`` faces, repaired to be edge-manifold.
 
-    canonical : run the collapse in :func:`canonical_frame` (numbering and pose made from the
-        surface alone), so that a moved or renumbered copy decimates to the same surface (its
-        coarse mesh is this one moved, vertex for vertex). The default collapses the input as
+    canonical : run the collapse in :func:`canonical_frame` (numbering, pose and size made
+        from the surface alone: :data:`FRAME_SIZE`), so that a moved or renumbered copy, or one
+        in another unit of length, decimates to the same surface (its coarse mesh is this one
+        moved and scaled, vertex for vertex). The default collapses the input as
         numbered: its sweep follows the face order and breaks exact ties on the coordinates'
         round-off, so such a copy decimates to another surface. The per-face descriptors use
         the canonical collapse; segmentations use the default (their defaults were chosen on it).
