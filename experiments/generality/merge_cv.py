@@ -144,8 +144,9 @@ def shape_rows(key: str, policy: Cost):
 ROWS: dict = {}
 
 
-def fitted_cost(train: list, policy: Cost, pool, corpus_share: float, cols=None, gamma=0.5) -> Cost:
-    """Logistic fit on the training shapes' rows (each shape weighing alike in its data set)."""
+def training_rows(train: list, policy: Cost, pool, corpus_share: float) -> tuple:
+    """(X, y, wt): the training shapes' rows under the policy's merges, each shape weighing alike
+    in its data set and the corpus ``corpus_share`` of the whole (rows made once per shape)."""
     missing = [m for m in train if (m, id(policy)) not in ROWS]
     for m, r in zip(missing, pool.starmap(shape_rows, [(m, policy) for m in missing])):
         ROWS[(m, id(policy))] = r
@@ -156,7 +157,12 @@ def fitted_cost(train: list, policy: Cost, pool, corpus_share: float, cols=None,
     X = np.concatenate([ROWS[(m, id(policy))][0] for m in train])
     y = np.concatenate([ROWS[(m, id(policy))][1] for m in train])
     wt = np.concatenate([ROWS[(m, id(policy))][2] * share[PREP[m]["kind"] == "psb"] for m in train])
-    w, b = fit_logistic(X, y, wt, cols=cols)
+    return X, y, wt
+
+
+def fitted_cost(train: list, policy: Cost, pool, corpus_share: float, cols=None, gamma=0.5) -> Cost:
+    """Logistic fit on the training shapes' rows (each shape weighing alike in its data set)."""
+    w, b = fit_logistic(*training_rows(train, policy, pool, corpus_share), cols=cols)
     return Cost(w, b, gamma)
 
 

@@ -36,15 +36,7 @@ class QuadraticCost(M.Cost):
 
 
 def fitted(train: list, policy, pool, share: float, quad: bool, l2: float) -> M.Cost:
-    missing = [m for m in train if (m, id(policy)) not in M.ROWS]
-    for m, r in zip(missing, pool.starmap(M.shape_rows, [(m, policy) for m in missing])):
-        M.ROWS[(m, id(policy))] = r
-    n_psb = sum(M.PREP[m]["kind"] == "psb" for m in train)
-    n_cor = len(train) - n_psb
-    weigh = {True: (1 - share) / max(n_psb, 1), False: share / max(n_cor, 1)}
-    X = np.concatenate([M.ROWS[(m, id(policy))][0] for m in train])
-    y = np.concatenate([M.ROWS[(m, id(policy))][1] for m in train])
-    wt = np.concatenate([M.ROWS[(m, id(policy))][2] * weigh[M.PREP[m]["kind"] == "psb"] for m in train])
+    X, y, wt = M.training_rows(train, policy, pool, share)
     if quad:
         w, b = fit_logistic(quadratic(X), y, wt, l2=l2)
         return QuadraticCost(w, b, 0.5)

@@ -26,7 +26,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "segmentation"))
 import merge_cv as M  # noqa: E402
 import merge_learned_cv as L  # noqa: E402
-from merge_learned_cv import fit_logistic  # noqa: E402
 
 from torchakvf.options import MergeWeights  # noqa: E402
 from torchakvf.parts.merge_terms import TERM_NAMES, MergeState  # noqa: E402
@@ -80,20 +79,6 @@ def pair_terms(state, rows, k):
 L.pair_terms, L.new_state, M.new_state, M.T = pair_terms, new_state, new_state, len(NAMES)
 
 
-def fitted(train: list, policy, pool, share: float, cols: list) -> M.Cost:
-    missing = [m for m in train if (m, id(policy)) not in M.ROWS]
-    for m, r in zip(missing, pool.starmap(M.shape_rows, [(m, policy) for m in missing])):
-        M.ROWS[(m, id(policy))] = r
-    n_psb = sum(M.PREP[m]["kind"] == "psb" for m in train)
-    n_cor = len(train) - n_psb
-    weigh = {True: (1 - share) / max(n_psb, 1), False: share / max(n_cor, 1)}
-    X = np.concatenate([M.ROWS[(m, id(policy))][0] for m in train])
-    y = np.concatenate([M.ROWS[(m, id(policy))][1] for m in train])
-    wt = np.concatenate([M.ROWS[(m, id(policy))][2] * weigh[M.PREP[m]["kind"] == "psb"] for m in train])
-    w, b = fit_logistic(X, y, wt, cols=cols)
-    return M.Cost(w, b, 0.5)
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--prep", required=True, help="merge_cv.py's preparation folder")
@@ -104,17 +89,12 @@ def main():
     M.load_prep(Path(a.prep))
     keys = sorted(M.PREP)
     policy = M.Cost(np.r_[M.Cost.of(MergeWeights.hand_set()).w, np.zeros(len(EXTRA))], 0.0, None)
-    groups = sorted({d["group"] for d in M.PREP.values()})
     results = {}
     with get_context("fork").Pool(2) as pool:
-        for drop in [d for d in a.drop.split(";")]:
+        for drop in a.drop.split(";"):
             cols = [c for c, name in enumerate(NAMES) if name not in set(drop.split(","))]
-            scores = {}
-            for g in groups:
-                train = [m for m, d in M.PREP.items() if d["group"] != g]
-                test = [m for m, d in M.PREP.items() if d["group"] == g]
-                scores[g] = M.group_scores(test, fitted(train, policy, pool, a.corpus_share, cols), pool)[g]
-            every = fitted(keys, policy, pool, a.corpus_share, cols)
+            scores, _ = M.held_out(policy, pool, a.corpus_share, cols=cols)
+            every = M.fitted_cost(keys, policy, pool, a.corpus_share, cols=cols)
             print(f"without {drop or 'nothing'}: fitted on all",
                   {n: round(float(x), 3) for n, x in zip(NAMES, every.w) if x != 0}, flush=True)
             results[f"learned without {drop or 'nothing'} (held out)"] = scores
