@@ -4,8 +4,10 @@ What tells a protrusion (a fin, a leg, a handle) from half a body, as part perce
 it: the minima rule (a boundary on a concave crease), the short-cut rule (a short boundary for
 the part it cuts off), thickness (a fin or a leg is thinner than the body it joins: the shape
 diameter function, the mean length of rays shot inwards), centricity (a protrusion lies away from
-the middle), size against the parts wanted (A / k), and the symmetry of the untangled fields (two
-parts moved by the same fields are one symmetric part cut in two).
+the middle), size against the parts wanted (A / k), the symmetry of the untangled fields (two
+parts moved by the same fields are one symmetric part cut in two), and how much of a boundary's
+concave bending lies hidden in a cavity (the bottom of a blind hole is not a part boundary:
+:mod:`torchakvf.parts.openness`).
 
 :class:`MergeState` holds the additive sums of a region graph (areas, boundary lengths, bending
 and thickness sums), so merging two parts is adding rows; :func:`pair_terms` reads the terms of
@@ -24,7 +26,7 @@ from .sightlines import join_counts
 
 #: names of the columns of :func:`pair_terms`, in order (the learned merge's inputs)
 TERM_NAMES = ("symmetry", "concavity", "convexity", "share", "small", "size_ratio", "short_cut",
-              "thickness", "thin", "centricity", "sight", "sight_excess")
+              "thickness", "thin", "centricity", "sight", "sight_excess", "hidden_concavity")
 
 #: rays shot per sampled face by :func:`face_thickness` (in a 60° cone around the inward normal)
 THICKNESS_RAYS = 8
@@ -43,7 +45,7 @@ def cone_directions(n_rays: int) -> np.ndarray:
 
 
 def face_thickness(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKNESS_RAYS,
-                   max_faces: int = THICKNESS_FACES) -> np.ndarray:
+                   max_faces: int = THICKNESS_FACES, caster: RayCaster | None = None) -> np.ndarray:
     """[F] shape diameter function (mesh units) at the centroids of about ``max_faces`` faces
     taken evenly by index, NaN at the others and where no ray hit.
 
@@ -51,7 +53,8 @@ def face_thickness(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKN
     its outward normal (faces counter-clockwise from outside); the thickness is the mean hit
     distance of the rays within 1.5 of their median (an SDF as Shapira et al. define it, without
     the random directions of libigl's, so the same mesh gets the same bits). Rays are cast on
-    libigl's AABB tree at any unit of length (:class:`~torchakvf.mesh.raycast.RayCaster`)."""
+    libigl's AABB tree at any unit of length (:class:`~torchakvf.mesh.raycast.RayCaster`; the
+    mesh's own if at hand: ``caster``)."""
     V = np.ascontiguousarray(vertices, dtype=np.float64)
     F = np.ascontiguousarray(faces, dtype=np.int64)
     out = np.full(len(F), np.nan)
@@ -73,7 +76,7 @@ def face_thickness(vertices: np.ndarray, faces: np.ndarray, n_rays: int = THICKN
             + cone[None, :, 2:3] * normal[:, None]).reshape(-1, 3)
     scale = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) or 1.0
     origin = np.repeat(tri.mean(axis=1), n_rays, axis=0) + 1e-7 * scale * dirs
-    _, t = RayCaster(V, F).first_hit(origin, dirs)
+    _, t = (caster or RayCaster(V, F)).first_hit(origin, dirs)
     t = t.reshape(-1, n_rays)
     t[~np.isfinite(t)] = np.nan
     # the median of the hits of each face (NaN where none hit), without nanmedian's warning
@@ -98,7 +101,10 @@ class MergeState:
     centroid : [K, 3] Σ a_f c_f; center : [3] the surface's area centroid; radius : its RMS
     distance to it; total : the surface area; seen, lines : [K, K] of the segments between the
     parts' samples (the diagonal: between a part's own samples), those that stay inside the solid
-    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`). (thick, centroid, seen None: not computed.)
+    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`); hidden : [K, K] the
+    length-weighted concave bending along the shared boundary that lies hidden in a cavity
+    (:meth:`~torchakvf.parts.openness.FaceOpenness.hidden_bends`). (thick, centroid, seen,
+    hidden None: not computed.)
     """
 
     area: np.ndarray
@@ -114,6 +120,7 @@ class MergeState:
     thick_median: float = 1.0
     seen: np.ndarray | None = None
     lines: np.ndarray | None = None
+    hidden: np.ndarray | None = None
 
     @property
     def total(self) -> float:
@@ -132,7 +139,9 @@ class MergeState:
         for mat in (self.seen, self.lines):
             if mat is not None:
                 join_counts(mat, i, j)
-        for mat in (self.length, self.concave, self.convex):
+        for mat in (self.length, self.concave, self.convex, self.hidden):
+            if mat is None:
+                continue
             mat[i, :] += mat[j, :]
             mat[:, i] = mat[i, :]
             mat[i, i] = 0.0
@@ -175,7 +184,9 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
     further out); sight 1 - seen_ij / lines_ij, the share of the segments between the two parts'
     samples that leave the solid (:mod:`torchakvf.parts.sightlines`); sight_excess that share less
     the mean of the two parts' own (a hollow part's inside and outside never see each other, a
-    flat or convex one's always do). Terms whose sums are missing are 0."""
+    flat or convex one's always do); hidden_concavity the length-weighted mean of the concave
+    bending along the shared boundary that lies hidden in a cavity (part of ``concavity``, so a
+    weight of minus concavity's cancels it there). Terms whose sums are missing are 0."""
     rows = np.asarray(rows)
     area, length = state.area, state.length
     L = length[rows]
@@ -214,6 +225,8 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
         own_lines = np.diag(state.lines)
         own = np.where(own_lines > 0, 1.0 - np.diag(state.seen) / np.maximum(own_lines, 1.0), 0.0)
         T[..., 11] = blocked - 0.5 * (own[rows][:, None] + own[None, :])
+    if state.hidden is not None:
+        T[..., 12] = np.where(adjacent, state.hidden[rows] / safe_l, 0.0)
     T[~adjacent] = 0.0
     return T, adjacent
 

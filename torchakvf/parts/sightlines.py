@@ -43,10 +43,11 @@ class SightLines:
     """A mesh's ray caster and inward-moved face centroids, made once per mesh and read for
     every labelling of it (:meth:`counts`).
 
-    vertices : [V, 3]; faces : [F, 3] outward-oriented (counter-clockwise from outside)."""
+    vertices : [V, 3]; faces : [F, 3] outward-oriented (counter-clockwise from outside);
+    caster : the mesh's :class:`~torchakvf.mesh.raycast.RayCaster` if at hand."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, samples: int = SIGHT_SAMPLES,
-                 offset: float = SIGHT_OFFSET, budget: int = SIGHT_BUDGET):
+                 offset: float = SIGHT_OFFSET, budget: int = SIGHT_BUDGET, caster: RayCaster | None = None):
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.samples = int(samples)
@@ -55,7 +56,7 @@ class SightLines:
         extent = np.ptp(self.vertices, axis=0) if len(self.vertices) else np.ones(3)
         diag = float(np.linalg.norm(extent))
         self.inside = self.centroids - offset * diag * unit_face_normals(self.vertices, self.faces)
-        self.caster = RayCaster(self.vertices, self.faces)
+        self.caster = caster or RayCaster(self.vertices, self.faces)
 
     def samples_per_part(self, n_parts: int) -> int:
         """``samples``, fewer where n_parts of them would pass the budget (at least
