@@ -62,7 +62,7 @@ CACHE_VERSION = "8"
 
 #: Per labelled category, the learned merge weights fitted without it: the part descriptors of
 #: a labelled mesh are cut with them, so no held-out category's labels shape its own columns.
-FOLD_WEIGHTS = Path(__file__).resolve().parents[1] / "experiments" / "results" / "part_descriptor_merge_folds.json"
+FOLD_WEIGHTS = Path(__file__).resolve().parents[1] / "experiments" / "results" / "merge_weights_folds.json"
 
 log = logging.getLogger("descriptor_pass")
 
@@ -115,15 +115,14 @@ def trivial(mesh) -> np.ndarray:
 def segment_options_for(entry):
     """The default segmentation, with the merge weights of ``entry``'s held-out fold
     (:data:`FOLD_WEIGHTS`) when its category is labelled (categories never trained on: the
-    part descriptors' own weights, :data:`~torchakvf.parts.part_descriptors.PART_MERGE_WEIGHTS`)."""
+    shipped weights)."""
     from torchakvf import SegmentOptions
     from torchakvf.options import MergeWeights
-    from torchakvf.parts.part_descriptors import PART_MERGE_WEIGHTS
 
     folds = json.loads(FOLD_WEIGHTS.read_text())["folds"]
     if entry.category in folds:
         return SegmentOptions(merge=MergeWeights(**folds[entry.category]))
-    return SegmentOptions(merge=PART_MERGE_WEIGHTS)
+    return SegmentOptions()
 
 
 def one_mesh(entry) -> dict:

@@ -426,34 +426,3 @@ def test_lines_of_sight_keep_the_arms_of_a_u_off_its_base():
     seen, lines = sight.counts(graph.labels, graph.n_parts)
     np.testing.assert_array_equal(graph.sums["seen"], seen)
     np.testing.assert_array_equal(graph.sums["lines"], lines)
-
-
-def test_hidden_concavity_cancels_a_pocket_floors_crease_and_not_an_open_steps():
-    """The step's corner (open) and the pocket's floor crease (hidden) are both 90° concave
-    creases: with the concavity term alone they cost the same per unit of boundary bending;
-    with the hidden concavity weighed as minus the concavity, the floor's crease costs at most
-    half of that and the step's stays."""
-    from helpers.voxel_meshes import voxel_step_with_pocket
-
-    from torchakvf.parts.openness import FaceOpenness
-
-    v, f, labels = voxel_step_with_pocket()
-    feats, area, dual = np.ones((len(f), 3)), face_areas(v, f), dual_edges(v, f)
-    plain = region_graph(labels, dual, feats, area)
-    assert plain.hidden is None
-    graph = region_graph(labels, dual, feats, area, openness=FaceOpenness(v, f))
-    np.testing.assert_array_equal(graph.concave, plain.concave)
-    assert graph.concave[1, 2] == pytest.approx(0.5 * graph.length[1, 2])     # a 90° crease all round
-    assert graph.hidden[0, 1] <= 0.1 * graph.concave[0, 1]
-    assert 0.5 * graph.concave[1, 2] <= graph.hidden[1, 2] <= graph.concave[1, 2]
-    only_cav = MergeWeights.hand_set(symmetry=0.0, convexity=0.0, cut=0.0)
-    with_hidden = MergeWeights.hand_set(symmetry=0.0, convexity=0.0, cut=0.0, hidden_concavity=-16.0)
-    c0, c1 = merge_costs(graph, only_cav, 2), merge_costs(graph, with_hidden, 2)
-    np.testing.assert_allclose(c0[0, 1], 16 * graph.concave[0, 1] / graph.length[0, 1])
-    np.testing.assert_allclose(c0[1, 2], 8.0)
-    np.testing.assert_allclose(c1[0, 1], c0[0, 1] - 16 * graph.hidden[0, 1] / graph.length[0, 1])
-    assert c1[1, 2] <= 4.0
-    # merged to 2 parts: the floor joins its walls and the step stays a cut; without the hidden
-    # concavity the step's boundary (mostly flat) is the cheaper one and the floor stays apart
-    assert merge_parts(labels, f, v, feats, area, 2, with_hidden).tolist() == np.minimum(labels, 1).tolist()
-    assert merge_parts(labels, f, v, feats, area, 2, only_cav).tolist() == np.where(labels == 2, 1, 0).tolist()

@@ -135,16 +135,9 @@ def test_part_sums_of_labelled_faces():
     assert s["thick_median"] == 2.0
 
 
-def test_hidden_concavity_is_the_mean_hidden_bending_and_merges_add_it():
-    st = _state()
-    col = TERM_NAMES.index("hidden_concavity")
-    np.testing.assert_array_equal(pair_terms(st, np.array([0, 1]), k=3)[0][..., col], 0.0)   # not computed: 0
-    st.hidden = np.array([[0, 0.25, 0], [0.25, 0, 1.5], [0, 1.5, 0]])
-    T, _ = pair_terms(st, np.array([0, 1]), k=3)
-    np.testing.assert_allclose(T[0, 1, col], 0.25 / 1.0)          # per unit of shared boundary
-    np.testing.assert_allclose(T[1, 2, col], 1.5 / 2.0)
-    assert T[0, 2, col] == 0.0                                     # not adjacent
-    st.merge(1, 2)
-    np.testing.assert_allclose(st.hidden, [[0, 0.25, 0], [0.25, 0, 0], [0, 0, 0]])
-    st.merge(0, 1)
-    np.testing.assert_array_equal(st.hidden, 0.0)
+def test_thickness_on_a_given_ray_caster_is_the_same_bits():
+    from torchakvf.mesh.raycast import RayCaster
+
+    s = trimesh.creation.capsule(height=1.0, radius=0.3)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces)
+    np.testing.assert_array_equal(face_thickness(v, f, caster=RayCaster(v, f)), face_thickness(v, f))

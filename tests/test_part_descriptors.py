@@ -10,14 +10,12 @@ import scipy.sparse as sp
 
 from torchakvf import Mesh, MeshBatch, SegmentOptions, akvf, load_mesh, segment
 from torchakvf.errors import ParameterError
-from torchakvf.options import MergeWeights
 from torchakvf.parts.input_descriptors import descriptor_batch
 from torchakvf.parts.part_descriptors import (
     DISTANCE_CAP,
     DISTANCE_FLOOR,
     NEAR_RADII,
     PART_KS,
-    PART_MERGE_WEIGHTS,
     PART_OVERSEGMENTATION,
     cut_distance,
     describe_labelings,
@@ -104,16 +102,14 @@ def test_cut_distance_is_zero_exactly_where_the_segmentation_cuts(blobs):
     assert (d[:, 1] == d[:, 1].min()).sum() > (d[:, 0] == d[:, 0].min()).sum()
 
 
-def test_the_columns_keep_their_own_over_segmentation_and_merge_weights(blobs):
-    """Without options the segmentations merge from PART_OVERSEGMENTATION by PART_MERGE_WEIGHTS,
-    whatever the segmentation's own defaults are: the same columns as asked for with them
-    explicitly. The pinned weights are not the shipped ones (those read the hidden concavity)."""
+def test_the_columns_keep_their_own_over_segmentation(blobs):
+    """Without options the segmentations merge from PART_OVERSEGMENTATION, whatever the
+    segmentation's own default is: the same columns as asked for with it explicitly."""
     _, fields, d = blobs
-    opts = SegmentOptions(overseg=PART_OVERSEGMENTATION, merge=PART_MERGE_WEIGHTS)
-    np.testing.assert_array_equal(d, part_descriptors(fields, ks=KS, seeds=(0,), options=opts)[0])
+    pinned = part_descriptors(fields, ks=KS, seeds=(0,), options=SegmentOptions(overseg=PART_OVERSEGMENTATION))[0]
+    np.testing.assert_array_equal(d, pinned)
     assert (PART_OVERSEGMENTATION.ratio, PART_OVERSEGMENTATION.extra_max) == (3.0, 16)
     assert not PART_OVERSEGMENTATION.unite_fragments
-    assert PART_MERGE_WEIGHTS.hidden_concavity == 0.0 and MergeWeights().hidden_concavity < 0
 
 
 def test_seeds_share_the_meshs_cut_arrays_and_average_their_columns(blobs, monkeypatch):

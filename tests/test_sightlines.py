@@ -161,3 +161,16 @@ def test_many_parts_get_fewer_samples_each():
     labels = np.arange(len(f)) % 40                       # 40 parts of at least 6 faces
     seen, lines = sight.counts(labels, 40)
     assert lines[0, 1] == 36 and lines[0, 0] == 15         # 6 x 6 between, 6 x 5 / 2 within
+
+
+def test_counts_on_a_shared_ray_caster_are_the_same():
+    """The segmentation casts the thickness and the lines of sight on one tree per mesh."""
+    from torchakvf.mesh.raycast import RayCaster
+
+    v, f, i, kz = voxel_u()
+    labels = np.where(kz < 2, 0, np.where(i < 4, 1, 2))
+    caster = RayCaster(v, f)
+    shared = SightLines(v, f, caster=caster)
+    assert shared.caster is caster
+    for got, own in zip(shared.counts(labels, 3), SightLines(v, f).counts(labels, 3)):
+        np.testing.assert_array_equal(got, own)

@@ -54,7 +54,7 @@ def merge_weights_record(values: dict, trained_on: str) -> dict:
 #: The :class:`MergeWeights` fields the learned-weights file sets: the pair terms' weights, the
 #: intercept and the Rand exponent (``crease_angle`` is fixed beforehand, not fitted).
 LEARNED_FIELDS = ("symmetry", "concavity", "convexity", "cut", "part_size", "size_ratio", "short_cut", "thickness",
-                  "thin", "centricity", "sight", "sight_excess", "hidden_concavity", "size", "intercept", "rand_gamma")
+                  "thin", "centricity", "sight", "sight_excess", "size", "intercept", "rand_gamma")
 #: The learned merge weights, package data written by experiments/segmentation/train_merge.py, read once here:
 #: the defaults of :class:`MergeWeights` (a read-only mapping; floats are immutable).
 LEARNED_WEIGHTS = MappingProxyType(read_merge_weights(files(__package__) / "parts" / "merge_weights.json"))
@@ -169,10 +169,6 @@ class MergeWeights:
     #: weight of that share less the mean of the two parts' own (the segments between a part's
     #: own samples): a hollow part's inside and outside never see each other
     sight_excess: float = LEARNED_WEIGHTS["sight_excess"]
-    #: weight of the length-weighted mean concave bending along the boundary that lies hidden in
-    #: a cavity (:mod:`torchakvf.parts.openness`; learned near minus ``concavity``: the bottom
-    #: of a blind hole is not a cut); != 0 casts rays from the faces of concave boundaries
-    hidden_concavity: float = LEARNED_WEIGHTS["hidden_concavity"]
 
     #: the cost's form. None: the weighted sum s above is the cost. A number γ >= 0: s is read as
     #: the log-odds that the two parts lie in one part people cut, p = sigmoid(intercept - s),
@@ -183,7 +179,7 @@ class MergeWeights:
     intercept: float = LEARNED_WEIGHTS["intercept"]
 
     #: terms whose weight may be negative (their sign is learned, not known beforehand)
-    SIGNED = ("convexity", "cut", "short_cut", "thin", "centricity", "sight_excess", "hidden_concavity", "intercept")
+    SIGNED = ("convexity", "cut", "short_cut", "thin", "centricity", "sight_excess", "intercept")
 
     def __new__(cls, *args, **changes):
         # The over-segmentation's settings are an OverSegmentation's: name the new spelling
@@ -206,7 +202,7 @@ class MergeWeights:
         sum of symmetry 1, concavity 16, convexity 4, boundary share 0.25), with ``changes``."""
         base = dict(symmetry=1.0, concavity=16.0, part_size=0.0, convexity=4.0, cut=0.25, size_ratio=0.0,
                     short_cut=0.0, thickness=0.0, thin=0.0, centricity=0.0, sight=0.0, sight_excess=0.0,
-                    hidden_concavity=0.0, rand_gamma=None, intercept=0.0)
+                    rand_gamma=None, intercept=0.0)
         return cls(**{**base, **changes})
 
     def __post_init__(self):
@@ -230,7 +226,7 @@ OVERSEG_FIELDS = tuple(f.name for f in dataclass_fields(OverSegmentation))
 MERGE_RECORD_FIELDS = ("symmetry", "concavity", "size", "ratio", "part_size", "convexity", "cut", "crease_angle",
                        "extra_max", "min_k", "size_ratio", "short_cut", "thickness", "thin", "crease_split",
                        "crease_rings", "crease_concave", "centricity", "rand_gamma", "intercept", "sight",
-                       "sight_excess", "unite_fragments", "hidden_concavity")
+                       "sight_excess", "unite_fragments")
 
 
 __all__ = ["MergeWeights", "OverSegmentation", "LEARNED_WEIGHTS", "LEARNED_FIELDS", "OVERSEG_FIELDS",

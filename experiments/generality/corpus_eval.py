@@ -28,7 +28,7 @@ from items import corpus_items, read_truth  # noqa: E402
 #: share in the fit and the sight terms are measured against.
 PSB_FIT = dict(symmetry=4.099, concavity=28.69, convexity=-0.206, cut=-0.4207, part_size=0.7441, size_ratio=0.3394,
                short_cut=-0.2115, thickness=1.718, thin=-0.1241, centricity=-0.1763, sight=0.0, sight_excess=0.0,
-               hidden_concavity=0.0, size=0.0, intercept=3.038, rand_gamma=0.5)
+               size=0.0, intercept=3.038, rand_gamma=0.5)
 
 
 def setting_options(name: str):

@@ -22,12 +22,10 @@ from torchakvf.evaluate.metrics import rand_index_error
 from torchakvf.options import MergeWeights
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.merge import greedy_merge, mesh_sums_inputs, region_graph
-from torchakvf.parts.openness import FaceOpenness
 from torchakvf.parts.sightlines import SightLines
 
 #: name -> MergeWeights changes
-VARIANTS = {"shipped": {}, "no_sight": dict(sight=0.0, sight_excess=0.0), "no_hidden": dict(hidden_concavity=0.0),
-            "gamma0": dict(rand_gamma=0.0),
+VARIANTS = {"shipped": {}, "no_sight": dict(sight=0.0, sight_excess=0.0), "gamma0": dict(rand_gamma=0.0),
             "gamma0.25": dict(rand_gamma=0.25)}
 
 
@@ -45,7 +43,6 @@ def shape_scores(path: str) -> tuple[str, dict]:
     mesh = rec["mesh"]
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     dual, sight = dual_edges(V, F), SightLines(V, F)
-    openness = FaceOpenness(V, F, sight.caster)
     shipped = MergeWeights()
     centroids, thickness = mesh_sums_inputs(V, F, shipped)
     scores: dict = {}
@@ -56,7 +53,7 @@ def shape_scores(path: str) -> tuple[str, dict]:
         for name, changes in VARIANTS.items():
             w = dataclasses.replace(shipped, **changes)
             g = region_graph(over["labels"], dual, over["unit"], over["area"], w.crease_angle,
-                             centroids=centroids, thickness=thickness, sight=sight, openness=openness)
+                             centroids=centroids, thickness=thickness, sight=sight)
             new_id, _ = greedy_merge(g, k, w)
             merged = mesh.labels_to_input_faces(np.where(g.labels >= 0, new_id[np.maximum(g.labels, 0)], -1))
             scores.setdefault(name, []).append(rand_index_error(np.maximum(merged, 0), truth))

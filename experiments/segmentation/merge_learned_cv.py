@@ -38,7 +38,6 @@ from torchakvf.options import MergeWeights
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.merge import boundary_bends, region_graph
 from torchakvf.parts.merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
-from torchakvf.parts.openness import FaceOpenness
 from torchakvf.parts.sightlines import SightLines
 
 T = len(TERM_NAMES)
@@ -70,22 +69,19 @@ def default_vector(w: MergeWeights | None = None) -> np.ndarray:
 
 def over_graphs(rec: dict, thick: np.ndarray) -> list[dict]:
     """Per over-segmentation of a capture (merge_capture.py's record): its region graph's arrays,
-    its parts' sums (``thick`` [F] the face thickness; the lines of sight between the parts; the
-    concave bending hidden in cavities along their boundaries) and its labels on the input faces.
-    Shared with experiments/generality/merge_cv.py."""
+    its parts' sums (``thick`` [F] the face thickness; the lines of sight between the parts) and
+    its labels on the input faces. Shared with experiments/generality/merge_cv.py."""
     mesh = rec["mesh"]
     dual = dual_edges(mesh.vertices, mesh.faces)
     sight = SightLines(mesh.vertices, mesh.faces)
-    openness = FaceOpenness(mesh.vertices, mesh.faces, sight.caster)
     bends = boundary_bends(dual)
     cent = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)].mean(axis=1)
     overs = []
     for o in rec["overs"]:
         unit = o["unit"].astype(np.float64)
-        g = region_graph(o["labels"], dual, unit, o["area"], unit=unit, bends=bends, openness=openness)
+        g = region_graph(o["labels"], dual, unit, o["area"], unit=unit, bends=bends)
         sums = part_sums(g.labels, g.n_parts, o["area"], cent, thick)
         sums["seen"], sums["lines"] = sight.counts(g.labels, g.n_parts)
-        sums["hidden"] = g.hidden
         lab_in = mesh.labels_to_input_faces(g.labels)
         overs.append(dict(graph=(g.area, g.mean, g.length, g.concave, g.convex), sums=sums, lab_in=lab_in))
     return overs
@@ -138,8 +134,7 @@ def new_state(over: dict) -> MergeState:
                       thick=s["thick"].copy(), thick_area=s["thick_area"].copy(), centroid=s["centroid"].copy(),
                       center=s["center"], radius=s["radius"], thick_median=s["thick_median"],
                       seen=None if s.get("seen") is None else s["seen"].copy(),
-                      lines=None if s.get("lines") is None else s["lines"].copy(),
-                      hidden=None if s.get("hidden") is None else s["hidden"].copy())
+                      lines=None if s.get("lines") is None else s["lines"].copy())
 
 
 # ---------------------------------------------------------------- the greedy merge on a state

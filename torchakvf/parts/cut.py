@@ -30,7 +30,6 @@ from .merge import (
     merge_parts,
     merged_distances,
     mesh_sums_inputs,
-    needs_openness,
     needs_part_sums,
     needs_sight,
     needs_thickness,
@@ -39,7 +38,6 @@ from .merge import (
     region_graph,
     unit_rows,
 )
-from .openness import FaceOpenness
 from .pieces import limit_parts
 from .results import MeshSegmentation
 from .sightlines import PartSight, SightLines
@@ -63,7 +61,7 @@ class ClusteredParts:
         then center ``labels // n_patches``), area [F] (unit total), unit [F, n] (unit feature
         rows; None with ε > 0)
     graphs : the merge's region graph of ``labels`` by (crease angle, whether it holds the
-        centroids, the thickness, the lines of sight, the hidden concavity) (made when first asked)
+        centroids, the thickness, the lines of sight) (made when first asked)
     n_patches : the crease patches ``labels`` were cut along (1: not cut)
     """
 
@@ -102,10 +100,9 @@ class MeshCache:
     sums_inputs : (centroids, thickness) of the mesh the merge terms read
         (:func:`~torchakvf.parts.merge.mesh_sums_inputs`), made when first needed
     patches : {(angle, rings, concave only): [F] :func:`~torchakvf.parts.creases.crease_patches`}
-    caster : the mesh's :class:`~torchakvf.mesh.raycast.RayCaster`, made when first needed:
-        the thickness, the lines of sight and the openness cast on one tree
+    caster : the mesh's :class:`~torchakvf.mesh.raycast.RayCaster`, made when first needed: the
+        thickness and the lines of sight cast on one tree
     sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines`, made when first needed
-    openness : the mesh's :class:`~torchakvf.parts.openness.FaceOpenness`, made when first needed
     """
 
     adjacency: np.ndarray | None = None
@@ -117,7 +114,6 @@ class MeshCache:
     over: ClusteredParts | None = None
     caster: RayCaster | None = None
     sight: SightLines | None = None
-    openness: FaceOpenness | None = None
 
     def ray_caster(self, mesh) -> RayCaster:
         """The mesh's ray caster (``mesh`` the one the parts are cut on), made once."""
@@ -307,17 +303,11 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
         if cache.sight is None:
             cache.sight = SightLines(clean.vertices, clean.faces, caster=cache.ray_caster(clean))
         sight = cache.sight
-    openness = None
-    if needs_openness(opts.merge):
-        if cache.openness is None:
-            cache.openness = FaceOpenness(clean.vertices, clean.faces, cache.ray_caster(clean))
-        openness = cache.openness
     if opts.merges_parts:
-        key = (crease, centroids is not None, thickness is not None, sight is not None, openness is not None)
+        key = (crease, centroids is not None, thickness is not None, sight is not None)
         if key not in over.graphs:
             over.graphs[key] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
-                                            centroids=centroids, thickness=thickness, sight=sight,
-                                            openness=openness)
+                                            centroids=centroids, thickness=thickness, sight=sight)
         graph = over.graphs[key]
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
                              MergeCache(dual=dual, unit=unit, bends=bends, graph=graph))
@@ -343,8 +333,7 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
                                      cut_cost=cache.cut_costs[opts.graphcut], min_fraction=floor)
     # what merging two of these parts would cost (k auto's "merge" rule reads it)
     merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends,
-                                 centroids=centroids, thickness=thickness, sight=sight,
-                                 openness=openness) if next_cost else None
+                                 centroids=centroids, thickness=thickness, sight=sight) if next_cost else None
     return CutParts(labels=labels, vdist=vdist, cost=cost, merge_next=merge_next)
 
 

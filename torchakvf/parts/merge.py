@@ -15,16 +15,11 @@ module then merges ADJACENT parts, cheapest first, by a cost that combines
 * boundary share (``cut``): 1 - L_ij / min(P_i, P_j), P the parts' boundary lengths: a part
   mostly enclosed by its neighbour (a stripe, a patch) is cheap to merge into it;
 * the terms that tell a protrusion from half a body (:mod:`torchakvf.parts.merge_terms`): the
-  size ratio, the short-cut rule, thickness (the shape diameter function), centricity, the lines
-  of sight between the parts;
-* hidden concavity: the share of the boundary's concave bending that lies in a cavity, where
-  little of the outside is seen (:mod:`torchakvf.parts.openness`): its learned weight cancels
-  the concavity term at the bottom of a blind hole.
+  size ratio, the short-cut rule, thickness (the shape diameter function), centricity.
 
     cost(i, j) = w_sym (1 - cos(m_i, m_j)) + w_cav κ_ij + w_size min(A_i, A_j) / A
                  + w_k min(A_i, A_j) k / A + w_cvx χ_ij + w_cut (1 - L_ij / min(P_i, P_j))
-                 + Σ w_t term_t(i, j)   (t: size_ratio, short_cut, thickness, thin, centricity,
-                                         sight, sight_excess, hidden_concavity)
+                 + Σ w_t term_t(i, j)   (t: size_ratio, short_cut, thickness, thin, centricity)
 
 κ and χ saturate at ``crease_angle``: bending θ counts min(θ / crease_angle, 1) (π = linear).
 
@@ -45,7 +40,6 @@ from ..restarts import first_near_min
 from .concavity import DualEdges, crease_weights, dual_edges
 from .grouping import compact_labels, group_sums
 from .merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
-from .openness import FaceOpenness
 from .sightlines import PartSight, SightLines
 
 
@@ -68,9 +62,6 @@ class RegionGraph:
     length : [K, K] symmetric shared-boundary length (0 = not adjacent)
     concave : [K, K] symmetric length-weighted sum of concavity along the shared boundary
     convex : [K, K] the same of convex bending (None: not computed, counted as 0)
-    hidden : [K, K] the same of the concave bending hidden in a cavity
-        (:meth:`~torchakvf.parts.openness.FaceOpenness.hidden_bends`; None: not computed, the
-        term counts 0)
     sums : :func:`~torchakvf.parts.merge_terms.part_sums` (centroids, thickness) and the
         lines of sight ("seen", "lines": :meth:`SightLines.counts`) where the weights read them
         (None or missing: those terms count 0)
@@ -83,7 +74,6 @@ class RegionGraph:
     concave: np.ndarray
     convex: np.ndarray | None = None
     sums: dict | None = None
-    hidden: np.ndarray | None = None
 
     @property
     def n_parts(self) -> int:
@@ -99,7 +89,7 @@ class RegionGraph:
                           thick=copy("thick"), thick_area=copy("thick_area"), centroid=copy("centroid"),
                           center=sums.get("center"), radius=float(sums.get("radius", 1.0)),
                           thick_median=float(sums.get("thick_median", 1.0)), seen=copy("seen"),
-                          lines=copy("lines"), hidden=None if self.hidden is None else self.hidden.copy())
+                          lines=copy("lines"))
 
 
 #: The :class:`MergeWeights` field weighing each column of
@@ -107,8 +97,7 @@ class RegionGraph:
 #: :func:`term_weights`).
 FIELD_OF_TERM = dict(symmetry="symmetry", concavity="concavity", convexity="convexity", share="cut",
                      small="part_size", size_ratio="size_ratio", short_cut="short_cut", thickness="thickness",
-                     thin="thin", centricity="centricity", sight="sight", sight_excess="sight_excess",
-                     hidden_concavity="hidden_concavity")
+                     thin="thin", centricity="centricity", sight="sight", sight_excess="sight_excess")
 
 
 def term_weights(weights: MergeWeights, k: int) -> np.ndarray:
@@ -127,12 +116,6 @@ def needs_thickness(weights: MergeWeights) -> bool:
 def needs_sight(weights: MergeWeights) -> bool:
     """Whether the cost reads the lines of sight between parts (then each mesh's are cast)."""
     return weights.sight != 0 or weights.sight_excess != 0
-
-
-def needs_openness(weights: MergeWeights) -> bool:
-    """Whether the cost reads the concave bending hidden in cavities (then rays are cast from
-    the faces of concave boundaries)."""
-    return weights.hidden_concavity != 0
 
 
 def needs_part_sums(weights: MergeWeights) -> bool:
@@ -160,8 +143,7 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
                  face_area: np.ndarray, crease_angle: float = math.pi, *,
                  unit: np.ndarray | None = None, bends: tuple | None = None,
                  centroids: np.ndarray | None = None, thickness: np.ndarray | None = None,
-                 sight: SightLines | PartSight | None = None,
-                 openness: FaceOpenness | None = None) -> RegionGraph:
+                 sight: SightLines | PartSight | None = None) -> RegionGraph:
     """The region adjacency graph of ``labels`` [F] on the mesh whose dual graph is ``dual``.
 
     features : [F, n] per-face untangled feature rows (normalized here, as k-means does);
@@ -174,8 +156,6 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` where the sight term is
         wanted (:func:`needs_sight`), or the counts of these labels by their ids
         (:class:`~torchakvf.parts.sightlines.PartSight`) where they are at hand; None: not read.
-    openness : the mesh's :class:`~torchakvf.parts.openness.FaceOpenness` where the hidden
-        concavity is wanted (:func:`needs_openness`); None: not read.
     """
     labels = np.asarray(labels)
     present = labels >= 0
@@ -195,11 +175,6 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     bent_cav, bent_cvx = boundary_bends(dual, crease_angle) if bends is None else bends
     concave = np.bincount(key, weights=bent_cav[cut], minlength=K * K).reshape(K, K)
     convex = np.bincount(key, weights=bent_cvx[cut], minlength=K * K).reshape(K, K)
-    hidden = None
-    if openness is not None:
-        bent_hid = openness.hidden_bends(dual, bent_cav, cut)
-        hidden = np.bincount(key, weights=bent_hid[cut], minlength=K * K).reshape(K, K)
-        hidden = hidden + hidden.T
     sums = None if centroids is None else part_sums(lab, K, np.asarray(face_area, dtype=np.float64),
                                                     np.asarray(centroids, dtype=np.float64), thickness)
     if sight is not None:
@@ -209,7 +184,7 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
             sums["seen"], sums["lines"] = counts.seen, counts.lines
         else:
             sums["seen"], sums["lines"] = sight.counts(lab, K)
-    return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T, sums, hidden)
+    return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T, sums)
 
 
 def state_costs(state: MergeState, rows: np.ndarray, weights: MergeWeights, k: int = 1,
@@ -286,9 +261,7 @@ class MergeCache:
     :func:`region_graph` of the labels at the weights' crease angle (it does not depend on k);
     thickness : [F] :func:`face_thickness` of the mesh (read where the weights read it and no
     graph is given); sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` (read
-    where the weights read the lines of sight and no graph is given); openness : the mesh's
-    :class:`~torchakvf.parts.openness.FaceOpenness` (read where the weights read the hidden
-    concavity and no graph is given).
+    where the weights read the lines of sight and no graph is given).
     """
 
     dual: DualEdges | None = None
@@ -297,7 +270,6 @@ class MergeCache:
     graph: RegionGraph | None = None
     thickness: np.ndarray | None = None
     sight: SightLines | None = None
-    openness: FaceOpenness | None = None
 
 
 def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, features: np.ndarray,
@@ -325,12 +297,8 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
         dual = dual_edges(vertices, faces) if cache.dual is None else cache.dual
         centroids, thickness = mesh_sums_inputs(vertices, faces, weights, cache.thickness)
         sight = (cache.sight or SightLines(vertices, faces)) if needs_sight(weights) else None
-        openness = None
-        if needs_openness(weights):
-            openness = cache.openness or FaceOpenness(vertices, faces, None if sight is None else sight.caster)
         graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=cache.unit,
-                             bends=cache.bends, centroids=centroids, thickness=thickness, sight=sight,
-                             openness=openness)
+                             bends=cache.bends, centroids=centroids, thickness=thickness, sight=sight)
     new_id, _ = greedy_merge(graph, k, weights)
     out = np.where(graph.labels >= 0, new_id[np.maximum(graph.labels, 0)], graph.labels)
     return out.astype(np.asarray(labels).dtype, copy=False)
@@ -352,19 +320,17 @@ def mesh_sums_inputs(vertices: np.ndarray, faces: np.ndarray, weights: MergeWeig
 def next_merge_cost(labels: np.ndarray, dual: DualEdges, features: np.ndarray, face_area: np.ndarray,
                     weights: MergeWeights | None = None, *, unit: np.ndarray | None = None,
                     bends: tuple | None = None, centroids: np.ndarray | None = None,
-                    thickness: np.ndarray | None = None, sight: SightLines | PartSight | None = None,
-                    openness: FaceOpenness | None = None) -> float:
+                    thickness: np.ndarray | None = None, sight: SightLines | PartSight | None = None) -> float:
     """The cost of the cheapest merge left among the parts of ``labels`` [F] (inf when no two
     parts are adjacent): what going from k = (its part count) to k - 1 parts would cost. k auto
     reads it: a large one means the parts are worth keeping apart. With ``weights.rand_gamma`` it
     is the least log-odds against one part (s - intercept, :func:`state_costs`), not the Rand
     cost, whose size factor would make it small wherever a small part is left. features [F, n], face_area [F];
-    unit, bends : as :func:`merge_parts` takes them; centroids, thickness, sight, openness : as
-    :func:`region_graph` takes them (:func:`mesh_sums_inputs`, :func:`needs_sight`,
-    :func:`needs_openness`)."""
+    unit, bends : as :func:`merge_parts` takes them; centroids, thickness, sight : as
+    :func:`region_graph` takes them (:func:`mesh_sums_inputs`, :func:`needs_sight`)."""
     weights = MergeWeights() if weights is None else weights
     graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=unit, bends=bends,
-                         centroids=centroids, thickness=thickness, sight=sight, openness=openness)
+                         centroids=centroids, thickness=thickness, sight=sight)
     if graph.n_parts < 2:
         return float("inf")
     cost = state_costs(graph.state(), np.arange(graph.n_parts), weights, graph.n_parts, odds=True)
@@ -433,6 +399,6 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
 
 
 __all__ = ["MergeWeights", "MergeCache", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_sight",
-           "needs_openness", "needs_part_sums", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends",
-           "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph",
-           "merge_costs", "greedy_merge", "merge_parts"]
+           "needs_part_sums", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances",
+           "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
+           "greedy_merge", "merge_parts"]

@@ -4,10 +4,8 @@ What tells a protrusion (a fin, a leg, a handle) from half a body, as part perce
 it: the minima rule (a boundary on a concave crease), the short-cut rule (a short boundary for
 the part it cuts off), thickness (a fin or a leg is thinner than the body it joins: the shape
 diameter function, the mean length of rays shot inwards), centricity (a protrusion lies away from
-the middle), size against the parts wanted (A / k), the symmetry of the untangled fields (two
-parts moved by the same fields are one symmetric part cut in two), and how much of a boundary's
-concave bending lies hidden in a cavity (the bottom of a blind hole is not a part boundary:
-:mod:`torchakvf.parts.openness`).
+the middle), size against the parts wanted (A / k), and the symmetry of the untangled fields (two
+parts moved by the same fields are one symmetric part cut in two).
 
 :class:`MergeState` holds the additive sums of a region graph (areas, boundary lengths, bending
 and thickness sums), so merging two parts is adding rows; :func:`pair_terms` reads the terms of
@@ -26,7 +24,7 @@ from .sightlines import join_counts
 
 #: names of the columns of :func:`pair_terms`, in order (the learned merge's inputs)
 TERM_NAMES = ("symmetry", "concavity", "convexity", "share", "small", "size_ratio", "short_cut",
-              "thickness", "thin", "centricity", "sight", "sight_excess", "hidden_concavity")
+              "thickness", "thin", "centricity", "sight", "sight_excess")
 
 #: rays shot per sampled face by :func:`face_thickness` (in a 60° cone around the inward normal)
 THICKNESS_RAYS = 8
@@ -101,10 +99,7 @@ class MergeState:
     centroid : [K, 3] Σ a_f c_f; center : [3] the surface's area centroid; radius : its RMS
     distance to it; total : the surface area; seen, lines : [K, K] of the segments between the
     parts' samples (the diagonal: between a part's own samples), those that stay inside the solid
-    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`); hidden : [K, K] the
-    length-weighted concave bending along the shared boundary that lies hidden in a cavity
-    (:meth:`~torchakvf.parts.openness.FaceOpenness.hidden_bends`). (thick, centroid, seen,
-    hidden None: not computed.)
+    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`). (thick, centroid, seen None: not computed.)
     """
 
     area: np.ndarray
@@ -120,7 +115,6 @@ class MergeState:
     thick_median: float = 1.0
     seen: np.ndarray | None = None
     lines: np.ndarray | None = None
-    hidden: np.ndarray | None = None
 
     @property
     def total(self) -> float:
@@ -139,9 +133,7 @@ class MergeState:
         for mat in (self.seen, self.lines):
             if mat is not None:
                 join_counts(mat, i, j)
-        for mat in (self.length, self.concave, self.convex, self.hidden):
-            if mat is None:
-                continue
+        for mat in (self.length, self.concave, self.convex):
             mat[i, :] += mat[j, :]
             mat[:, i] = mat[i, :]
             mat[i, i] = 0.0
@@ -184,9 +176,7 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
     further out); sight 1 - seen_ij / lines_ij, the share of the segments between the two parts'
     samples that leave the solid (:mod:`torchakvf.parts.sightlines`); sight_excess that share less
     the mean of the two parts' own (a hollow part's inside and outside never see each other, a
-    flat or convex one's always do); hidden_concavity the length-weighted mean of the concave
-    bending along the shared boundary that lies hidden in a cavity (part of ``concavity``, so a
-    weight of minus concavity's cancels it there). Terms whose sums are missing are 0."""
+    flat or convex one's always do). Terms whose sums are missing are 0."""
     rows = np.asarray(rows)
     area, length = state.area, state.length
     L = length[rows]
@@ -225,8 +215,6 @@ def pair_terms(state: MergeState, rows: np.ndarray, k: int) -> tuple[np.ndarray,
         own_lines = np.diag(state.lines)
         own = np.where(own_lines > 0, 1.0 - np.diag(state.seen) / np.maximum(own_lines, 1.0), 0.0)
         T[..., 11] = blocked - 0.5 * (own[rows][:, None] + own[None, :])
-    if state.hidden is not None:
-        T[..., 12] = np.where(adjacent, state.hidden[rows] / safe_l, 0.0)
     T[~adjacent] = 0.0
     return T, adjacent
 

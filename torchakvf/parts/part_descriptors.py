@@ -54,7 +54,7 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import face_areas
 from ..mesh.coarse import canonical_numbering
 from ..mesh.surface_map import SurfacePoints
-from ..options import MergeWeights, OverSegmentation, SegmentOptions, segment_options
+from ..options import OverSegmentation, SegmentOptions, segment_options
 from .field_counts import akvf_count
 from .topology import face_adjacency
 
@@ -69,13 +69,6 @@ PART_SEEDS = (0, 1, 2)
 #: finer one would make the 18 segmentations cost more; neither its columns nor those with the
 #: crease patches' fragments united were measured).
 PART_OVERSEGMENTATION = OverSegmentation(ratio=3.0, extra_max=16, unite_fragments=False)
-#: The merge weights the segmentations merge by, for the same reason: those the columns were
-#: measured with (the learned weights without the hidden concavity term), fixed here so that
-#: refitting the segmentation's own default does not move the columns.
-PART_MERGE_WEIGHTS = MergeWeights(symmetry=1.685, concavity=15.39, convexity=3.372, cut=0.5723, part_size=0.8196,
-                                  size_ratio=0.3704, short_cut=0.02363, thickness=2.381, thin=0.1954,
-                                  centricity=-0.1774, sight=0.6688, sight_excess=2.672, hidden_concavity=0.0,
-                                  size=0.0, intercept=3.671, rand_gamma=0.5)
 #: Distance (unit-area lengths) beyond which a cut is "far": about ten face widths at 4000 faces.
 DISTANCE_CAP = 0.2
 #: Added to a distance before the log, so a face on a cut (d = 0) has a finite value.
@@ -175,8 +168,8 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
         :func:`~torchakvf.parts.field_counts.akvf_count` of ``ks``, else all ``fields.n``
     ks : part counts (columns in ascending k; a mesh with fewer faces is cut at its face count
         there); seeds : seeds averaged over; options : the segmentation's settings (default
-        ``SegmentOptions(overseg=PART_OVERSEGMENTATION, merge=PART_MERGE_WEIGHTS)``; its seed is
-        replaced by each of ``seeds``; ε must be 0)
+        ``SegmentOptions(overseg=PART_OVERSEGMENTATION)``; its seed is replaced by each of
+        ``seeds``; ε must be 0)
     Returns one float64 [F_b, len(ks) + len(radii)] array per mesh, on the faces the parts
     are cut on: those of ``fields.batch.input_mesh(b)`` (the full-resolution cleaned mesh of a
     decimated one; ``input_mesh(b).to_input_faces`` puts them on the file's faces).
@@ -184,8 +177,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     from .cut import MeshCache
     from .rounds import segment_rounds
 
-    opts = segment_options(options) if options is not None else SegmentOptions(overseg=PART_OVERSEGMENTATION,
-                                                                                merge=PART_MERGE_WEIGHTS)
+    opts = segment_options(options) if options is not None else SegmentOptions(overseg=PART_OVERSEGMENTATION)
     if opts.eps != 0:
         raise ParameterError("part descriptors describe plain segmentations: eps must be 0")
     ks = sorted({int(k) for k in ks})
@@ -221,7 +213,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     return out
 
 
-__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "PART_MERGE_WEIGHTS", "DISTANCE_CAP", "DISTANCE_FLOOR",
-           "NEAR_RADII", "part_descriptor_names",
+__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII",
+           "part_descriptor_names",
            "dual_graph", "cut_distance", "distance_to_faces", "fine_meshes_numbered_canonically", "describe_labelings",
            "part_descriptors"]
