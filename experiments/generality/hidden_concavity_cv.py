@@ -162,10 +162,7 @@ def main():
         print(name, "fitted on all:", {n: round(float(x), 3) for n, x in zip(NAMES, every.w)},
               "intercept", round(every.b, 3), flush=True)
         results[f"{name} (held out)"] = scores
-    text = M.table(results)
-    print(text)
-    if a.out:
-        Path(a.out).write_text(text + "\n")
+    M.report(results, a.out)
 
 
 if __name__ == "__main__":

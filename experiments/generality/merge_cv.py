@@ -237,6 +237,14 @@ def table(results: dict) -> str:
     return "\n".join(lines)
 
 
+def report(results: dict, out=None) -> None:
+    """Prints the :func:`table` of ``results`` and writes it to the file ``out`` (None: not written)."""
+    text = table(results)
+    print(text)
+    if out:
+        Path(out).write_text(text + "\n")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--capture", required=True)
@@ -279,10 +287,7 @@ def main():
         if a.gammas:
             share = float(a.corpus_share.split(",")[-1])
             results.update(held_out_gammas(policy, pool, share, [float(g) for g in a.gammas.split(",")]))
-            text = table(results)
-            print(text)
-            if a.out:
-                Path(a.out).write_text(text + "\n")
+            report(results, a.out)
             return
         drops = [()] + [tuple(d.split(",")) for d in a.drop.split(";") if d]
         for share in [float(x) for x in a.corpus_share.split(",")]:
@@ -299,10 +304,7 @@ def main():
                     out = {g: weight_fields(c) for g, c in costs.items()}
                     out["*"] = weight_fields(everything)
                     Path(a.weights_out).write_text(json.dumps(out, indent=1) + "\n")
-    text = table(results)
-    print(text)
-    if a.out:
-        Path(a.out).write_text(text + "\n")
+    report(results, a.out)
 
 
 if __name__ == "__main__":

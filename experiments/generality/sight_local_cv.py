@@ -98,10 +98,7 @@ def main():
             print(f"without {drop or 'nothing'}: fitted on all",
                   {n: round(float(x), 3) for n, x in zip(NAMES, every.w) if x != 0}, flush=True)
             results[f"learned without {drop or 'nothing'} (held out)"] = scores
-    text = M.table(results)
-    print(text)
-    if a.out:
-        Path(a.out).write_text(text + "\n")
+    M.report(results, a.out)
 
 
 if __name__ == "__main__":

@@ -67,10 +67,7 @@ def main():
         results["shipped weights, merged"] = M.group_scores(keys, shipped, pool)
         for f in a.fractions.split(","):
             results[f"parts under {f} / k first, merged"] = M.group_scores(keys, SmallFirst(shipped, float(f)), pool)
-    text = M.table(results)
-    print(text)
-    if a.out:
-        Path(a.out).write_text(text + "\n")
+    M.report(results, a.out)
 
 
 if __name__ == "__main__":
