@@ -18,7 +18,11 @@ Steps:
 Run::
 
     PYTHONPATH=$PWD OMP_NUM_THREADS=1 nice python experiments/descriptors/boundary_probability_fit.py \\
-        --corpus /tmp/corpus --cache /tmp/bprob_corpus/cache --per-family 10 --select --out DEFAULT
+        --corpus /tmp/corpus --cache /tmp/bprob_corpus/cache --pass [--reverse]     # two workers
+    PYTHONPATH=$PWD OMP_NUM_THREADS=1 nice python experiments/descriptors/boundary_probability_fit.py \\
+        --corpus /tmp/corpus --cache /tmp/bprob_corpus/cache --select --out DEFAULT
+
+(the corpus: ``datasets_scripts/make_parts_corpus.py --out /tmp/corpus --per-family 30 --seed 0``).
 """
 from __future__ import annotations
 
@@ -50,13 +54,14 @@ SEED = 0
 log = logging.getLogger("boundary_probability_fit")
 
 
-def corpus_pass(corpus: Path, cache: Path, per_family: int) -> None:
-    """``descriptor_pass.one_mesh`` of the first ``per_family`` shapes of each family, cached."""
+def corpus_pass(corpus: Path, cache: Path, per_family: int, reverse: bool = False) -> None:
+    """``descriptor_pass.one_mesh`` of the first ``per_family`` shapes of each family, cached
+    (``reverse``: in the opposite order, for a second worker sharing the cache)."""
     import descriptor_pass
 
     cache.mkdir(parents=True, exist_ok=True)
     shapes = json.loads((corpus / "index.json").read_text())["shapes"]
-    for e in shapes:
+    for e in (shapes[::-1] if reverse else shapes):
         path = cache / f"{e['name']}.npz"
         if int(e["name"].rsplit("_", 1)[1]) >= per_family or path.exists():
             continue
@@ -64,7 +69,9 @@ def corpus_pass(corpus: Path, cache: Path, per_family: int) -> None:
         entry = SimpleNamespace(mesh_path=folder / f"{e['name']}.off", seg_paths=[folder / f"{e['name']}.seg"],
                                 category="corpus_" + e["family"], mesh_id=0)
         t = time.process_time()
-        np.savez_compressed(path, **descriptor_pass.one_mesh(entry))
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez_compressed(tmp, **descriptor_pass.one_mesh(entry))
+        tmp.replace(path)
         log.info("%s: %.1f CPU s", e["name"], time.process_time() - t)
 
 
@@ -77,6 +84,8 @@ def model_inputs(d: dict) -> np.ndarray:
 def load_corpus(cache: Path, per_family: int) -> list[dict]:
     out = []
     for path in sorted(cache.glob("*.npz")):
+        if path.stem.endswith(".tmp"):      # another worker's file in the making
+            continue
         family, i = path.stem.rsplit("_", 1)
         if int(i) >= per_family:
             continue
@@ -140,15 +149,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--corpus", default="/tmp/corpus")
     ap.add_argument("--cache", required=True)
-    ap.add_argument("--per-family", type=int, default=10)
+    ap.add_argument("--per-family", type=int, default=30,
+                    help="the first N shapes of each family (default 30: the whole default corpus)")
     ap.add_argument("--pass", dest="run_pass", action="store_true")
+    ap.add_argument("--reverse", action="store_true",
+                    help="with --pass: visit the shapes in the opposite order (a second worker on the same cache)")
     ap.add_argument("--select", action="store_true")
     ap.add_argument("--out", default=None, help="weights file to write (DEFAULT: the package's)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)
     if args.run_pass:
-        corpus_pass(Path(args.corpus), Path(args.cache), args.per_family)
+        corpus_pass(Path(args.corpus), Path(args.cache), args.per_family, args.reverse)
     data = load_corpus(Path(args.cache), args.per_family)
     log.info("%d shapes, %d faces, positive rate %.3f", len(data), sum(len(d["y"]) for d in data),
              np.concatenate([d["y"] for d in data]).mean())
