@@ -109,18 +109,23 @@ def unseen(train: list, policy, a, ctx) -> None:
     """Weights fitted on every ``train`` shape without the term and with each variant; merged
     labels of the unseen shapes by family."""
     test = sorted(k for k in M.PREP if k.startswith(UNSEEN))
-    results = {}
+    results, base = {}, None
     for spec in a.variants.split(","):
         motions, eps = spec.split(":")
         SPEC.update(motions=int(motions), eps=float(eps))
         M.ROWS.clear()
         with ctx.Pool(2) as pool:
-            if not results:
+            if base is None:
                 cost = M.fitted_cost(train, policy, pool, a.corpus_share, cols=list(range(len(TERM_NAMES))))
+                base = np.array(pool.starmap(M.shape_error, [(m, cost) for m in test]))
                 results["without slippage (unseen)"] = M.group_scores(test, cost, pool)
             cost = M.fitted_cost(train, policy, pool, a.corpus_share)
+            errs = np.array(pool.starmap(M.shape_error, [(m, cost) for m in test]))
             results[f"slippage, {motions} motion(s), eps {eps} (unseen)"] = M.group_scores(test, cost, pool)
-        print(spec, "done", flush=True)
+        d = errs - base
+        print(f"{spec}: shapes' mean {errs.mean():.4f} against {base.mean():.4f}, paired {d.mean():+.4f} "
+              f"± {d.std(ddof=1) / np.sqrt(len(d)):.4f} (standard error; {int((d < 0).sum())} better, "
+              f"{int((d > 0).sum())} worse of {len(d)})", flush=True)
     M.report(results, a.out)
 
 
