@@ -5,8 +5,9 @@ tangent everywhere: a cylinder under a turn about and a shift along its axis, a 
 revolution under the turn, a plane under three (Gelfand & Guibas, "Shape segmentation using
 local slippage analysis", 2004). With u_f = [c_f × n_f / R, n_f] at each face (centroid c_f
 from the surface's area centroid, R its RMS radius, n_f the unit normal), a part's slippage
-matrix is C = Σ a_f u_f u_fᵀ ([6, 6], additive over faces: a union's is the sum of its parts'),
-and its j-th motion is as free as λ_j(C) / A is small. Uniting two arcs of one wheel rim keeps
+matrix is C = Σ a_f u_f u_fᵀ (a_f the face's share of the surface's area; [6, 6], additive
+over faces: a union's is the sum of its parts'), and its j-th motion is as free as λ_j(C) / A
+is small (A the part's share of the area). Uniting two arcs of one wheel rim keeps
 the turn about the axle; uniting a spoke with the hub, or two coaxial cylinders of a stepped
 shaft, loses a motion that both had. The term, for the ``motions`` smallest eigenvalues
 m = 1..M:
@@ -55,11 +56,11 @@ def slip_sums(cap_file, prefix: str = "") -> tuple[str, list]:
     F = np.asarray(rec["mesh"].faces, dtype=np.int64)
     cross = face_cross_products(V, F)
     dbl = np.linalg.norm(cross, axis=1)
-    area = 0.5 * dbl
+    area = dbl / dbl.sum()               # unit total, as the merge state's part areas
     n = cross / np.maximum(dbl, 1e-300)[:, None]
     c = V[F].mean(axis=1)
-    center = (area[:, None] * c).sum(axis=0) / area.sum()
-    radius = float(np.sqrt((area * ((c - center) ** 2).sum(axis=1)).sum() / area.sum()))
+    center = (area[:, None] * c).sum(axis=0)
+    radius = float(np.sqrt((area * ((c - center) ** 2).sum(axis=1)).sum()))
     u = np.concatenate([np.cross(c - center, n) / radius, n], axis=1)          # [F, 6]
     outer = area[:, None, None] * u[:, :, None] * u[:, None, :]              # [F, 6, 6]
     out = []
