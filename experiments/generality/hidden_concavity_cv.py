@@ -32,7 +32,6 @@ import merge_learned_cv as L  # noqa: E402
 
 from torchakvf.mesh.clean import face_cross_products  # noqa: E402
 from torchakvf.mesh.raycast import RayCaster  # noqa: E402
-from torchakvf.options import MergeWeights  # noqa: E402
 from torchakvf.parts.concavity import dual_edges  # noqa: E402
 from torchakvf.parts.creases import unit_face_normals  # noqa: E402
 from torchakvf.parts.grouping import compact_labels  # noqa: E402
@@ -141,27 +140,18 @@ def main():
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     M.load_prep(Path(a.prep))
-    keys = sorted(M.PREP)
     files = sorted(Path(a.capture).glob("*.pkl"))
-    policy = M.Cost(np.r_[M.Cost.of(MergeWeights.hand_set()).w, 0.0], 0.0, None)
     ctx = get_context("fork")
-    results = {}
-    for spec in a.variants.split(","):
+
+    def setup(spec: str) -> str:
         with ctx.Pool(2) as pool:
             for key, sums in pool.map(hidden_sums, [(f, spec) for f in files]):
                 for over, H in zip(M.PREP[key]["overs"], sums):
                     over["hidden"] = H
-        M.ROWS.clear()
-        with ctx.Pool(2) as pool:            # forked after the sums are in: the workers read them
-            if not results:
-                cols = list(range(len(TERM_NAMES)))
-                results["without hidden_concavity (held out)"], _ = M.held_out(policy, pool, a.corpus_share, cols=cols)
-            scores, _ = M.held_out(policy, pool, a.corpus_share)
-            every = M.fitted_cost(keys, policy, pool, a.corpus_share)
-        name = "rays {}, reach {}, enough {}, bend {}°".format(*spec.split(":"))
-        print(name, "fitted on all:", {n: round(float(x), 3) for n, x in zip(NAMES, every.w)},
-              "intercept", round(every.b, 3), flush=True)
-        results[f"{name} (held out)"] = scores
+        return "rays {}, reach {}, enough {}, bend {}°".format(*spec.split(":"))
+
+    results = M.held_out_with_term("hidden_concavity", NAMES, a.variants.split(","), setup,
+                                   M.hand_set_policy(1), ctx, a.corpus_share)
     M.report(results, a.out)
 
 

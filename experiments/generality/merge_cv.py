@@ -199,6 +199,34 @@ def held_out(policy: Cost, pool, corpus_share: float, cols=None, gamma=0.5, grou
     return scores, costs
 
 
+def hand_set_policy(n_extra: int = 0) -> Cost:
+    """The hand-set weights as the policy the training rows are made under, extended by zeros on
+    ``n_extra`` terms a script adds beside TERM_NAMES (its rows then follow the shipped merges)."""
+    return Cost(np.r_[Cost.of(MergeWeights.hand_set()).w, np.zeros(n_extra)], 0.0, None)
+
+
+def held_out_with_term(term: str, names: tuple, specs: list, setup, policy: Cost, ctx,
+                       corpus_share: float) -> dict:
+    """{setting: {group: held-out score}}: the package's terms alone, then ``term`` beside them
+    under each of ``specs``. ``setup(spec)`` readies the term's sums in PREP (the pool forks after
+    it, so the workers read them) and returns the setting's name; ``names`` label the weights
+    fitted on every shape, printed per setting."""
+    results = {}
+    for spec in specs:
+        name = setup(spec)
+        ROWS.clear()
+        with ctx.Pool(2) as pool:
+            if not results:
+                cols = list(range(len(TERM_NAMES)))
+                results[f"without {term} (held out)"], _ = held_out(policy, pool, corpus_share, cols=cols)
+            scores, _ = held_out(policy, pool, corpus_share)
+            every = fitted_cost(sorted(PREP), policy, pool, corpus_share)
+        print(name, "fitted on all:", {n: round(float(x), 3) for n, x in zip(names, every.w)},
+              "intercept", round(every.b, 3), flush=True)
+        results[f"{name} (held out)"] = scores
+    return results
+
+
 def held_out_gammas(policy: Cost, pool, corpus_share: float, gammas: list) -> dict:
     """{"learned, γ g (held out)": {group: score}}: each group's weights fitted once without it
     (the fit does not read γ) and its merge run at every γ of ``gammas``."""

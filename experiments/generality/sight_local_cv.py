@@ -27,7 +27,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "segmentation"))
 import merge_cv as M  # noqa: E402
 import merge_learned_cv as L  # noqa: E402
 
-from torchakvf.options import MergeWeights  # noqa: E402
 from torchakvf.parts.merge_terms import TERM_NAMES, MergeState  # noqa: E402
 from torchakvf.parts.merge_terms import pair_terms as package_terms  # noqa: E402
 from torchakvf.parts.sightlines import join_counts  # noqa: E402
@@ -88,7 +87,7 @@ def main():
     a = ap.parse_args()
     M.load_prep(Path(a.prep))
     keys = sorted(M.PREP)
-    policy = M.Cost(np.r_[M.Cost.of(MergeWeights.hand_set()).w, np.zeros(len(EXTRA))], 0.0, None)
+    policy = M.hand_set_policy(len(EXTRA))
     results = {}
     with get_context("fork").Pool(2) as pool:
         for drop in a.drop.split(";"):

@@ -39,7 +39,6 @@ import merge_cv as M  # noqa: E402
 import merge_learned_cv as L  # noqa: E402
 
 from torchakvf.mesh.clean import face_cross_products  # noqa: E402
-from torchakvf.options import MergeWeights  # noqa: E402
 from torchakvf.parts.grouping import compact_labels  # noqa: E402
 from torchakvf.parts.merge_terms import TERM_NAMES, MergeState  # noqa: E402
 from torchakvf.parts.merge_terms import pair_terms as package_terms  # noqa: E402
@@ -159,25 +158,17 @@ def main():
             for over, C in zip(M.PREP[key]["overs"], sums):
                 assert len(C) == len(over["graph"][0]), key
                 over["slip"] = C
-    policy = M.Cost(np.r_[M.Cost.of(MergeWeights.hand_set()).w, 0.0], 0.0, None)
+    policy = M.hand_set_policy(1)
     if a.unseen_prep:
         unseen(keys, policy, a, ctx)
         return
-    results = {}
-    for spec in a.variants.split(","):
+
+    def setup(spec: str) -> str:
         motions, eps = spec.split(":")
         SPEC.update(motions=int(motions), eps=float(eps))
-        M.ROWS.clear()
-        with ctx.Pool(2) as pool:            # forked after SPEC is set: the workers read it
-            if not results:
-                cols = list(range(len(TERM_NAMES)))
-                results["without slippage (held out)"], _ = M.held_out(policy, pool, a.corpus_share, cols=cols)
-            scores, _ = M.held_out(policy, pool, a.corpus_share)
-            every = M.fitted_cost(keys, policy, pool, a.corpus_share)
-        name = f"slippage, {motions} motion(s), eps {eps}"
-        print(name, "fitted on all:", {n: round(float(x), 3) for n, x in zip(NAMES, every.w)},
-              "intercept", round(every.b, 3), flush=True)
-        results[f"{name} (held out)"] = scores
+        return f"slippage, {motions} motion(s), eps {eps}"
+
+    results = M.held_out_with_term("slippage", NAMES, a.variants.split(","), setup, policy, ctx, a.corpus_share)
     M.report(results, a.out)
 
 
