@@ -1,6 +1,7 @@
 """Crease patches (:mod:`torchakvf.parts.creases`): the band on a folded hinge by hand, no patch
 across a part boundary on crease-delimited shapes (crisp voxel creases, rounded marching
-creases), only concave creases where asked, one patch on smooth surfaces, and the (label, patch) split."""
+creases), only concave creases where asked, one patch on smooth surfaces, a crease that encloses
+no patch cutting the pieces it crosses, and the (label, patch) split."""
 from __future__ import annotations
 
 import math
@@ -15,12 +16,14 @@ from torchakvf.mesh.clean import face_areas
 from torchakvf.parts.concavity import dual_edges
 from torchakvf.parts.creases import (
     crease_band,
+    crease_band_of,
     crease_patches,
     split_by_patches,
     unit_face_normals,
     unite_patch_fragments,
 )
 from torchakvf.parts.topology import face_adjacency
+from torchakvf.shapes.implicit import _voxel_surface
 
 
 def misassigned_area(s, patches) -> float:
@@ -101,6 +104,50 @@ def test_crisp_creases_of_a_voxel_table_bound_its_parts():
     patches = crease_patches(s.vertices, s.faces, dual_edges(s.vertices, s.faces))
     assert misassigned_area(s, patches) == 0.0
     assert len(np.unique(patches)) >= s.n_parts
+
+
+def bored_hub(h: float = 0.1):
+    """A plate (2.6 x 2.6 x 0.2) with a hub (1.8 x 1.8 x 0.6) on it and a square bore (1.0 x 1.0)
+    through both, voxel size h: (vertices, faces, part [F] 0 plate 1 hub, bore [F] whether a face
+    is on the bore's wall). The hub meets the plate in a concave crease all round, but the bore's
+    wall joins the hub's top to the plate's underside over convex creases alone (its walls are
+    wider than the bands of its concave corners)."""
+    n, t_plate, hub, t_hub, bore = round(2.6 / h), round(0.2 / h), round(1.8 / h), round(0.6 / h), round(1.0 / h)
+    occ = np.zeros((n, n, t_plate + t_hub), dtype=bool)
+    part = np.zeros(occ.shape, dtype=np.int64)
+    occ[:, :, :t_plate] = True
+    lo = (n - hub) // 2
+    occ[lo:lo + hub, lo:lo + hub, t_plate:] = True
+    part[:, :, t_plate:] = 1
+    b0 = (n - bore) // 2
+    occ[b0:b0 + bore, b0:b0 + bore, :] = False
+    v, f, owner = _voxel_surface(occ, h, (-1.3, -1.3, 0.0))
+    c = v[f].mean(axis=1)
+    half = bore * h / 2
+    in_bore = (np.abs(c[:, 0]) <= half + 1e-9) & (np.abs(c[:, 1]) <= half + 1e-9)
+    return v, f, part.reshape(-1)[owner], in_bore
+
+
+def test_a_crease_that_encloses_no_patch_still_cuts_the_pieces_it_crosses():
+    """On a bored hub the concave crease round the hub encloses no patch of the surface: the
+    patches are one. Cut by a labelling's boundaries as well (the bore's wall one piece, the rest
+    another), the rest falls apart along the crease into the plate and the hub, with no face of
+    one in the other's patch; the bore's wall into its four sides (its corners are concave)."""
+    v, f, part, in_bore = bored_hub()
+    d = dual_edges(v, f)
+    whole = crease_patches(v, f, d, concave_only=True)
+    assert np.all(whole == whole[0])
+    labels = in_bore.astype(np.int64)
+    apart = labels[d.pairs[:, 0]] != labels[d.pairs[:, 1]]
+    band = crease_band_of(v, f, d, concave_only=True)
+    pieces = crease_patches(v, f, d, concave_only=True, cut=apart, band=band)
+    np.testing.assert_array_equal(pieces, crease_patches(v, f, d, concave_only=True, cut=apart))
+    rest = ~in_bore
+    assert len(np.unique(pieces[rest])) == 2
+    for q in np.unique(pieces[rest]):
+        assert len(np.unique(part[rest & (pieces == q)])) == 1
+    assert len(np.unique(pieces[in_bore])) == 4
+    assert not set(pieces[in_bore]) & set(pieces[rest])
 
 
 def test_a_smooth_surface_is_one_patch():

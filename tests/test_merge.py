@@ -205,6 +205,8 @@ def test_oversegment_k_and_parameter_errors():
         OverSegmentation(crease_concave=1)
     with pytest.raises(ParameterError, match="unite_fragments"):
         OverSegmentation(unite_fragments=None)
+    with pytest.raises(ParameterError, match="crease_per_piece"):
+        OverSegmentation(crease_per_piece=1)
     s = shapes.table()
     with pytest.raises(ParameterError, match="method"):
         ta.segment(ta.Mesh(s.vertices, s.faces), k=5, method="nope")

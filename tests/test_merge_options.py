@@ -98,7 +98,7 @@ def test_over_segmentation_settings_name_their_new_spelling():
     assert not hasattr(mo.MergeWeights(), "nope") and not hasattr(mo.MergeWeights(), "ratio")
     assert getattr(mo.MergeWeights(), "min_k", None) is None
     assert set(mo.OVERSEG_FIELDS) == {"ratio", "extra_max", "min_k", "crease_split", "crease_rings", "crease_concave",
-                                      "unite_fragments"}
+                                      "unite_fragments", "crease_per_piece"}
     assert not set(mo.OVERSEG_FIELDS) & {f.name for f in dataclasses.fields(mo.MergeWeights)}
 
 

@@ -96,6 +96,13 @@ class OverSegmentation:
     #: delimited by creases (a leg, a spoke, a fin) is kept for the merge, not absorbed piece by
     #: piece (docs/design.md, "Creases")
     unite_fragments: bool = True
+    #: True: the crease bands also cut each k-means piece they cross into the patches of its own
+    #: faces, not only where they enclose a patch of the whole surface. On a shape with a hole
+    #: the crease round a hub on a bored disc, or a pipe's junction, encloses none (the bore's
+    #: wall joins the two sides past it), and a piece across it reaches the merge whole. Better on
+    #: mechanical shapes, worse on the PSB and organic ones, so off by default (docs/design.md,
+    #: "Creases")
+    crease_per_piece: bool = False
 
     def __post_init__(self):
         if not self.ratio >= 1:
@@ -112,6 +119,8 @@ class OverSegmentation:
             raise ParameterError(f"crease_concave must be True or False, got {self.crease_concave!r}")
         if not isinstance(self.unite_fragments, bool):
             raise ParameterError(f"unite_fragments must be True or False, got {self.unite_fragments!r}")
+        if not isinstance(self.crease_per_piece, bool):
+            raise ParameterError(f"crease_per_piece must be True or False, got {self.crease_per_piece!r}")
 
 
 @dataclass(frozen=True)
@@ -226,7 +235,7 @@ OVERSEG_FIELDS = tuple(f.name for f in dataclass_fields(OverSegmentation))
 MERGE_RECORD_FIELDS = ("symmetry", "concavity", "size", "ratio", "part_size", "convexity", "cut", "crease_angle",
                        "extra_max", "min_k", "size_ratio", "short_cut", "thickness", "thin", "crease_split",
                        "crease_rings", "crease_concave", "centricity", "rand_gamma", "intercept", "sight",
-                       "sight_excess", "unite_fragments")
+                       "sight_excess", "unite_fragments", "crease_per_piece")
 
 
 __all__ = ["MergeWeights", "OverSegmentation", "LEARNED_WEIGHTS", "LEARNED_FIELDS", "OVERSEG_FIELDS",

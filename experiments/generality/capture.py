@@ -34,8 +34,10 @@ from items import read_truth
 from merge_capture import capture_rounds
 
 #: over-segmentation variants: OverSegmentation changes (the merge weights do not matter here).
-#: Those measured before a crease patch's fragments were united keep them apart.
-_APART = dict(unite_fragments=False)
+#: Those measured before a crease patch's fragments were united keep them apart, and those
+#: measured before every piece was cut where a crease crosses it cut by the surface's patches.
+_WHOLE = dict(crease_per_piece=False)
+_APART = dict(unite_fragments=False, **_WHOLE)
 OVERSEG = {
     "base": dict(crease_split=None),
     **{name: dict(crease_split=math.radians(angle), crease_rings=rings, crease_concave=concave, **_APART)
@@ -50,7 +52,11 @@ OVERSEG = {
     # a crease patch of at least the part floor cut by k-means into pieces all below it made one
     # piece (the default since; experiments/results/generality_unite_fragments.md)
     "concave60_ratio5_unite": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True,
-                                   ratio=5.0, extra_max=32, unite_fragments=True),
+                                   ratio=5.0, extra_max=32, unite_fragments=True, **_WHOLE),
+    # every k-means piece cut where a crease crosses it, not only by the patches a crease encloses
+    # (experiments/results/generality_crease_per_piece.md)
+    "concave60_ratio5_piece": dict(crease_split=math.radians(60), crease_rings=3, crease_concave=True,
+                                   ratio=5.0, extra_max=32, unite_fragments=True, crease_per_piece=True),
 }
 
 

@@ -110,9 +110,20 @@ def crease_band(normals: np.ndarray, adjacency: np.ndarray, angle: float = CREAS
     return least_cosine(normals, adjacency, rings, centroids, np.float32) < math.cos(angle)
 
 
-def crease_patches(vertices: np.ndarray, faces: np.ndarray, dual: DualEdges,
+def crease_band_of(vertices: np.ndarray, faces: np.ndarray, dual: DualEdges,
                    angle: float = CREASE_SPLIT_ANGLE, rings: int = CREASE_RINGS,
                    concave_only: bool = False) -> np.ndarray:
+    """[F] bool, the band of rounded creases :func:`crease_patches` cuts along (the same
+    arguments): it depends on the mesh alone, so a caller cutting several labellings along it
+    makes it once."""
+    centroids = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)].mean(axis=1) if concave_only else None
+    return crease_band(unit_face_normals(vertices, faces), dual.pairs, angle, rings, centroids)
+
+
+def crease_patches(vertices: np.ndarray, faces: np.ndarray, dual: DualEdges,
+                   angle: float = CREASE_SPLIT_ANGLE, rings: int = CREASE_RINGS,
+                   concave_only: bool = False, cut: np.ndarray | None = None,
+                   band: np.ndarray | None = None) -> np.ndarray:
     """[F] int64 patch of each face.
 
     Creases are found at two scales. A dual edge whose faces' normals differ by more than
@@ -127,11 +138,18 @@ def crease_patches(vertices: np.ndarray, faces: np.ndarray, dual: DualEdges,
     vertices : [V, 3]; faces : [F, 3]; dual : :func:`~torchakvf.parts.concavity.dual_edges` of
     the mesh; angle : radians; rings : >= 1; concave_only : only concave creases cut (where
     people cut a shape into parts, the minima rule; a convex crease is the edge of one part).
+    cut : [P] bool, dual edges also never crossed, as a crisp crease is: where a labelling's
+    labels differ, the patches are then those of each label's faces, so a crease splits a piece
+    it crosses even where it encloses no patch of the whole surface (the crease round a hub on a
+    bored disc: the bore's wall joins the hub to the disc past it). band : [F]
+    :func:`crease_band_of` of the same arguments, if at hand.
     """
     n_faces = len(faces)
     crisp = (dual.dihedral if concave_only else np.abs(dual.dihedral)) > angle
-    centroids = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)].mean(axis=1) if concave_only else None
-    band = crease_band(unit_face_normals(vertices, faces), dual.pairs, angle, rings, centroids)
+    if cut is not None:
+        crisp = crisp | np.asarray(cut, dtype=bool)
+    if band is None:
+        band = crease_band_of(vertices, faces, dual, angle, rings, concave_only)
     a, b = dual.pairs[~crisp, 0], dual.pairs[~crisp, 1]
     smooth = dual_graph(np.stack([a, b], axis=1), n_faces)           # crisp creases cut
     keep = ~band[a] & ~band[b]
@@ -198,4 +216,4 @@ def unite_patch_fragments(labels: np.ndarray, patches: np.ndarray, adjacency: np
 
 
 __all__ = ["CREASE_SPLIT_ANGLE", "CREASE_RINGS", "unit_face_normals", "dual_graph", "dual_ball", "least_cosine",
-           "crease_band", "crease_patches", "split_by_patches", "unite_patch_fragments"]
+           "crease_band", "crease_band_of", "crease_patches", "split_by_patches", "unite_patch_fragments"]

@@ -18,7 +18,7 @@ from ..mesh.raycast import RayCaster
 from ..options import PART_FLOOR_OF_MEAN, GraphCut, SegmentOptions
 from .boundaries import face_margins, isoline_face_labels, refine_along_isolines, vertex_distances
 from .concavity import DualEdges, dual_edges
-from .creases import crease_patches, split_by_patches, unite_patch_fragments
+from .creases import crease_band_of, crease_patches, split_by_patches, unite_patch_fragments
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .field_counts import cluster_count
 from .generators import part_generators
@@ -99,14 +99,15 @@ class MeshCache:
     over : the last :class:`ClusteredParts` (ε = 0), for the next k clustered alike
     sums_inputs : (centroids, thickness) of the mesh the merge terms read
         (:func:`~torchakvf.parts.merge.mesh_sums_inputs`), made when first needed
-    patches : {(angle, rings, concave only): [F] :func:`~torchakvf.parts.creases.crease_patches`}
+    patches : {(angle, rings, concave only): ([F] :func:`~torchakvf.parts.creases.crease_band_of`,
+        [F] :func:`~torchakvf.parts.creases.crease_patches`)}
     caster : the mesh's :class:`~torchakvf.mesh.raycast.RayCaster`, made when first needed: the
         thickness and the lines of sight cast on one tree
     sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines`, made when first needed
     """
 
     adjacency: np.ndarray | None = None
-    patches: dict[tuple, np.ndarray] = field(default_factory=dict)
+    patches: dict[tuple, tuple] = field(default_factory=dict)
     sums_inputs: tuple | None = None
     dual: DualEdges | None = None
     bends: dict[float, tuple] = field(default_factory=dict)
@@ -125,7 +126,8 @@ class MeshCache:
 def over_settings(opts: SegmentOptions, floor: float) -> tuple:
     """The options an :class:`ClusteredParts` depends on besides its clustering (floor:
     :func:`part_floor` of its k)."""
-    split = (*crease_key(opts), opts.overseg.unite_fragments) if crease_split_on(opts) else None
+    split = ((*crease_key(opts), opts.overseg.unite_fragments, opts.overseg.crease_per_piece)
+             if crease_split_on(opts) else None)
     return (opts.boundary, opts.eps > 0, floor, split)
 
 
@@ -176,12 +178,21 @@ def over_segmentation(batch: MeshBatch, fields: AKVFResult, b: int, clustered: t
     n_patches = 1
     if crease_split_on(opts):
         key = crease_key(opts)
+        if cache.dual is None:
+            cache.dual = dual_edges(clean.vertices, clean.faces)
+        dual = cache.dual
         if key not in cache.patches:
-            if cache.dual is None:
-                cache.dual = dual_edges(clean.vertices, clean.faces)
-            cache.patches[key] = crease_patches(clean.vertices, clean.faces, cache.dual, *key)
-        patches = cache.patches[key]
-        labels, n_patches = split_by_patches(labels, patches)
+            band = crease_band_of(clean.vertices, clean.faces, dual, *key)
+            cache.patches[key] = band, crease_patches(clean.vertices, clean.faces, dual, *key, band=band)
+        band, patches = cache.patches[key]
+        if opts.overseg.crease_per_piece:
+            # each k-means piece cut where a crease crosses it, whether or not the crease
+            # encloses a patch of the whole surface (see OverSegmentation.crease_per_piece)
+            apart = labels[dual.pairs[:, 0]] != labels[dual.pairs[:, 1]]
+            pieces = crease_patches(clean.vertices, clean.faces, dual, *key, cut=apart, band=band)
+            labels, n_patches = split_by_patches(labels, pieces)
+        else:
+            labels, n_patches = split_by_patches(labels, patches)
         if opts.overseg.unite_fragments:
             labels = unite_patch_fragments(labels, patches, cache.adjacency, area, floor)
         # A small piece joins a piece of its own patch where it has one (the k-means boundary is
