@@ -127,8 +127,8 @@ def pair_terms(state, rows, k):
     return np.concatenate([T, h[..., None]], axis=-1), adjacent
 
 
-# the shared merge loop and row recorder read these module globals
-L.pair_terms, L.new_state, M.new_state, M.T = pair_terms, new_state, new_state, len(NAMES)
+# the shared merge loop and row recorder read this script's terms
+M.use_terms(pair_terms, new_state, len(NAMES))
 
 
 def main():

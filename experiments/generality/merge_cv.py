@@ -199,6 +199,17 @@ def held_out(policy: Cost, pool, corpus_share: float, cols=None, gamma=0.5, grou
     return scores, costs
 
 
+def use_terms(terms_fn, state_fn, n_terms: int) -> None:
+    """Make the merge loop, the row recorder and this module read a script's terms: ``terms_fn``
+    (state, rows, k) -> (terms [len(rows), K, n_terms], adjacent) and ``state_fn``, which builds
+    the state they read. Called at a script's import, so that forked pool workers inherit it."""
+    global new_state, T
+    import merge_learned_cv
+
+    merge_learned_cv.pair_terms, merge_learned_cv.new_state = terms_fn, state_fn
+    new_state, T = state_fn, int(n_terms)
+
+
 def hand_set_policy(n_extra: int = 0) -> Cost:
     """The hand-set weights as the policy the training rows are made under, extended by zeros on
     ``n_extra`` terms a script adds beside TERM_NAMES (its rows then follow the shipped merges)."""

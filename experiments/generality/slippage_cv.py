@@ -129,8 +129,8 @@ def unseen(train: list, policy, a, ctx) -> None:
     M.report(results, a.out)
 
 
-# the shared merge loop and row recorder read these module globals
-L.pair_terms, L.new_state, M.new_state, M.T = pair_terms, new_state, new_state, len(NAMES)
+# the shared merge loop and row recorder read this script's terms
+M.use_terms(pair_terms, new_state, len(NAMES))
 
 
 def main():
