@@ -1,11 +1,22 @@
 """Lines of sight between parts (torchakvf/parts/sightlines.py): counts on shapes whose answer
 is known by hand, agreement with an independent segment-triangle test, and the same counts on a
-moved, renumbered copy."""
+moved, renumbered copy; each on both ray engines where the answer is known."""
 import numpy as np
+import pytest
 from helpers.voxel_meshes import voxel_u
 
+from torchakvf.mesh.raycast import RayCaster, embree_available
 from torchakvf.parts.sightlines import SightLines
 from torchakvf.shapes.implicit import _voxel_surface
+
+#: both engines that test the segments; Embree only where its binding is installed
+ENGINES = ["libigl", pytest.param("embree", marks=pytest.mark.skipif(
+    not embree_available(), reason="embreex is not installed (it has wheels for x86-64 Linux and Windows only)"))]
+
+
+def sight_lines(v, f, engine):
+    """:class:`SightLines` of the mesh with its segments tested by ``engine``."""
+    return SightLines(v, f, caster=RayCaster(v, f, engine))
 
 
 def u_shape():
@@ -27,9 +38,10 @@ def test_a_convex_box_sees_itself_everywhere():
     assert np.array_equal(seen, seen.T)
 
 
-def test_the_arms_of_a_u_do_not_see_each_other():
+@pytest.mark.parametrize("engine", ENGINES)
+def test_the_arms_of_a_u_do_not_see_each_other(engine):
     v, f, labels = u_shape()
-    seen, lines = SightLines(v, f).counts(labels, 3)
+    seen, lines = sight_lines(v, f, engine).counts(labels, 3)
     # every segment from one arm to the other crosses the gap between them
     assert lines[1, 2] == 64 and seen[1, 2] == 0
     # an arm sees part of the base (its own end of it), not all of it
@@ -70,14 +82,15 @@ def segment_blocked(p, q, tri):
     return bool(np.any(ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < 1)))
 
 
-def test_counts_agree_with_a_plain_segment_test():
+@pytest.mark.parametrize("engine", ENGINES)
+def test_counts_agree_with_a_plain_segment_test(engine):
     from torchakvf.shapes.procedural import make_procedural
 
     shape = make_procedural("bracket", 3, detail=0.4).shape
     v, f = shape.vertices, shape.faces
     labels = np.asarray(shape.part_labels)
     K = int(labels.max()) + 1
-    sight = SightLines(v, f)
+    sight = sight_lines(v, f, engine)
     seen, lines = sight.counts(labels, K)
     pick = sight.part_samples(labels, K)
     tri = v[f]

@@ -1,5 +1,5 @@
 """Rays cast on a mesh at any unit of length: libigl's AABB tree (MPL-2.0) in a frame scaled by a
-power of two.
+power of two; segments tested for a crossing by Embree (Apache-2.0) where it is installed.
 
 libigl's ray-triangle test (Möller & Trumbore) compares a determinant with a fixed 1e-6; the
 determinant is the product of two edge lengths and the ray direction's length, so where the
@@ -9,10 +9,37 @@ and no thickness ray hit. :class:`RayCaster` casts in the mesh scaled by the pow
 brings its mean edge length into [2^-1/2, 2^1/2): every copy of a shape, whatever its unit,
 casts the same rays, and a power of two changes no mantissa (the same hits and parameters, up
 to those the fixed threshold decided).
+
+Whether a segment crosses any face (:meth:`RayCaster.blocked`, the lines of sight's only
+question) needs no first hit: Embree's occlusion query (through ``embreex``, the binding trimesh
+uses; BSD) stops at any face before the far end, and its BVH traversal is several times faster
+than the AABB tree's search for the nearest face (per segment, 5-10x on PSB meshes). Embree
+works in float32, the tree in float64. On the merge's segments (endpoints a ten-thousandth of
+the bounding-box diagonal inside the surface, hundreds of float32 steps from any face) the two
+give the same answers (``tests/test_raycast.py``); a segment through an edge or a vertex, where
+the tree's fixed threshold lets some pass and Embree's watertight test (its robust mode) does
+not, is where they could differ. ``embreex`` publishes wheels for x86-64 Linux and Windows only;
+elsewhere the tree answers (``engine="libigl"``).
 """
 from __future__ import annotations
 
 import numpy as np
+
+from ..errors import ParameterError
+
+#: what :meth:`RayCaster.blocked` tests segments with: "auto" (Embree where ``embreex`` imports,
+#: else libigl), "embree", "libigl"
+ENGINES = ("auto", "embree", "libigl")
+
+
+def embree_available() -> bool:
+    """Whether Embree's binding (``embreex``) imports here."""
+    try:
+        import embreex.mesh_construction  # noqa: F401
+        import embreex.rtcore_scene  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def ray_scale(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -33,17 +60,25 @@ class RayCaster:
     """A mesh's ray-casting tree (made once, read for any number of rays).
 
     vertices : [V, 3]; faces : [F, 3]. Rays and parameters are in the mesh's own units; the
-    tree holds the mesh scaled by :func:`ray_scale`."""
+    tree holds the mesh scaled by :func:`ray_scale`. engine : what :meth:`blocked` tests
+    segments with (:data:`ENGINES`); ``engine`` is the one it uses ("embree" or "libigl")."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, engine: str = "auto"):
         import igl
 
+        if engine not in ENGINES:
+            raise ParameterError(f"engine must be one of {ENGINES}, got {engine!r}")
+        if engine == "embree" and not embree_available():
+            raise ParameterError("engine 'embree' needs the embreex package (pip install embreex; wheels for "
+                                 "x86-64 Linux and Windows), or use engine 'libigl'")
+        self.engine = "libigl" if engine == "libigl" or not embree_available() else "embree"
         self.scale = ray_scale(vertices, faces)
         self.vertices = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64) * self.scale)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.tree = igl.AABB()
         if len(self.faces):
             self.tree.init(self.vertices, self.faces)
+        self._scene = None
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray,
                   max_t: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
@@ -75,5 +110,42 @@ class RayCaster:
         t[ok] = np.where(hit >= 0, t_given, np.inf)
         return face, t
 
+    def blocked(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """[N] bool: whether the segment from each origin to origin + direction (t in [0, 1))
+        crosses a face. origins, directions : [N, 3] in the mesh's units; a segment of zero
+        length crosses nothing."""
+        origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros(len(origins), dtype=bool)
+        if len(origins) == 0 or len(self.faces) == 0:
+            return out
+        if self.engine == "libigl":
+            _, t = self.first_hit(origins, directions, max_t=1.0)
+            return t < 1.0
+        ok = np.linalg.norm(directions, axis=1) > 0
+        if not ok.any():
+            return out
+        center, scene = self._embree_scene()
+        o = np.ascontiguousarray(origins[ok] * self.scale - center, dtype=np.float32)
+        d = np.ascontiguousarray(directions[ok] * self.scale, dtype=np.float32)
+        hit = scene.run(o, d, dists=1.0, query="OCCLUDED")
+        out[ok] = np.asarray(hit) >= 0
+        return out
 
-__all__ = ["RayCaster", "ray_scale"]
+    def _embree_scene(self):
+        """(center [3], Embree scene of the scaled mesh moved to ``center`` = 0), made once. The
+        move keeps the float32 coordinates' round-off at the scale of an edge, not of the
+        mesh's distance from its origin."""
+        if self._scene is None:
+            from embreex.mesh_construction import TriangleMesh
+            from embreex.rtcore_scene import EmbreeScene
+
+            center = 0.5 * (self.vertices.min(axis=0) + self.vertices.max(axis=0))
+            scene = EmbreeScene(robust=True)
+            mesh = TriangleMesh(scene, np.ascontiguousarray(self.vertices - center, dtype=np.float32),
+                                np.ascontiguousarray(self.faces, dtype=np.int32))
+            self._scene = center, scene, mesh      # the geometry's owner kept with the scene
+        return self._scene[:2]
+
+
+__all__ = ["ENGINES", "RayCaster", "embree_available", "ray_scale"]
