@@ -13,7 +13,7 @@ to those the fixed threshold decided).
 Whether a segment crosses any face (:meth:`RayCaster.blocked`, the lines of sight's only
 question) needs no first hit: Embree's occlusion query (through ``embreex``, the binding trimesh
 uses; BSD) stops at any face before the far end, and its BVH traversal is several times faster
-than the AABB tree's search for the nearest face (5-7x less CPU for the segments of 40 parts on
+than the AABB tree's search for the nearest face (5-9x less CPU for the segments of 40 parts on
 PSB meshes). Embree works in float32 (the mesh moved to its bounding box's centre first), the tree
 in float64. The lines of sight's endpoints lie a ten-thousandth of the bounding-box diagonal
 inside the surface, about a thousand float32 steps of the coordinates; a segment that grazes an
