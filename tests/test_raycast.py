@@ -6,14 +6,11 @@ on a shape with a hole."""
 import numpy as np
 import pytest
 import trimesh
+from helpers.ray_engines import ENGINES
 
 from torchakvf.errors import ParameterError
 from torchakvf.mesh import raycast
 from torchakvf.mesh.raycast import RayCaster, embree_available, ray_scale
-
-#: both engines of RayCaster.blocked; Embree only where its binding is installed
-ENGINES = ["libigl", pytest.param("embree", marks=pytest.mark.skipif(
-    not embree_available(), reason="embreex is not installed (it has wheels for x86-64 Linux and Windows only)"))]
 
 
 def test_ray_scale_brings_the_mean_edge_near_one_by_a_power_of_two():

@@ -3,15 +3,12 @@ is known by hand, agreement with an independent segment-triangle test, and the s
 moved, renumbered copy; each on both ray engines where the answer is known."""
 import numpy as np
 import pytest
+from helpers.ray_engines import ENGINES
 from helpers.voxel_meshes import voxel_u
 
-from torchakvf.mesh.raycast import RayCaster, embree_available
+from torchakvf.mesh.raycast import RayCaster
 from torchakvf.parts.sightlines import SightLines
 from torchakvf.shapes.implicit import _voxel_surface
-
-#: both engines that test the segments; Embree only where its binding is installed
-ENGINES = ["libigl", pytest.param("embree", marks=pytest.mark.skipif(
-    not embree_available(), reason="embreex is not installed (it has wheels for x86-64 Linux and Windows only)"))]
 
 
 def sight_lines(v, f, engine):
