@@ -70,10 +70,11 @@ class RayCaster:
 
         if engine not in ENGINES:
             raise ParameterError(f"engine must be one of {ENGINES}, got {engine!r}")
-        if engine == "embree" and not embree_available():
+        embree = engine != "libigl" and embree_available()
+        if engine == "embree" and not embree:
             raise ParameterError("engine 'embree' needs the embreex package (pip install embreex; wheels for "
                                  "x86-64 Linux and Windows), or use engine 'libigl'")
-        self.engine = "libigl" if engine == "libigl" or not embree_available() else "embree"
+        self.engine = "embree" if embree else "libigl"
         self.scale = ray_scale(vertices, faces)
         self.vertices = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64) * self.scale)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
