@@ -140,29 +140,89 @@ def test_no_definite_shift_still_raises(monkeypatch):
         ta.akvf(mesh, n=16)
 
 
-@needs_cholmod
-@pytest.mark.parametrize("per_pair, need, sigma", [(5.0, 16, 80.0), (20.0, 6, 60.0), (30.0, 4, None)])
-def test_too_many_eigenvalues_below_halves_then_gives_up(monkeypatch, per_pair, need, sigma):
-    """interior_factor takes σ = per_pair · need where at most ``need`` eigenvalues lie below
-    it, else σ/2, else the definite factor. The table's eigenvalues (λ·area) start 23.4, 38.4,
-    43.7, 44.0, 44.0, 44.3, 62.5, 67.0, 78.4, 88.7, 92.8, 122.3: 9 below 80 (accepted for need
-    16), 11 below 120 then 6 below 60 (need 6: the second try), 11 below 120 then 6 below 60
-    (need 4: neither, the definite factor); the counts are asserted against the solve below."""
+#: The table's eigenvalues (λ·area, remedy "smooth") start 23.4, 38.4, 43.7, 44.0, 44.0, 44.3,
+#: 62.5, 67.0, 78.4, 88.7, 92.8, 122.3; every count below is asserted against its solve.
+def _table_system_and_eigenvalues():
     from torchakvf.operators.killing import killing_operator
+
+    batch = ta.MeshBatch.from_meshes([table_mesh()])
+    system = killing_operator(batch, remedy="smooth")
+    return batch, system, ta.akvf(batch, n=24, remedy="smooth").eigenvalues[0].numpy()
+
+
+@needs_cholmod
+@pytest.mark.parametrize("per_pair, need, tries, sigma", [
+    (5.0, 16, 4, 80.0), (20.0, 6, 4, 60.0), (30.0, 4, 4, "lower"), (30.0, 4, 0, None)])
+def test_too_many_eigenvalues_below_moves_the_shift_down(monkeypatch, per_pair, need, tries, sigma):
+    """interior_factor takes σ = per_pair · need where at most ``need`` eigenvalues lie below
+    it, else σ/2, else up to INTERIOR_RETRIES lower shifts, else the definite factor: 9 below
+    80 (need 16: the first try), 11 below 120 then 6 below 60 (need 6: the second), the same
+    for need 4 (neither: a lower σ, or with no retries the definite factor)."""
     from torchakvf.solvers import factor as factor_module
     from torchakvf.solvers.factor import ShiftedFactor, interior_factor, mesh_factor
 
-    batch = ta.MeshBatch.from_meshes([table_mesh()])
-    system = killing_operator(batch, remedy="smooth")      # the table's eigenvalues above are the remedy's
-    lam = ta.akvf(batch, n=24, remedy="smooth").eigenvalues[0].numpy()
+    _, system, lam = _table_system_and_eigenvalues()
     monkeypatch.setattr(factor_module, "INTERIOR_SHIFT_PER_PAIR", per_pair)
+    monkeypatch.setattr(factor_module, "INTERIOR_RETRIES", tries)
     f = interior_factor(system, 0, need, lambda: mesh_factor(system, 0, "table"))
     if sigma is None:
         assert isinstance(f, ShiftedFactor) and f.sigma == -1.0
         assert int((lam < per_pair * need).sum()) > need and int((lam < per_pair * need / 2).sum()) > need
+        return
+    assert isinstance(f, InteriorFactor) and f.skipped is None
+    if sigma == "lower":
+        assert -1.0 < f.sigma < per_pair * need / 2
     else:
-        assert isinstance(f, InteriorFactor) and f.sigma == sigma
-        assert f.below == int((lam < sigma).sum()) <= need
+        assert f.sigma == sigma
+    assert f.below == int((lam < f.sigma).sum()) <= need
+
+
+@needs_cholmod
+def test_an_interior_shift_that_counts_the_skipped_eigenvalues_apart(monkeypatch):
+    """With ``skip_below``, the retries count only the eigenvalues in [skip_below, σ): here the
+    two below 40 stand for spurious modes. Need 4 at 30 per pair: 11 below 120, then 6 below 60
+    (too many for the plain count), of which 2 below 40, so σ = 60 holds 4 wanted ones."""
+    from torchakvf.solvers import factor as factor_module
+    from torchakvf.solvers.factor import interior_factor, mesh_factor
+
+    _, system, lam = _table_system_and_eigenvalues()
+    monkeypatch.setattr(factor_module, "INTERIOR_SHIFT_PER_PAIR", 30.0)
+    f = interior_factor(system, 0, 4, lambda: mesh_factor(system, 0, "table"), skip_below=40.0)
+    assert isinstance(f, InteriorFactor) and f.sigma == 60.0
+    assert f.skipped == int((lam < 40.0).sum()) == 2
+    assert f.below == int((lam < 60.0).sum()) == 6
+
+
+@needs_cholmod
+def test_the_krylov_solver_leaves_the_counted_spurious_pairs_out(monkeypatch):
+    """At an interior shift that counted them, the Krylov solver neither waits for nor returns
+    the pairs below the spurious threshold (here 40, with the table's 23.4 and 38.4 below it):
+    the same n pairs above it as the definite factor's solve that returns them all, to the
+    solve's tolerance, and ``dropped`` counts them from the inertia."""
+    from torchakvf.solvers import factor as factor_module
+
+    batch, _, lam = _table_system_and_eigenvalues()
+    monkeypatch.setattr(group_solver, "SPURIOUS_BELOW", 40.0)
+    monkeypatch.setattr(factor_module, "INTERIOR_SHIFT_PER_PAIR", 30.0)
+    windowed = ta.akvf(batch, n=4, remedy="smooth", solver="krylov")
+    monkeypatch.setattr(factor_module, "INTERIOR_RETRIES", 0)     # the definite factor
+    definite = ta.akvf(batch, n=4, remedy="smooth", solver="krylov")
+    assert float(windowed.shifts[0]) == 60.0 and float(definite.shifts[0]) == -1.0
+    assert bool(windowed.converged.all()) and bool(definite.converged.all())
+    assert int(windowed.dropped[0]) == int(definite.dropped[0]) == int((lam < 40.0).sum()) == 2
+    want = lam[lam >= 40.0][:4]
+    for got in (windowed, definite):
+        np.testing.assert_allclose(got.eigenvalues[0].numpy(), want, rtol=1e-8)
+    # The solver itself: the count it returned holds no pair below the threshold.
+    from torchakvf.operators.killing import killing_operator
+    from torchakvf.solvers.factor import interior_factor, mesh_factor
+    from torchakvf.solvers.krylov import block_krylov
+    system = killing_operator(batch, remedy="smooth")
+    monkeypatch.setattr(factor_module, "INTERIOR_RETRIES", 4)
+    f = interior_factor(system, 0, 4, lambda: mesh_factor(system, 0, "table"), skip_below=40.0)
+    eig = block_krylov(system, 12, need=4, skip_below=40.0, factors=[f])
+    assert int(eig.left_out[0]) == 2 and bool((eig.eigenvalues[0] >= 40.0).all())
+    np.testing.assert_allclose(eig.eigenvalues[0, :4].numpy(), want, rtol=1e-8)
 
 
 # ---------------------------------------------------------------------------------------------

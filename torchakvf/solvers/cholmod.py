@@ -62,6 +62,13 @@ from .cholmod_abi import (
 #: on PSB meshes, with eigenvalues equal to those of the definite shift to 1e-14; a breakdown is
 #: a zero. The solver checks its result anyway (every residual, and the count below the shift).
 PIVOT_FLOOR = 1e-12
+#: An indefinite factor whose pivots fail :data:`PIVOT_FLOOR` is still solved with where every
+#: pivot is at least this fraction of its own row's diagonal entry of the matrix (each row lost
+#: at most 8 of its 16 digits to cancellation). Meshes with slivers spread their pivots over
+#: 13 orders of magnitude even where the factor is definite (PSB 351 decimated: 1e-13 of the
+#: largest at σ = -512), so the global ratio rejects every interior shift of theirs; their rows'
+#: own ratios at interior shifts were 6e-7 to 3e-6 (healthy PSB meshes: 1e-4 to 1e-1).
+ROW_PIVOT_FLOOR = 1e-8
 #: Fill-reducing orderings a :class:`CholmodFactor` can be asked for by name.
 ORDERINGS = {"amd": _AMD, "metis": _METIS, "nesdis": _NESDIS}
 #: Rows of L computed per call while :meth:`CholmodFactor.positive_definite_at` looks for a
@@ -178,7 +185,7 @@ class CholmodFactor:
         self.ordering = symbolic.ordering
         #: nonzeros of L and flops of the numeric factor, as CHOLMOD's analysis predicts them
         self.factor_nonzeros, self.factor_flops = symbolic.factor_nonzeros, symbolic.factor_flops
-        self.positive_definite = self.usable = False
+        self.positive_definite = self.usable = self.pivots_finite = False
         self.negative_pivots = self.rows_factored = 0
 
     def factorize(self, values: np.ndarray, indefinite: bool = False) -> bool:
@@ -204,13 +211,26 @@ class CholmodFactor:
         # positive definite iff every D_jj > 0 (a NaN from a breakdown fails the test too).
         self.positive_definite = bool(f.minor == self.n and np.all(pivots > 0))
         self.negative_pivots = int(np.count_nonzero(pivots < 0))
+        #: every pivot computed and finite: ``negative_pivots`` is the inertia even where the
+        #: factor is not usable for solves
+        self.pivots_finite = bool(f.minor == self.n and np.all(np.isfinite(pivots)))
         size = np.abs(pivots)
         # Without pivoting, an LDLᵀ of an indefinite matrix is only as accurate as its smallest
         # pivot allows; a breakdown shows as a zero, an infinity or a NaN.
         self.usable = self.positive_definite or bool(
-            indefinite and f.minor == self.n and np.all(np.isfinite(pivots))
-            and size.min() >= PIVOT_FLOOR * size.max())
+            indefinite and self.pivots_finite
+            and (size.min() >= PIVOT_FLOOR * size.max()
+                 or np.all(size >= ROW_PIVOT_FLOOR * self._pivot_diagonal())))
         return self.usable
+
+    def _pivot_diagonal(self) -> np.ndarray:
+        """[n] |A_jj| of the matrix's diagonal in the factor's (permuted) row order, the scale
+        of each pivot of D."""
+        diagonal = np.abs(self._values[self._indptr[:-1]])   # sorted lower CSC: diagonal first
+        f = self._factor.contents
+        if f.ordering == _NATURAL or not f.Perm:
+            return diagonal
+        return diagonal[np.ctypeslib.as_array(C.cast(f.Perm, C.POINTER(C.c_int)), shape=(self.n,))]
 
     def positive_definite_at(self, values: np.ndarray) -> bool:
         """Whether the matrix with ``values`` (same pattern) is positive definite: the answer of
@@ -226,7 +246,7 @@ class CholmodFactor:
         lib, c, f = self._lib, self._common, self._factor.contents
         beta = (C.c_double * 2)(0.0, 0.0)
         step = max(_ROWS_PER_STEP, -(-self.n // 64))
-        self.positive_definite = self.usable = False
+        self.positive_definite = self.usable = self.pivots_finite = False
         with self._upper() as upper:
             for start in range(0, self.n, step):
                 stop = min(start + step, self.n)
@@ -237,7 +257,7 @@ class CholmodFactor:
                 if not (f.minor == self.n and np.all(pivots > 0)):
                     self.negative_pivots = int(np.count_nonzero(pivots < 0))
                     return False
-        self.positive_definite = self.usable = True
+        self.positive_definite = self.usable = self.pivots_finite = True
         self.negative_pivots = 0
         return True
 

@@ -98,6 +98,10 @@ class InteriorFactor:
     ``below`` (ν) is the number of eigenvalues below σ, read off the factor (Sylvester's law of
     inertia: the negative pivots of D). The solver checks its result against it: exactly ν of the
     converged pairs must lie below σ, so no eigenvalue below the shift can be missed unseen.
+    ``skipped``: where not None, the number of eigenvalues below the spurious threshold
+    ``skip_below`` (the inertia of a second factor there): the solver may then leave the
+    spurious pairs out (unconverged, unreturned), and exactly ``below - skipped`` of its pairs
+    must lie in [skip_below, σ).
     ``definite()`` is the mesh's positive definite :class:`ShiftedFactor` (made on first use),
     what the solver falls back to where that check or convergence fails, and where an eigenvalue
     lies at or below ``floor`` (the last definite shift tried, :data:`SHIFTS`): such a mesh
@@ -106,8 +110,10 @@ class InteriorFactor:
 
     floor = SHIFTS[-1]
 
-    def __init__(self, engine: "chol.CpuFactor", sigma: float, below: int, definite):
+    def __init__(self, engine: "chol.CpuFactor", sigma: float, below: int, definite,
+                 skipped: int | None = None):
         self._solver, self.sigma, self.below = engine.factor, float(sigma), int(below)
+        self.skipped = None if skipped is None else int(skipped)
         self.device = torch.device("cpu")
         self._definite, self._made = definite, None
 
@@ -123,12 +129,23 @@ class InteriorFactor:
         return self._made
 
 
-def interior_factor(system, b: int, need: int, definite, like=None) -> InteriorFactor | ShiftedFactor:
-    """Mesh b's :class:`InteriorFactor` at σ = INTERIOR_SHIFT_PER_PAIR · need on the CPU, where
-    it has at most ``need`` eigenvalues below it (else once more at half that σ); otherwise
-    (another device, no direct CHOLMOD, a breakdown, more eigenvalues below: a mesh with many
-    spurious modes) ``definite()``, the positive definite :class:`ShiftedFactor`. ``like``: a
-    symbolic analysis to share where the pattern is the same (:class:`~torchakvf.solvers.cholesky.CpuFactor`)."""
+#: Interior shifts tried after 5n and 5n/2, each moved down towards about 60% of the wanted
+#: pairs below it (the eigenvalue count grows about linearly with λ), for meshes whose spectrum
+#: is far below that of a unit-area surface (many components, or spurious modes): PSB 351
+#: decimated has 82 spurious modes and λ₃₂ = 17 against 250-304 on the typical PSB mesh.
+INTERIOR_RETRIES = 4
+
+
+def interior_factor(system, b: int, need: int, definite, like=None,
+                    skip_below: float | None = None) -> InteriorFactor | ShiftedFactor:
+    """Mesh b's :class:`InteriorFactor` on the CPU at a shift σ with at most ``need``
+    eigenvalues below it: σ = INTERIOR_SHIFT_PER_PAIR · need, else half that (the two shifts
+    that suit a unit-area surface), else up to :data:`INTERIOR_RETRIES` lower ones chosen from
+    the counts. With ``skip_below`` (a remedy's spurious threshold), those retries count only
+    the eigenvalues in [skip_below, σ) (the inertia at skip_below taken off) and the factor's
+    ``skipped`` says so. Otherwise (another device, no direct CHOLMOD, a breakdown, no shift
+    found) ``definite()``, the positive definite :class:`ShiftedFactor`. ``like``: a symbolic
+    analysis to share where the pattern is the same (:class:`~torchakvf.solvers.cholesky.CpuFactor`)."""
     r, c, v, size = system.block(b)
     if system.mass.device.type != "cpu" or cholmod.library() is None or need < 1:
         return definite()
@@ -137,10 +154,42 @@ def interior_factor(system, b: int, need: int, definite, like=None) -> InteriorF
     engine = chol.CpuFactor(chol.lower_pattern(r, c, v, size), like=like)
     sigma = INTERIOR_SHIFT_PER_PAIR * need
     for _ in range(2):
-        if engine.factorize(-sigma * mass, indefinite=True) and engine.factor.negative_pivots <= need:
-            return InteriorFactor(engine, sigma, engine.factor.negative_pivots, definite)
+        usable = engine.factorize(-sigma * mass, indefinite=True)
+        count = engine.factor.negative_pivots
+        if usable and count <= need:
+            return InteriorFactor(engine, sigma, count, definite)
         sigma /= 2
+    sigma *= 2                                            # the last shift tried
+    skipped = None
+    if skip_below is not None:
+        # A mesh with an eigenvalue below the last definite shift must still raise where its
+        # definite factor is made (a decimated one is then solved at full resolution): leaving
+        # its spurious pairs out would hide that one.
+        skipped = _inertia(engine, -skip_below * mass)
+        if skipped is None or _inertia(engine, -SHIFTS[-1] * mass) != 0:
+            return definite()
+    floor = -1.0 if skip_below is None else skip_below
+    for _ in range(INTERIOR_RETRIES):
+        wanted = count - (skipped or 0)
+        if not (usable and wanted <= need):
+            # Down towards 60% of the wanted pairs below σ, never by more than 16x in one step
+            # (a breakdown, not a count, moves it by a quarter). Where the spurious ones alone
+            # were too many, the last σ is factored again (the engine now holds skip_below's).
+            step = 0.75 if wanted <= need else min(max(0.6 * need / max(wanted, 1), 1 / 16), 0.5)
+            sigma = floor + (sigma - floor) * step
+        usable = engine.factorize(-sigma * mass, indefinite=True)
+        count = engine.factor.negative_pivots
+        if usable and count - (skipped or 0) <= need:
+            return InteriorFactor(engine, sigma, count, definite, skipped=skipped)
     return definite()
+
+
+def _inertia(engine: "chol.CpuFactor", diagonal: torch.Tensor) -> int | None:
+    """The number of negative pivots of R + diag(diagonal) (the eigenvalues below the shift),
+    or None where its LDLᵀ breaks down (a zero, infinite or NaN pivot: no count)."""
+    engine.factorize(diagonal, indefinite=True)
+    f = engine.factor
+    return f.negative_pivots if f.pivots_finite else None
 
 
 class BlockDiagonalFactor:

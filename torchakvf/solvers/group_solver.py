@@ -58,6 +58,7 @@ class _Pairs(NamedTuple):
     residuals: torch.Tensor     # [k]
     iterations: torch.Tensor    # []
     shift: torch.Tensor         # []
+    left_out: int = 0           # spurious pairs counted by inertia, not among the values
 
 
 class GroupSolver:
@@ -126,7 +127,9 @@ class GroupSolver:
             return
         vecs = self.batch.split(eig.vectors, self._group_ptr(group))
         for j, b in enumerate(group):
-            pairs[b] = _Pairs(eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j], eig.shifts[j])
+            left_out = 0 if eig.left_out is None else int(eig.left_out[j])
+            pairs[b] = _Pairs(eig.eigenvalues[j], vecs[j], eig.residuals[j], eig.iterations[j], eig.shifts[j],
+                              left_out)
             counts[b] = max(counts[b], eig.eigenvalues.shape[1])
 
     def _without_shift(self, meshes: list[int]) -> dict:
@@ -218,9 +221,10 @@ class GroupSolver:
         with 33 spurious modes at shift -512, where the wanted pairs' 1/(λ - σ) all crowd
         together) is solved by ARPACK on the definite factor."""
         n = settings.n
+        skip_below = SPURIOUS_BELOW if self._drops(group[0]) else None
         eig = block_krylov(self.system, count, tol=settings.tol, seed=settings.seed, names=self._names(group),
-                           need=n, skip_below=SPURIOUS_BELOW if self._drops(group[0]) else None,
-                           factors=[self._interior_factor(b, n) for b in group],
+                           need=n, skip_below=skip_below,
+                           factors=[self._interior_factor(b, n, skip_below) for b in group],
                            basis=KrylovBasis(grow=len(group) == 1), meshes=group)
         if len(group) == 1 and not bool(eig.converged[0]) and self.system.mass.device.type == "cpu":
             k = min(eig.eigenvalues.shape[1], self.edges[group[0]] - 1)
@@ -237,11 +241,11 @@ class GroupSolver:
             self._factors[b] = kept or mesh_factor(self.system, b, self.batch.names[b], like=self._symbolic(b))
         return self._factors[b]
 
-    def _interior_factor(self, b: int, need: int):
+    def _interior_factor(self, b: int, need: int, skip_below: float | None = None):
         """Mesh b's factor for the Krylov solver at ``need`` wanted pairs (kept per need)."""
         if (b, need) not in self._interior:
             self._interior[b, need] = interior_factor(self.system, b, need, lambda: self.factor(b),
-                                                      like=self._symbolic(b))
+                                                      like=self._symbolic(b), skip_below=skip_below)
         return self._interior[b, need]
 
     def _check(self, b: int) -> PaperCheck | None:
@@ -274,7 +278,7 @@ class GroupSolver:
             # Column slices where the kept pairs lead (no spurious ones): a view, not a gather.
             cols = slice(0, n) if bool((keep == torch.arange(len(keep), device=keep.device)).all()) else keep
             lam.append(p.values[cols]), forms.append(p.vectors[:, cols]), res.append(p.residuals[cols])
-            dropped.append(int(spurious.sum()))
+            dropped.append(int(spurious.sum()) + p.left_out)
         dev = self.batch.device
         eigenvalues, residuals, forms = torch.stack(lam), torch.stack(res), torch.cat(forms)
         fv = whitney_face_vectors(self.batch, self.system.geometry, forms)

@@ -119,7 +119,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
                               f"{sizes[b]} edges; ask for fewer fields")
     if grow and nb != 1:
         raise ParameterError(f"block_krylov(basis=KrylovBasis(grow=True)) solves one mesh at a time, got {nb}")
-    values, vectors, residuals, solves, shifts = [], [], [], [], []
+    values, vectors, residuals, solves, shifts, skipped = [], [], [], [], [], []
     for j, b in enumerate(meshes):
         r, c, v, size = system.block(b)
         lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
@@ -129,29 +129,37 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         dims = (lambda k: max_dim) if max_dim else (lambda k: max(10 * k, 240))
 
         def solve(factor):
+            # Spurious pairs left out where the factor counted them (InteriorFactor.skipped).
+            leave_out = skip_below is not None and getattr(factor, "skipped", None) is not None
             lam, x, res, k = _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed,
-                                       block, dims, grow)
+                                       block, dims, grow, leave_out)
             if block < WIDE_BLOCK and not bool(torch.isinf(res).all()) and crowded(lam, block):
                 log.info("%s: %d eigenvalues within %.0e of each other at block %d; solving again "
                          "at block %d", names[j], block, _CROWDED, block, WIDE_BLOCK)
                 lam, x, res, k2 = _one_mesh(stiff, mass, factor, count, need, skip_below, tol,
-                                            seed, WIDE_BLOCK, dims, grow)
+                                            seed, WIDE_BLOCK, dims, grow, leave_out)
                 k += k2
             return lam, x, res, k
 
         lam, x, res, k = solve(factor)
+        left_out = 0
         if hasattr(factor, "definite"):
             # An interior shift (InteriorFactor): the pairs below it must be exactly the ν
-            # eigenvalues its factor counts there, and every needed pair must have converged;
-            # else (or with an eigenvalue where no definite shift exists) the mesh is solved
-            # again with its positive definite factor.
-            found = int((lam < factor.sigma).sum())
+            # eigenvalues its factor counts there (those in [skip_below, σ) where it counted the
+            # spurious ones too), and every needed pair must have converged; else (or with an
+            # eigenvalue where no definite shift exists) the mesh is solved again with its
+            # positive definite factor.
+            if skip_below is not None and factor.skipped is not None:
+                found = int(((lam < factor.sigma) & (lam >= skip_below)).sum())
+                expected, left_out = factor.below - factor.skipped, factor.skipped
+            else:
+                found, expected = int((lam < factor.sigma).sum()), factor.below
             ok = bool((res[:_needed(lam, need, skip_below)] <= tol).all()) and bool(lam[0] > factor.floor)
-            if found != factor.below or not ok:
+            if found != expected or not ok:
                 log.info("%s: at the interior shift %g, %d pairs below it against %d eigenvalues "
                          "(inertia), converged %s; solving again at a definite shift", names[j],
-                         factor.sigma, found, factor.below, ok)
-                factor = factor.definite()
+                         factor.sigma, found, expected, ok)
+                factor, left_out = factor.definite(), 0
                 lam, x, res, k2 = solve(factor)
                 k += k2
         short = bool(torch.isinf(res).all())
@@ -159,14 +167,15 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
             log.info("%s: block Krylov stopped at a basis of %d with residual %.2e > tol %.1e",
                         names[j], k, float(res.max()), tol)
         values.append(lam), vectors.append(x), residuals.append(res)
-        solves.append(k), shifts.append(factor.sigma)
+        solves.append(k), shifts.append(factor.sigma), skipped.append(left_out)
     dev = system.mass.device
     vals, res = torch.stack(values).to(dev), torch.stack(residuals).to(dev)
     conv = torch.tensor([bool((res[b, :_needed(vals[b], need, skip_below)] <= tol).all())
                          for b in range(nb)], device=dev)
     return EigenResult(eigenvalues=vals, vectors=torch.cat(vectors).to(dev), residuals=res,
                        iterations=torch.tensor(solves, dtype=torch.long, device=dev),
-                       shifts=torch.tensor(shifts, dtype=torch.float64, device=dev), converged=conv)
+                       shifts=torch.tensor(shifts, dtype=torch.float64, device=dev), converged=conv,
+                       left_out=torch.tensor(skipped, dtype=torch.long, device=dev))
 
 
 def crowded(lam: torch.Tensor, p: int) -> bool:
@@ -187,9 +196,12 @@ def _needed(lam: torch.Tensor, need: int, skip_below: float | None) -> int:
     return int(reach[0]) + 1 if len(reach) else len(lam)
 
 
-def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_dim, grow):
+def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_dim, grow,
+              leave_out=False):
     """(λ [k], x [E, k], residuals [k], right-hand sides solved) for one mesh; k = count, or
-    with ``grow`` as many as the needed pairs reach when spurious ones fill the room.
+    with ``grow`` as many as the needed pairs reach when spurious ones fill the room. With
+    ``leave_out`` the Ritz pairs below ``skip_below`` are neither returned nor waited for: the
+    k returned are the first at or above it (the first ``need`` of them converged).
 
     The basis is stored as rows (q [cap, E]; blocks [p, E]; see :mod:`.krylov_kernels`)."""
     e = len(mass)
@@ -258,7 +270,12 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         # Ritz pairs of the current basis and their exact residual estimate.
         theta, y = _ritz(hmat[:filled, :filled], filled, order_by)
         lam = sigma + 1.0 / theta
-        nneed = _needed(lam, need, skip_below)            # over every Ritz value, not only k
+        if leave_out:
+            kept = lam >= skip_below
+            theta, y, lam = theta[kept], y[:, kept], lam[kept]
+            if len(lam) < k:
+                continue
+        nneed = need if leave_out else _needed(lam, need, skip_below)   # over every Ritz value
         if nneed > k:
             # More spurious modes (below skip_below) than room among the first k. Ritz values
             # are upper bounds of the eigenvalues, so that count can only grow with the basis.
@@ -285,7 +302,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         worst = float(est[:nneed].max())
         if worst <= _SAFETY * tol:
             lam_f, x, res = _final(stiff, mass, q[:filled], y)
-            if bool((res[:_needed(lam_f, need, skip_below)] <= tol).all()):
+            if bool((res[:need if leave_out else _needed(lam_f, need, skip_below)] <= tol).all()):
                 return lam_f, x, res, solved
         elif last is not None and 0 < worst < last[1]:
             # The residual falls about geometrically with the basis size: skip the checks
@@ -296,7 +313,10 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
             next_check = filled + int(min(skip, 0.25 * filled))
         last = (filled, worst)
     # Out of room: the best the basis has.
-    theta, y = _ritz(hmat[:filled, :filled], k, order_by)
+    theta, y = _ritz(hmat[:filled, :filled], filled if leave_out else k, order_by)
+    if leave_out:
+        kept = torch.nonzero(sigma + 1.0 / theta >= skip_below).reshape(-1)[:k]
+        theta, y = theta[kept], y[:, kept]
     lam_f, x, res = _final(stiff, mass, q[:filled], y)
     return lam_f, x, res, solved
 

@@ -62,6 +62,9 @@ class EigenResult:
         for a definite factor; the block Krylov solver's interior shift (5n or 5n/2, inside the
         wanted eigenvalues) where it took one (:class:`~torchakvf.solvers.factor.InteriorFactor`)
     converged : [B] bool, every residual <= tol
+    left_out : [B] spurious eigenpairs (below the remedy's threshold) that the solver counted by
+        inertia and did not return (the block Krylov solver at an interior shift that counted
+        them); None: every spurious pair found is among the returned ones
     """
 
     eigenvalues: torch.Tensor
@@ -70,6 +73,7 @@ class EigenResult:
     iterations: torch.Tensor
     shifts: torch.Tensor
     converged: torch.Tensor
+    left_out: torch.Tensor | None = None
 
 
 def relative_residuals(system: KillingSystem, vectors: torch.Tensor, values: torch.Tensor
