@@ -188,6 +188,27 @@ def test_indefinite_factor_counts_the_eigenvalues_below_and_solves():
 
 
 @needs_cholmod
+def test_indefinite_pivots_are_judged_against_their_own_rows_too():
+    """Pivots spread over far more than 1/PIVOT_FLOOR (a row of 1e20 beside a grid Laplacian
+    shifted past three of its eigenvalues) still solve where each stays near its row's diagonal;
+    a near-breakdown (a pivot 1e-12 of its diagonal) is refused."""
+    grid, lam = grid_laplacian_spectrum(12)
+    shifted = (grid - 3.1 * sp.identity(grid.shape[0])).tocsc()
+    big = sp.csc_matrix(np.array([[1e20]]))
+    a = sp.block_diag([big, shifted]).tocsc()
+    f = cholmod.CholmodFactor(a.shape[0], *lower_csc(a))
+    assert f.factorize(lower_csc(a)[2], indefinite=True) and not f.positive_definite
+    assert f.negative_pivots == int((lam < 3.1).sum()) > 0
+    rhs = np.random.default_rng(0).standard_normal((2, a.shape[0]))
+    want = spla.splu(a).solve(rhs.T).T
+    np.testing.assert_allclose(f.solve_rows(torch.from_numpy(rhs)).numpy(), want, rtol=1e-9, atol=1e-30)
+    near = sp.csc_matrix(np.array([[1.0, 1.0], [1.0, 1.0 + 1e-12]]))
+    b = sp.block_diag([big, near, shifted]).tocsc()
+    g = cholmod.CholmodFactor(b.shape[0], *lower_csc(b))
+    assert not g.factorize(lower_csc(b)[2], indefinite=True) and g.pivots_finite
+
+
+@needs_cholmod
 def test_indefinite_factor_with_a_zero_pivot_is_refused():
     # [[0, 1], [1, 0]]: nonsingular, but LDLᵀ without pivoting breaks down at the first pivot.
     indptr, indices = np.array([0, 2, 3]), np.array([0, 1, 1])
