@@ -26,8 +26,8 @@ class AKVFResult:
         was returned with a :class:`~torchakvf.errors.ConvergenceWarning` and must not be used
         as if solved
     iterations, shifts : [B] eigensolver diagnostics: LOBPCG iterations or shift-invert solves
-        (Lanczos, Krylov: right-hand sides); the shift σ of the factor, λ·area (negative: below
-        the spectrum; positive: the Krylov solver's interior shift; see :class:`EigenResult`)
+        (Lanczos, Krylov: right-hand sides); the shift σ of the factor, λ·area (-1 or lower: below
+        the spectrum; above -1: the Krylov solver's interior shift; see :class:`EigenResult`)
     dropped : [B] spurious negative modes (λ·area < :data:`~torchakvf.solvers.remedy.SPURIOUS_BELOW`)
         skipped under a remedy
     solved : [B] eigenpairs computed per mesh (n + room for spurious modes; decided per mesh)

@@ -168,7 +168,7 @@ def interior_factor(system, b: int, need: int, definite, like=None,
         skipped = _inertia(engine, -skip_below * mass)
         if skipped is None or _inertia(engine, -SHIFTS[-1] * mass) != 0:
             return definite()
-    floor = -1.0 if skip_below is None else skip_below
+    lowest = -1.0 if skip_below is None else skip_below      # the retries' σ stay above it
     for _ in range(INTERIOR_RETRIES):
         wanted = count - (skipped or 0)
         if not (usable and wanted <= need):
@@ -176,7 +176,7 @@ def interior_factor(system, b: int, need: int, definite, like=None,
             # (a breakdown, not a count, moves it by a quarter). Where the spurious ones alone
             # were too many, the last σ is factored again (the engine now holds skip_below's).
             step = 0.75 if wanted <= need else min(max(0.6 * need / max(wanted, 1), 1 / 16), 0.5)
-            sigma = floor + (sigma - floor) * step
+            sigma = lowest + (sigma - lowest) * step
         usable = engine.factorize(-sigma * mass, indefinite=True)
         count = engine.factor.negative_pivots
         if usable and count - (skipped or 0) <= need:

@@ -59,8 +59,8 @@ class EigenResult:
     iterations : [B] LOBPCG iterations per mesh (Lanczos: shift-invert solves; block Krylov:
         shift-invert right-hand sides)
     shifts : [B] the shift σ of each mesh's factor, λ·area: below every eigenvalue (-1, -8, ...)
-        for a definite factor; the block Krylov solver's interior shift (5n or 5n/2, inside the
-        wanted eigenvalues) where it took one (:class:`~torchakvf.solvers.factor.InteriorFactor`)
+        for a definite factor; the block Krylov solver's interior shift (5n, 5n/2 or lower, inside
+        the wanted eigenvalues) where it took one (:class:`~torchakvf.solvers.factor.InteriorFactor`)
     converged : [B] bool, every residual <= tol
     left_out : [B] spurious eigenpairs (below the remedy's threshold) that the solver counted by
         inertia and did not return (the block Krylov solver at an interior shift that counted
