@@ -119,7 +119,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
                               f"{sizes[b]} edges; ask for fewer fields")
     if grow and nb != 1:
         raise ParameterError(f"block_krylov(basis=KrylovBasis(grow=True)) solves one mesh at a time, got {nb}")
-    values, vectors, residuals, solves, shifts, skipped = [], [], [], [], [], []
+    values, vectors, residuals, solves, shifts, skipped, converged = [], [], [], [], [], [], []
     for j, b in enumerate(meshes):
         r, c, v, size = system.block(b)
         lo, hi = int(system.edge_ptr[b]), int(system.edge_ptr[b + 1])
@@ -129,8 +129,7 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         dims = (lambda k: max_dim) if max_dim else (lambda k: max(10 * k, 240))
 
         def solve(factor):
-            # Spurious pairs left out where the factor counted them (InteriorFactor.skipped).
-            leave_out = skip_below is not None and getattr(factor, "skipped", None) is not None
+            leave_out = _leaves_out(factor, skip_below)
             lam, x, res, k = _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed,
                                        block, dims, grow, leave_out)
             if block < WIDE_BLOCK and not bool(torch.isinf(res).all()) and crowded(lam, block):
@@ -142,40 +141,52 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
             return lam, x, res, k
 
         lam, x, res, k = solve(factor)
-        left_out = 0
         if hasattr(factor, "definite"):
             # An interior shift (InteriorFactor): the pairs below it must be exactly the ν
             # eigenvalues its factor counts there (those in [skip_below, σ) where it counted the
             # spurious ones too), and every needed pair must have converged; else (or with an
             # eigenvalue where no definite shift exists) the mesh is solved again with its
             # positive definite factor.
-            if skip_below is not None and factor.skipped is not None:
+            if _leaves_out(factor, skip_below):
                 found = int(((lam < factor.sigma) & (lam >= skip_below)).sum())
-                expected, left_out = factor.below - factor.skipped, factor.skipped
+                expected = factor.below - factor.skipped
             else:
                 found, expected = int((lam < factor.sigma).sum()), factor.below
-            ok = bool((res[:_needed(lam, need, skip_below)] <= tol).all()) and bool(lam[0] > factor.floor)
+            needed = _must_converge(lam, need, skip_below, _leaves_out(factor, skip_below))
+            ok = bool((res[:needed] <= tol).all()) and bool(lam[0] > factor.floor)
             if found != expected or not ok:
                 log.info("%s: at the interior shift %g, %d pairs below it against %d eigenvalues "
                          "(inertia), converged %s; solving again at a definite shift", names[j],
                          factor.sigma, found, expected, ok)
-                factor, left_out = factor.definite(), 0
+                factor = factor.definite()
                 lam, x, res, k2 = solve(factor)
                 k += k2
-        short = bool(torch.isinf(res).all())
-        if not short and not bool((res[:_needed(lam, need, skip_below)] <= tol).all()):
+        leave_out = _leaves_out(factor, skip_below)
+        done = bool((res[:_must_converge(lam, need, skip_below, leave_out)] <= tol).all())
+        if not bool(torch.isinf(res).all()) and not done:
             log.info("%s: block Krylov stopped at a basis of %d with residual %.2e > tol %.1e",
                         names[j], k, float(res.max()), tol)
-        values.append(lam), vectors.append(x), residuals.append(res)
-        solves.append(k), shifts.append(factor.sigma), skipped.append(left_out)
+        values.append(lam), vectors.append(x), residuals.append(res), converged.append(done)
+        solves.append(k), shifts.append(factor.sigma), skipped.append(factor.skipped if leave_out else 0)
     dev = system.mass.device
     vals, res = torch.stack(values).to(dev), torch.stack(residuals).to(dev)
-    conv = torch.tensor([bool((res[b, :_needed(vals[b], need, skip_below)] <= tol).all())
-                         for b in range(nb)], device=dev)
     return EigenResult(eigenvalues=vals, vectors=torch.cat(vectors).to(dev), residuals=res,
                        iterations=torch.tensor(solves, dtype=torch.long, device=dev),
-                       shifts=torch.tensor(shifts, dtype=torch.float64, device=dev), converged=conv,
+                       shifts=torch.tensor(shifts, dtype=torch.float64, device=dev),
+                       converged=torch.tensor(converged, device=dev),
                        left_out=torch.tensor(skipped, dtype=torch.long, device=dev))
+
+
+def _leaves_out(factor, skip_below: float | None) -> bool:
+    """Whether the solve with ``factor`` leaves the spurious pairs (below ``skip_below``) out:
+    an :class:`~torchakvf.solvers.factor.InteriorFactor` that counted them by inertia."""
+    return skip_below is not None and getattr(factor, "skipped", None) is not None
+
+
+def _must_converge(lam: torch.Tensor, need: int, skip_below: float | None, leave_out: bool) -> int:
+    """How many leading pairs of ``lam`` (ascending) must converge: the first ``need`` where
+    the spurious pairs were left out, else :func:`_needed`."""
+    return min(need, len(lam)) if leave_out else _needed(lam, need, skip_below)
 
 
 def crowded(lam: torch.Tensor, p: int) -> bool:
@@ -302,7 +313,7 @@ def _one_mesh(stiff, mass, factor, count, need, skip_below, tol, seed, p, max_di
         worst = float(est[:nneed].max())
         if worst <= _SAFETY * tol:
             lam_f, x, res = _final(stiff, mass, q[:filled], y)
-            if bool((res[:need if leave_out else _needed(lam_f, need, skip_below)] <= tol).all()):
+            if bool((res[:_must_converge(lam_f, need, skip_below, leave_out)] <= tol).all()):
                 return lam_f, x, res, solved
         elif last is not None and 0 < worst < last[1]:
             # The residual falls about geometrically with the basis size: skip the checks
