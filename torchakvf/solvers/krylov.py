@@ -16,7 +16,10 @@ among the wanted eigenvalues (about 60% of them below it), so that they map to l
 sides of 0 and the unwanted ones stay near 0: about 30% fewer solves than at σ below the
 spectrum. Its result is checked: the pairs below σ must be exactly the eigenvalues its factor
 counts there (inertia), every needed pair converged, else the mesh is solved again with its
-definite factor (σ below the spectrum, :class:`~torchakvf.solvers.factor.ShiftedFactor`).
+definite factor (σ below the spectrum, :class:`~torchakvf.solvers.factor.ShiftedFactor`). Where
+the factor also counted the spurious modes below ``skip_below`` (``InteriorFactor.skipped``),
+the Ritz pairs below it are neither waited for nor returned, and the count checked is that of
+[skip_below, σ): a mesh with many spurious modes does not make its wanted pairs wait for them.
 
 Method, per mesh: with ``T = (R - σS)^{-1} S`` (S-self-adjoint; its eigenvalues are
 ``θ = 1/(λ - σ)``, and the wanted pairs are those with the smallest ``λ = σ + 1/θ``: the largest
@@ -105,7 +108,9 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
         mesh gets the same result in any batch
     factors : optional precomputed :class:`ShiftedFactor` per mesh
 
-    Returns an :class:`EigenResult`; ``iterations`` counts shift-invert right-hand sides.
+    Returns an :class:`EigenResult`; ``iterations`` counts shift-invert right-hand sides;
+    ``left_out`` the pairs below ``skip_below`` that an interior factor counted (its
+    ``skipped``), which were then neither waited for nor returned (0 for any other factor).
     """
     block, max_dim, grow = basis
     meshes = list(range(system.n_meshes)) if meshes is None else [int(b) for b in meshes]
