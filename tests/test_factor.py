@@ -317,8 +317,8 @@ def test_a_factor_shares_an_analysis_only_of_its_own_pattern():
 
 @needs_cholmod
 def test_psb_mesh_with_82_spurious_modes_is_solved_at_an_interior_shift(psb):
-    """PSB 351 decimated (a bearing: 82 spurious modes down to -512 under "smooth", and λ₁₆ near
-    7 where a unit-area surface has about 140) has more eigenvalues below 5n and 5n/2 than n;
+    """PSB 351 decimated (a bearing: 82 spurious modes down to -512 under "smooth", and λ₁₆ =
+    9.6 where a unit-area surface has about 140) has more eigenvalues below 5n and 5n/2 than n;
     at its definite shift, -512, the wanted pairs crowd within 4% of each other. A lower
     interior shift that counts the spurious modes apart solves it: the same eigenvalues as
     scipy's eigsh at the definite shift, and the same number dropped."""

@@ -130,9 +130,9 @@ class InteriorFactor:
 
 
 #: Interior shifts tried after 5n and 5n/2, each moved down towards about 60% of the wanted
-#: pairs below it (the eigenvalue count grows about linearly with λ), for meshes whose spectrum
-#: is far below that of a unit-area surface (many components, or spurious modes): PSB 351
-#: decimated has 82 spurious modes and λ₃₂ = 17 against 250-304 on the typical PSB mesh.
+#: pairs below it (the eigenvalue count grows about linearly with λ), for meshes with many
+#: spurious modes or a spectrum far below a unit-area surface's: PSB 351 decimated has 82
+#: spurious modes and λ₃₂ = 17 against 250-304 on the typical PSB mesh.
 INTERIOR_RETRIES = 4
 
 
