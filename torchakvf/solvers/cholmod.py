@@ -63,11 +63,12 @@ from .cholmod_abi import (
 #: a zero. The solver checks its result anyway (every residual, and the count below the shift).
 PIVOT_FLOOR = 1e-12
 #: An indefinite factor whose pivots fail :data:`PIVOT_FLOOR` is still solved with where every
-#: pivot is at least this fraction of its own row's diagonal entry of the matrix (each row lost
-#: at most 8 of its 16 digits to cancellation). Meshes with slivers spread their pivots over
-#: 13 orders of magnitude even where the factor is definite (PSB 351 decimated: 1e-13 of the
-#: largest at σ = -512), so the global ratio rejects every interior shift of theirs; their rows'
-#: own ratios at interior shifts were 6e-7 to 3e-6 (healthy PSB meshes: 1e-4 to 1e-1).
+#: pivot is at least this fraction of its own row's diagonal entry of the matrix (a pivot that
+#: much smaller than its diagonal entry is what a cancellation of 8 of the 16 digits leaves).
+#: Some meshes spread their pivots over 13 orders of magnitude even where the factor is
+#: definite (PSB 351 decimated: 1e-13 of the largest at σ = -512), so the global ratio rejects
+#: every interior shift of theirs; their rows' own ratios at interior shifts were 6e-7 to 3e-6
+#: (PSB 1, 21, 121 and 181 decimated: 1e-4 to 1e-1). The solver checks the result as before.
 ROW_PIVOT_FLOOR = 1e-8
 #: Fill-reducing orderings a :class:`CholmodFactor` can be asked for by name.
 ORDERINGS = {"amd": _AMD, "metis": _METIS, "nesdis": _NESDIS}
