@@ -25,6 +25,8 @@ publishes wheels for x86-64 Linux and Windows only; elsewhere the tree answers
 """
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
 from ..errors import ParameterError
@@ -59,15 +61,13 @@ def ray_scale(vertices: np.ndarray, faces: np.ndarray) -> float:
 
 
 class RayCaster:
-    """A mesh's ray-casting tree (made once, read for any number of rays).
+    """A mesh's ray-casting trees (each made once, on first use; read for any number of rays).
 
     vertices : [V, 3]; faces : [F, 3]. Rays and parameters are in the mesh's own units; the
     tree holds the mesh scaled by :func:`ray_scale`. engine : what :meth:`blocked` tests
     segments with (:data:`ENGINES`); ``engine`` is the one it uses ("embree" or "libigl")."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, engine: str = "auto"):
-        import igl
-
         if engine not in ENGINES:
             raise ParameterError(f"engine must be one of {ENGINES}, got {engine!r}")
         embree = engine != "libigl" and embree_available()
@@ -78,10 +78,17 @@ class RayCaster:
         self.scale = ray_scale(vertices, faces)
         self.vertices = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64) * self.scale)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self.tree = igl.AABB()
+
+    @cached_property
+    def tree(self):
+        """libigl's AABB tree of the scaled mesh, built on first use: a caster whose segments
+        Embree tests and that casts no ray never needs it."""
+        import igl
+
+        tree = igl.AABB()
         if len(self.faces):
-            self.tree.init(self.vertices, self.faces)
-        self._scene = None
+            tree.init(self.vertices, self.faces)
+        return tree
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray,
                   max_t: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
@@ -128,27 +135,27 @@ class RayCaster:
         ok = np.linalg.norm(directions, axis=1) > 0
         if not ok.any():
             return out
-        center, scene = self._embree_scene()
+        center, scene, _ = self._embree
         o = np.ascontiguousarray(origins[ok] * self.scale - center, dtype=np.float32)
         d = np.ascontiguousarray(directions[ok] * self.scale, dtype=np.float32)
         hit = scene.run(o, d, dists=1.0, query="OCCLUDED")
         out[ok] = np.asarray(hit) >= 0
         return out
 
-    def _embree_scene(self):
-        """(center [3], Embree scene of the scaled mesh moved to ``center`` = 0), made once. The
-        move keeps the float32 coordinates' round-off at the scale of an edge, not of the
-        mesh's distance from its origin."""
-        if self._scene is None:
-            from embreex.mesh_construction import TriangleMesh
-            from embreex.rtcore_scene import EmbreeScene
+    @cached_property
+    def _embree(self):
+        """(center [3], Embree scene of the scaled mesh moved to ``center`` = 0, the geometry
+        that scene holds, kept with it), built on first use. The move keeps the float32
+        coordinates' round-off at the scale of an edge, not of the mesh's distance from its
+        origin."""
+        from embreex.mesh_construction import TriangleMesh
+        from embreex.rtcore_scene import EmbreeScene
 
-            center = 0.5 * (self.vertices.min(axis=0) + self.vertices.max(axis=0))
-            scene = EmbreeScene(robust=True)
-            mesh = TriangleMesh(scene, np.ascontiguousarray(self.vertices - center, dtype=np.float32),
-                                np.ascontiguousarray(self.faces, dtype=np.int32))
-            self._scene = center, scene, mesh      # the geometry's owner kept with the scene
-        return self._scene[:2]
+        center = 0.5 * (self.vertices.min(axis=0) + self.vertices.max(axis=0))
+        scene = EmbreeScene(robust=True)
+        mesh = TriangleMesh(scene, np.ascontiguousarray(self.vertices - center, dtype=np.float32),
+                            np.ascontiguousarray(self.faces, dtype=np.int32))
+        return center, scene, mesh
 
 
 __all__ = ["ENGINES", "RayCaster", "embree_available", "ray_scale"]
