@@ -146,28 +146,28 @@ def block_krylov(system: KillingSystem, count: int, tol: float = 1e-6, seed: int
             return lam, x, res, k
 
         lam, x, res, k = solve(factor)
+        leave_out = _leaves_out(factor, skip_below)
+        done = bool((res[:_must_converge(lam, need, skip_below, leave_out)] <= tol).all())
         if hasattr(factor, "definite"):
             # An interior shift (InteriorFactor): the pairs below it must be exactly the ν
             # eigenvalues its factor counts there (those in [skip_below, σ) where it counted the
             # spurious ones too), and every needed pair must have converged; else (or with an
             # eigenvalue where no definite shift exists) the mesh is solved again with its
             # positive definite factor.
-            if _leaves_out(factor, skip_below):
+            if leave_out:
                 found = int(((lam < factor.sigma) & (lam >= skip_below)).sum())
                 expected = factor.below - factor.skipped
             else:
                 found, expected = int((lam < factor.sigma).sum()), factor.below
-            needed = _must_converge(lam, need, skip_below, _leaves_out(factor, skip_below))
-            ok = bool((res[:needed] <= tol).all()) and bool(lam[0] > factor.floor)
+            ok = done and bool(lam[0] > factor.floor)
             if found != expected or not ok:
                 log.info("%s: at the interior shift %g, %d pairs below it against %d eigenvalues "
                          "(inertia), converged %s; solving again at a definite shift", names[j],
                          factor.sigma, found, expected, ok)
-                factor = factor.definite()
+                factor, leave_out = factor.definite(), False
                 lam, x, res, k2 = solve(factor)
                 k += k2
-        leave_out = _leaves_out(factor, skip_below)
-        done = bool((res[:_must_converge(lam, need, skip_below, leave_out)] <= tol).all())
+                done = bool((res[:_must_converge(lam, need, skip_below, leave_out)] <= tol).all())
         if not bool(torch.isinf(res).all()) and not done:
             log.info("%s: block Krylov stopped at a basis of %d with residual %.2e > tol %.1e",
                         names[j], k, float(res.max()), tol)
