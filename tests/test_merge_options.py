@@ -115,3 +115,38 @@ def test_records_keep_weights_and_over_segmentation_in_one_merge_entry():
     assert rec["merge"]["min_k"] == 3 and rec["merge"]["crease_split"] is None and rec["merge"]["concavity"] == 8.0
     assert SegmentOptions().recorded() != rec and SegmentOptions(overseg=mo.OverSegmentation(min_k=3)).recorded() != \
         SegmentOptions().recorded()
+
+
+def test_concave_choice_defaults_and_checks():
+    """The segmentation's second merge: the hand-set cost, ratio 3, floor 0.05; weights that
+    read rays or part sums (not computed for it), a ratio below 1 and a floor outside [0, 1)
+    are one-line ParameterErrors; SegmentOptions takes None (off) or a ConcaveChoice."""
+    choice = SegmentOptions().merge_choice
+    assert choice == mo.ConcaveChoice(weights=mo.MergeWeights.hand_set(), ratio=3.0, floor=0.05)
+    with pytest.raises(ParameterError, match="may not read thickness"):
+        mo.ConcaveChoice(weights=mo.MergeWeights.hand_set(thickness=1.0))
+    with pytest.raises(ParameterError, match="ratio"):
+        mo.ConcaveChoice(ratio=0.5)
+    with pytest.raises(ParameterError, match="floor"):
+        mo.ConcaveChoice(floor=1.0)
+    with pytest.raises(ParameterError, match="merge_choice"):
+        SegmentOptions(merge_choice="hand-set")
+    assert SegmentOptions(merge_choice=None).merge_choice is None
+
+
+def test_concave_choice_is_recorded():
+    """Records keep the choice as a plain dict (JSON-able), None where off; two options that
+    differ only there record differently."""
+    on, off = SegmentOptions().recorded(), SegmentOptions(merge_choice=None).recorded()
+    assert off["merge_choice"] is None
+    assert on["merge_choice"]["ratio"] == 3.0 and on["merge_choice"]["floor"] == 0.05
+    assert on["merge_choice"]["weights"]["concavity"] == 16.0
+    assert json.loads(json.dumps(on["merge_choice"])) == on["merge_choice"]
+    assert on != off
+
+
+def test_part_descriptors_segment_without_the_choice():
+    """The part columns keep the segmentations they were measured with: no second merge."""
+    from torchakvf.parts.part_descriptors import PART_OPTIONS, PART_OVERSEGMENTATION
+
+    assert PART_OPTIONS.merge_choice is None and PART_OPTIONS.overseg == PART_OVERSEGMENTATION

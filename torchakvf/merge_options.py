@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from dataclasses import fields as dataclass_fields
 from importlib.resources import files
 from pathlib import Path
@@ -227,6 +227,45 @@ class MergeWeights:
             raise ParameterError(f"crease_angle must be in (0, π] radians, got {self.crease_angle!r}")
 
 
+@dataclass(frozen=True)
+class ConcaveChoice:
+    """A second merge of method "merge": the same over-segmentation merged again with
+    ``weights``, whose parts replace the first merge's where the flattest boundary between two
+    of them bends concavely more than ``floor`` and more than ``ratio`` times the first merge's
+    flattest (:mod:`torchakvf.parts.concave_choice`). The learned cost keeps a wheel's rim in
+    arcs where the hand-set one cuts at the spokes' fillets; ratio and floor were chosen
+    leave-one-group-out over the PSB's 15 labelled categories and the procedural corpus's 15
+    families (docs/design.md, "A second merge")."""
+
+    #: the second merge's cost (default: :meth:`MergeWeights.hand_set`, concavity and symmetry)
+    weights: MergeWeights = field(default_factory=lambda: MergeWeights.hand_set())
+    #: how many times as concave (mean dihedral over π along the flattest boundary) the second
+    #: merge's flattest boundary must be, >= 1
+    ratio: float = 3.0
+    #: and at least this concave, in [0, 1) (0.05: about 9° on average along it)
+    floor: float = 0.05
+
+    #: weights of terms the second merge does not compute (rays, part sums): they must be 0
+    MESH_TERMS = ("thickness", "thin", "centricity", "sight", "sight_excess")
+
+    def __post_init__(self):
+        if not isinstance(self.weights, MergeWeights):
+            raise ParameterError(f"ConcaveChoice weights must be a MergeWeights, got {self.weights!r}")
+        read = [name for name in self.MESH_TERMS if getattr(self.weights, name) != 0]
+        if read:
+            raise ParameterError(f"ConcaveChoice weights may not read {', '.join(read)} (the second merge "
+                                 "reads the region graph's boundary and feature terms only); set them to 0")
+        if not (np.isfinite(self.ratio) and self.ratio >= 1):
+            raise ParameterError(f"ConcaveChoice ratio must be a number >= 1, got {self.ratio!r}")
+        if not (0 <= self.floor < 1):
+            raise ParameterError(f"ConcaveChoice floor must be in [0, 1), got {self.floor!r}")
+
+    def record(self) -> dict:
+        """{ratio, floor, weights: {MergeWeights field: value}}: how records keep it."""
+        w = {f.name: getattr(self.weights, f.name) for f in dataclass_fields(MergeWeights)}
+        return dict(ratio=float(self.ratio), floor=float(self.floor), weights=w)
+
+
 #: The fields of :class:`OverSegmentation` (a MergeWeights given one names the new spelling).
 OVERSEG_FIELDS = tuple(f.name for f in dataclass_fields(OverSegmentation))
 #: The merge weights' and over-segmentation's fields as records keep them, in one flat "merge"
@@ -238,5 +277,5 @@ MERGE_RECORD_FIELDS = ("symmetry", "concavity", "size", "ratio", "part_size", "c
                        "sight_excess", "unite_fragments", "crease_per_piece")
 
 
-__all__ = ["MergeWeights", "OverSegmentation", "LEARNED_WEIGHTS", "LEARNED_FIELDS", "OVERSEG_FIELDS",
+__all__ = ["MergeWeights", "OverSegmentation", "ConcaveChoice", "LEARNED_WEIGHTS", "LEARNED_FIELDS", "OVERSEG_FIELDS",
            "MERGE_RECORD_FIELDS", "MovedOptionError", "read_merge_weights", "merge_weights_record", "is_int"]

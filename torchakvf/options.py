@@ -25,6 +25,7 @@ from .errors import ParameterError
 from .fields.akvf import SOLVERS
 from .merge_options import (
     LEARNED_FIELDS,
+    ConcaveChoice,
     LEARNED_WEIGHTS,
     MERGE_RECORD_FIELDS,
     OVERSEG_FIELDS,
@@ -170,6 +171,10 @@ class SegmentOptions:
     merge: MergeWeights = field(default_factory=MergeWeights)
     #: the over-segmentation method "merge" merges (:class:`OverSegmentation`; None: the default)
     overseg: OverSegmentation = field(default_factory=OverSegmentation)
+    #: method "merge": a second merge of the same pieces, kept where its flattest boundary is
+    #: much more concave (:class:`ConcaveChoice`: the hand-set cost, ratio 3, floor 0.05);
+    #: None: the first merge's parts alone
+    merge_choice: ConcaveChoice | None = field(default_factory=ConcaveChoice)
     #: method "merge": the graph cut that re-decides the boundaries after the merge; on by
     #: default (it scored better on every cross-validation fold); None (or False) = off. Given
     #: True / False / a :class:`GraphCut`, stored as a GraphCut or None. The paper mode never cuts
@@ -215,6 +220,8 @@ class SegmentOptions:
             object.__setattr__(self, "overseg", OverSegmentation())
         if not isinstance(self.overseg, OverSegmentation):
             raise ParameterError(f"overseg must be an OverSegmentation, got {self.overseg!r}")
+        if self.merge_choice is not None and not isinstance(self.merge_choice, ConcaveChoice):
+            raise ParameterError(f"merge_choice must be a ConcaveChoice or None, got {self.merge_choice!r}")
         object.__setattr__(self, "graphcut", graphcut_option(self.graphcut))
         object.__setattr__(self, "_kmeans_restarts_given", self.kmeans_restarts is not None)
         if self.kmeans_restarts is None:
@@ -270,9 +277,15 @@ class SegmentOptions:
     def recorded(self) -> dict:
         """{option name: value} as records keep the options: every option but ``overseg``,
         whose fields are inside ``merge`` (:meth:`merge_record`, a dict), so that a record of
-        the same settings reads the same."""
-        return {name: self.merge_record() if name == "merge" else getattr(self, name)
+        the same settings reads the same; ``merge_choice`` as :meth:`choice_record` (a dict or
+        None)."""
+        return {name: self.merge_record() if name == "merge" else
+                self.choice_record() if name == "merge_choice" else getattr(self, name)
                 for name in self.names() if name != "overseg"}
+
+    def choice_record(self) -> dict | None:
+        """:meth:`ConcaveChoice.record` of ``merge_choice`` (None where off)."""
+        return None if self.merge_choice is None else self.merge_choice.record()
 
 
 def segment_options(options: SegmentOptions | None = None, **overrides) -> SegmentOptions:
@@ -285,7 +298,7 @@ def segment_options(options: SegmentOptions | None = None, **overrides) -> Segme
     return options.replace(**overrides)
 
 
-__all__ = ["SegmentOptions", "MergeWeights", "OverSegmentation", "GraphCut", "LEARNED_WEIGHTS", "LEARNED_FIELDS",
+__all__ = ["SegmentOptions", "MergeWeights", "OverSegmentation", "ConcaveChoice", "GraphCut", "LEARNED_WEIGHTS", "LEARNED_FIELDS",
            "MERGE_RECORD_FIELDS", "OVERSEG_FIELDS", "read_merge_weights", "merge_weights_record", "is_int",
            "segment_options", "graphcut_option", "METHODS",
            "DEFAULT_METHOD", "BOUNDARIES", "DEFAULT_REMEDY", "SEGMENT_UNTANGLE_RESTARTS",

@@ -17,6 +17,7 @@ from ..mesh import MeshBatch
 from ..mesh.raycast import RayCaster
 from ..options import PART_FLOOR_OF_MEAN, GraphCut, SegmentOptions
 from .boundaries import face_margins, isoline_face_labels, refine_along_isolines, vertex_distances
+from .concave_choice import prefers_other, same_partition
 from .concavity import DualEdges, dual_edges
 from .creases import crease_band_of, crease_patches, split_by_patches, unite_patch_fragments
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
@@ -222,6 +223,8 @@ class CutParts:
     vdist: np.ndarray
     cost: float
     merge_next: float | None = None
+    #: whether the :class:`~torchakvf.options.ConcaveChoice`'s second merge made the parts
+    merge_second: bool = False
 
 
 def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, km, b: int, k: int,
@@ -268,7 +271,8 @@ def cut_parts(batch: MeshBatch, fields: AKVFResult, untangled: UntangledFields, 
         features=clean.to_input_faces(feats), eigenvalues=fields.eigenvalues[b].detach().cpu().numpy(),
         generators=gens,
         refined=refine_along_isolines(clean.vertices, clean.faces, cut.vdist) if opts.refine and extras else None,
-        cost=cut.cost, params={**recorded_params(batch, b, k, n_b, k_cluster, floor, opts, cut.merge_next),
+        cost=cut.cost, params={**recorded_params(batch, b, k, n_b, k_cluster, floor, opts, cut.merge_next,
+                                                 cut.merge_second),
                                "remedy": fields.remedies[b]},
         converged=converged, max_residual=residual)
 
@@ -295,6 +299,7 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
     if cache.dual is None:
         cache.dual = dual_edges(clean.vertices, clean.faces)
     dual = cache.dual
+    took_second = False
     crease = opts.merge.crease_angle
     if crease not in cache.bends:
         cache.bends[crease] = boundary_bends(dual, crease)
@@ -322,35 +327,71 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
         graph = over.graphs[key]
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
                              MergeCache(dual=dual, unit=unit, bends=bends, graph=graph))
+        labels, merged_vdist = _cut_merged(over, cache, opts, merged, floor)
+        if opts.merge_choice is not None:
+            second = _second_merge(over, cache, opts.merge_choice.weights, k)
+            if not same_partition(second, merged):
+                second_labels, second_vdist = _cut_merged(over, cache, opts, second, floor)
+                took_second = prefers_other(labels, second_labels, dual, opts.merge_choice.ratio,
+                                            opts.merge_choice.floor)
+                if took_second:
+                    merged, labels, merged_vdist = second, second_labels, second_vdist
+        vdist = merged_vdist
         if sight is not None and next_cost:
             # the next merge reads the merged parts' lines of sight, summed from the pieces'
             # (those the merge itself saw) rather than cast again for the cut's labels
             owner = np.zeros(graph.n_parts, dtype=np.int64)
             owner[graph.labels[graph.labels >= 0]] = merged[graph.labels >= 0]
             sight = PartSight(graph.sums["seen"], graph.sums["lines"]).merged(owner, int(merged.max()) + 1)
-        # the refined cut and the graph cut's data term follow the merged parts
-        vdist = merged_distances(vdist, over.centers, merged, faces=clean.faces,
-                                 patches=over.labels % over.n_patches if over.n_patches > 1 else None)
-        labels = merged
         # the k-means cost of the merged parts, in units of the solved mesh's faces (k auto reads it)
-        cost = partition_cost(labels, feats, unit=unit) * n_solved / len(labels)
-        if opts.graphcut is not None:
-            # data term: each face's distance to each part, the mean over its corners
-            # (made for the faces the cut reads: those near a boundary)
-            face_dist = CornerMeans(clean.faces, vdist)
-            if opts.graphcut not in cache.cut_costs:
-                cache.cut_costs[opts.graphcut] = edge_weights(dual, opts.graphcut)
-            labels = graphcut_labels(labels, face_dist, dual, area, opts.graphcut,
-                                     cut_cost=cache.cut_costs[opts.graphcut], min_fraction=floor)
+        cost = partition_cost(merged, feats, unit=unit) * n_solved / len(merged)
     # what merging two of these parts would cost (k auto's "merge" rule reads it)
     merge_next = next_merge_cost(labels, dual, feats, area, opts.merge, unit=unit, bends=bends,
                                  centroids=centroids, thickness=thickness, sight=sight) if next_cost else None
-    return CutParts(labels=labels, vdist=vdist, cost=cost, merge_next=merge_next)
+    return CutParts(labels=labels, vdist=vdist, cost=cost, merge_next=merge_next, merge_second=took_second)
+
+
+def _cut_merged(over: ClusteredParts, cache: MeshCache, opts: SegmentOptions, merged: np.ndarray,
+                floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """(labels [F], distances [V, parts]) of merged labels [F] of the over-segmentation: the
+    distance fields of the merged parts (the refined cut and the graph cut's data term follow
+    them), and the labels the graph cut re-decides from them (the merged labels where it is
+    off)."""
+    clean, dual = over.mesh, cache.dual
+    vdist = merged_distances(over.vdist, over.centers, merged, faces=clean.faces,
+                             patches=over.labels % over.n_patches if over.n_patches > 1 else None)
+    if opts.graphcut is None:
+        return merged, vdist
+    # data term: each face's distance to each part, the mean over its corners
+    # (made for the faces the cut reads: those near a boundary)
+    face_dist = CornerMeans(clean.faces, vdist)
+    if opts.graphcut not in cache.cut_costs:
+        cache.cut_costs[opts.graphcut] = edge_weights(dual, opts.graphcut)
+    labels = graphcut_labels(merged, face_dist, dual, over.area, opts.graphcut,
+                             cut_cost=cache.cut_costs[opts.graphcut], min_fraction=floor)
+    return labels, vdist
+
+
+def _second_merge(over: ClusteredParts, cache: MeshCache, weights, k: int) -> np.ndarray:
+    """The over-segmentation's labels merged down to k with ``weights`` (the
+    :class:`~torchakvf.options.ConcaveChoice`'s), from the region graph its terms read (made
+    once per mesh and weights)."""
+    clean, dual = over.mesh, cache.dual
+    crease = weights.crease_angle
+    if crease not in cache.bends:
+        cache.bends[crease] = boundary_bends(dual, crease)
+    key = ("second", crease)
+    if key not in over.graphs:
+        over.graphs[key] = region_graph(over.labels, dual, over.feats, over.area, crease, unit=over.unit,
+                                        bends=cache.bends[crease])
+    return merge_parts(over.labels, clean.faces, clean.vertices, over.feats, over.area, k, weights,
+                       MergeCache(dual=dual, unit=over.unit, bends=cache.bends[crease], graph=over.graphs[key]))
 
 
 def recorded_params(batch: MeshBatch, b: int, k: int, n_fields: int, k_cluster: int, floor: float,
-                    opts: SegmentOptions, merge_next: float | None) -> dict:
-    """What a :class:`MeshSegmentation` records of how it was made (its ``params``)."""
+                    opts: SegmentOptions, merge_next: float | None, merge_second: bool = False) -> dict:
+    """What a :class:`MeshSegmentation` records of how it was made (its ``params``);
+    merge_second: whether the :class:`~torchakvf.options.ConcaveChoice`'s merge made the parts."""
     coarse = batch.coarse_of(b)
     params = dict(k=k, eps=opts.eps, seed=opts.seed, n_fields=n_fields, remedy=opts.remedy,
                   boundary=opts.boundary, kmeans_restarts=opts.kmeans_restarts,
@@ -367,6 +408,9 @@ def recorded_params(batch: MeshBatch, b: int, k: int, n_fields: int, k_cluster: 
     if opts.merges_parts:
         params["k_oversegment"] = k_cluster
         params.update({f"merge_{name}": float(v) for name, v in opts.merge_record().items() if v is not None})
+        if opts.merge_choice is not None:
+            params.update(merge_choice_ratio=float(opts.merge_choice.ratio),
+                          merge_choice_floor=float(opts.merge_choice.floor), merge_second=bool(merge_second))
     return params
 
 

@@ -69,6 +69,9 @@ PART_SEEDS = (0, 1, 2)
 #: finer one would make the 18 segmentations cost more; neither its columns nor those with the
 #: crease patches' fragments united were measured).
 PART_OVERSEGMENTATION = OverSegmentation(ratio=3.0, extra_max=16, unite_fragments=False)
+#: The segmentations' options: that over-segmentation, and the first merge's parts alone (no
+#: :class:`~torchakvf.options.ConcaveChoice`), as the columns were measured with.
+PART_OPTIONS = SegmentOptions(overseg=PART_OVERSEGMENTATION, merge_choice=None)
 #: Distance (unit-area lengths) beyond which a cut is "far": about ten face widths at 4000 faces.
 DISTANCE_CAP = 0.2
 #: Added to a distance before the log, so a face on a cut (d = 0) has a finite value.
@@ -168,7 +171,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
         :func:`~torchakvf.parts.field_counts.akvf_count` of ``ks``, else all ``fields.n``
     ks : part counts (columns in ascending k; a mesh with fewer faces is cut at its face count
         there); seeds : seeds averaged over; options : the segmentation's settings (default
-        ``SegmentOptions(overseg=PART_OVERSEGMENTATION)``; its seed is replaced by each of
+        :data:`PART_OPTIONS`; its seed is replaced by each of
         ``seeds``; ε must be 0)
     Returns one float64 [F_b, len(ks) + len(radii)] array per mesh, on the faces the parts
     are cut on: those of ``fields.batch.input_mesh(b)`` (the full-resolution cleaned mesh of a
@@ -177,7 +180,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     from .cut import MeshCache
     from .rounds import segment_rounds
 
-    opts = segment_options(options) if options is not None else SegmentOptions(overseg=PART_OVERSEGMENTATION)
+    opts = segment_options(options) if options is not None else PART_OPTIONS
     if opts.eps != 0:
         raise ParameterError("part descriptors describe plain segmentations: eps must be 0")
     ks = sorted({int(k) for k in ks})
@@ -213,7 +216,7 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     return out
 
 
-__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII",
+__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "PART_OPTIONS", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII",
            "part_descriptor_names",
            "dual_graph", "cut_distance", "distance_to_faces", "fine_meshes_numbered_canonically", "describe_labelings",
            "part_descriptors"]

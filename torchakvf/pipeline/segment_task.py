@@ -96,7 +96,7 @@ class SegmentTask:
                 "untangle_restarts": int(o.untangle_restarts), "kmeans_restarts": o.kmeans_restarts,
                 "coarse_faces": self.coarse_faces, "subdivide": self.subdivide, "solver": o.solver,
                 "method": o.method,
-                "merge": o.merge_record(),
+                "merge": o.merge_record(), "merge_choice": o.choice_record(),
                 "graphcut": None if o.graphcut is None else dataclasses.asdict(o.graphcut)}
 
     def output_paths(self, out_dir, stem: str) -> list[Path]:
