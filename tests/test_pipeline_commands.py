@@ -147,3 +147,18 @@ def test_batched_flag_solves_batches_as_one_and_is_recorded(tmp_path, capsys, mo
     rc, stdout, err = cli_run([command[0], *srcs, "--out", tmp_path / "p", *command[1:]], capsys)
     assert rc == 0 and not calls
     assert all("batched" not in r["params"] for r in by_stem(tmp_path / "p").values())
+
+
+def test_second_merge_flag_is_recorded(tmp_path, capsys):
+    """--second-merge off: the manifest records no second merge (merge_choice None); by default
+    it records the ConcaveChoice (ratio 3, floor 0.05), so a run resumed under the other setting
+    redoes its meshes."""
+    s = shapes.dumbbell(n_around=12)
+    src = write_off(tmp_path / "in" / "a.off", s.vertices, s.faces)
+    for flag, out in ((["--second-merge", "off"], "off"), ([], "on")):
+        rc, stdout, err = cli_run(["segment", src, "--out", tmp_path / out, "-k", "2", "--n-fields", "8",
+                                   "--formats", "seg", *flag], capsys)
+        assert rc == 0 and "1 ok, 0 failed" in stdout, err
+    assert by_stem(tmp_path / "off")["a"]["params"]["merge_choice"] is None
+    on = by_stem(tmp_path / "on")["a"]["params"]["merge_choice"]
+    assert (on["ratio"], on["floor"]) == (3.0, 0.05)

@@ -25,10 +25,10 @@ from .errors import ParameterError
 from .fields.akvf import SOLVERS
 from .merge_options import (
     LEARNED_FIELDS,
-    ConcaveChoice,
     LEARNED_WEIGHTS,
     MERGE_RECORD_FIELDS,
     OVERSEG_FIELDS,
+    ConcaveChoice,
     MergeWeights,
     OverSegmentation,
     is_int,
@@ -298,7 +298,8 @@ def segment_options(options: SegmentOptions | None = None, **overrides) -> Segme
     return options.replace(**overrides)
 
 
-__all__ = ["SegmentOptions", "MergeWeights", "OverSegmentation", "ConcaveChoice", "GraphCut", "LEARNED_WEIGHTS", "LEARNED_FIELDS",
+__all__ = ["SegmentOptions", "MergeWeights", "OverSegmentation", "ConcaveChoice", "GraphCut", "LEARNED_WEIGHTS",
+           "LEARNED_FIELDS",
            "MERGE_RECORD_FIELDS", "OVERSEG_FIELDS", "read_merge_weights", "merge_weights_record", "is_int",
            "segment_options", "graphcut_option", "METHODS",
            "DEFAULT_METHOD", "BOUNDARIES", "DEFAULT_REMEDY", "SEGMENT_UNTANGLE_RESTARTS",

@@ -11,6 +11,7 @@ from ..pipeline.arguments import (
     add_batched_argument,
     add_graph_cut_argument,
     add_method_argument,
+    add_second_merge_argument,
     add_solver_argument,
     parse_device,
     parse_int,
@@ -62,6 +63,7 @@ def add_bench_arguments(p) -> None:
     add_solver_argument(p, default=None)
     add_batched_argument(p)
     add_graph_cut_argument(p)
+    add_second_merge_argument(p)
     add_method_argument(p, None, METHODS)
 
 
@@ -89,6 +91,8 @@ def run_bench_command(args) -> int:
     given = {k: v for k, v in given.items() if v is not None}
     if args.graph_cut == "off":
         given["graphcut"] = None
+    if args.second_merge == "off":
+        given["merge_choice"] = None
     settings = BenchSettings(limit=limit, baseline_every=every, categories=categories,
                              coarse_faces=coarse or None, batch_faces=batch_faces, workers=workers,
                              device=device, budgets=args.budgets,

@@ -18,6 +18,7 @@ from ..pipeline.arguments import (
     add_batched_argument,
     add_graph_cut_argument,
     add_method_argument,
+    add_second_merge_argument,
     add_solver_argument,
     parse_device,
     positive_int,
@@ -111,6 +112,7 @@ def add_eval_arguments(p) -> None:
                    help=f"parts for meshes without human segmentations (default {DEFAULT_K_NO_GT})")
     add_solver_argument(p, default=None)
     add_graph_cut_argument(p)
+    add_second_merge_argument(p)
     add_method_argument(p, None, METHODS)
     p.add_argument("--device", default="cpu",
                    help="torch device of the predictions, e.g. cpu or cuda (default cpu; one "
@@ -126,6 +128,8 @@ def _segment_overrides(args) -> dict:
     given = {k: v for k, v in given.items() if v is not None}
     if args.graph_cut == "off":
         given["graphcut"] = None
+    if args.second_merge == "off":
+        given["merge_choice"] = None
     return given
 
 

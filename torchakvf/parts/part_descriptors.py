@@ -216,7 +216,8 @@ def part_descriptors(fields: AKVFResult, ks: Sequence[int] = PART_KS, seeds: Seq
     return out
 
 
-__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "PART_OPTIONS", "DISTANCE_CAP", "DISTANCE_FLOOR", "NEAR_RADII",
+__all__ = ["PART_KS", "PART_SEEDS", "PART_OVERSEGMENTATION", "PART_OPTIONS", "DISTANCE_CAP", "DISTANCE_FLOOR",
+           "NEAR_RADII",
            "part_descriptor_names",
            "dual_graph", "cut_distance", "distance_to_faces", "fine_meshes_numbered_canonically", "describe_labelings",
            "part_descriptors"]
