@@ -15,9 +15,11 @@ partition; a group's score is the mean over its shapes (a PSB mesh: the mean ove
 as ``torchakvf eval`` scores it). The rule is chosen to minimize the mean over the 30 groups
 of the PSB's 15 labelled categories and the first corpus's 15 families, and scored
 leave-one-group-out (each group with the rule chosen without it); any further corpus given is
-scored with the rule chosen on all 30 groups. The criterion's variants the result file
-compares (the mean instead of the least over the boundaries, before the graph cut) are
-``--criterion mean`` and ``--collect --no-graphcut``.
+scored with the rule chosen on all 30 groups. ``--criterion mean`` scores a partition by the
+mean over its boundaries instead of the least (a variant the result file compares);
+``--collect --no-graphcut`` collects the merged labels before the graph cut, errors and
+boundaries alike (the result file's "before the graph cut" rows judged those boundaries but
+scored the labels after the cut, with an exploratory version of this script).
 
     PYTHONPATH=$PWD nice python3 experiments/generality/concave_choice_cv.py --collect psb --out /tmp/cc/psb.pkl
     PYTHONPATH=$PWD nice python3 experiments/generality/concave_choice_cv.py --collect /tmp/corpus_s0 \\
