@@ -96,6 +96,7 @@ class MeshCache:
 
     adjacency : [P, 2] face pairs sharing an edge (of the mesh the parts are cut on)
     dual : its dual edges; bends : {crease angle: :func:`~torchakvf.parts.merge.boundary_bends`}
+        (:meth:`bends_at`)
     cut_costs : {GraphCut: [P] dual-edge costs of the graph cut}
     over : the last :class:`ClusteredParts` (ε = 0), for the next k clustered alike
     sums_inputs : (centroids, thickness) of the mesh the merge terms read
@@ -116,6 +117,12 @@ class MeshCache:
     over: ClusteredParts | None = None
     caster: RayCaster | None = None
     sight: SightLines | None = None
+
+    def bends_at(self, crease: float) -> tuple:
+        """:func:`~torchakvf.parts.merge.boundary_bends` of ``dual`` at ``crease``, made once."""
+        if crease not in self.bends:
+            self.bends[crease] = boundary_bends(self.dual, crease)
+        return self.bends[crease]
 
     def ray_caster(self, mesh) -> RayCaster:
         """The mesh's ray caster (``mesh`` the one the parts are cut on), made once."""
@@ -301,9 +308,7 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
     dual = cache.dual
     took_second = False
     crease = opts.merge.crease_angle
-    if crease not in cache.bends:
-        cache.bends[crease] = boundary_bends(dual, crease)
-    bends = cache.bends[crease]
+    bends = cache.bends_at(crease)
     centroids = thickness = None
     if needs_part_sums(opts.merge):
         have = cache.sums_inputs
@@ -378,14 +383,13 @@ def _second_merge(over: ClusteredParts, cache: MeshCache, weights, k: int) -> np
     once per mesh and weights)."""
     clean, dual = over.mesh, cache.dual
     crease = weights.crease_angle
-    if crease not in cache.bends:
-        cache.bends[crease] = boundary_bends(dual, crease)
+    bends = cache.bends_at(crease)
     key = ("second", crease)
     if key not in over.graphs:
         over.graphs[key] = region_graph(over.labels, dual, over.feats, over.area, crease, unit=over.unit,
-                                        bends=cache.bends[crease])
+                                        bends=bends)
     return merge_parts(over.labels, clean.faces, clean.vertices, over.feats, over.area, k, weights,
-                       MergeCache(dual=dual, unit=over.unit, bends=cache.bends[crease], graph=over.graphs[key]))
+                       MergeCache(dual=dual, unit=over.unit, bends=bends, graph=over.graphs[key]))
 
 
 def recorded_params(batch: MeshBatch, b: int, k: int, n_fields: int, k_cluster: int, floor: float,
