@@ -1,7 +1,7 @@
 """Part merging (:mod:`torchakvf.parts.merge`): the region graph and merge cost by hand and
 against plain loops, adjacency-only merges, the over-segmentation count, shared arrays against
-fresh ones, the two failure-mode shapes (table, mug) part for part, and the lines-of-sight term
-keeping a U's arms off its base."""
+fresh ones, the two failure-mode shapes (table, mug) part for part, the lines-of-sight term
+keeping a U's arms off its base, and the sheet rule (a flat part left among the k parts) by hand."""
 from __future__ import annotations
 
 import math
@@ -21,6 +21,7 @@ from torchakvf.evaluate.metrics import matched_agreement
 from torchakvf.mesh.clean import face_areas
 from torchakvf.options import OverSegmentation
 from torchakvf.parts.concavity import crease_weights, dual_edges
+from torchakvf.parts.creases import unit_face_normals
 from torchakvf.parts.field_counts import akvf_count
 from torchakvf.parts.merge import (
     MergeCache,
@@ -373,7 +374,9 @@ def test_region_graph_and_costs_with_shared_arrays_are_those_computed_afresh():
     np.testing.assert_array_equal(bends[0], dual.length * cav)
     np.testing.assert_array_equal(bends[1], dual.length * cvx)
     g0 = region_graph(labels, dual, feats, area, weights.crease_angle)
-    g1 = region_graph(labels, dual, None, area, weights.crease_angle, unit=unit, bends=bends)
+    # with what the weights read (the sheet rule's normals), as MergeCache's graph must be
+    g1 = region_graph(labels, dual, None, area, weights.crease_angle, unit=unit, bends=bends,
+                      normals=unit_face_normals(v, f))
     for name in ("labels", "area", "mean", "length", "concave", "convex"):
         np.testing.assert_array_equal(getattr(g0, name), getattr(g1, name))
     np.testing.assert_array_equal(merge_parts(labels, f, v, feats, area, 4, weights),
@@ -428,3 +431,96 @@ def test_lines_of_sight_keep_the_arms_of_a_u_off_its_base():
     seen, lines = sight.counts(graph.labels, graph.n_parts)
     np.testing.assert_array_equal(graph.sums["seen"], seen)
     np.testing.assert_array_equal(graph.sums["lines"], lines)
+
+
+def _chain_with_a_sheet(flat_part0: float) -> RegionGraph:
+    """Three parts in a row, 0 - 1 - 2, the pair (1, 2) the cheaper by the hand-set cost (same
+    features, no bending) and (0, 1) the dearer (orthogonal features, a concave boundary);
+    part 0's vector area ``flat_part0`` times its area (along z), parts 1 and 2 closed (0)."""
+    area = np.array([1.0, 2.0, 2.0])
+    vector_area = np.zeros((3, 3))
+    vector_area[0, 2] = flat_part0 * area[0]
+    return RegionGraph(labels=np.array([0, 1, 2]), area=area,
+                       mean=np.array([[0.0, 1.0], [1.0, 0.0], [1.0, 0.0]]),
+                       length=np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], dtype=float),
+                       concave=np.array([[0, 0.5, 0], [0.5, 0, 0], [0, 0, 0]], dtype=float),
+                       sums=dict(vector_area=vector_area))
+
+
+def test_a_sheet_left_among_the_parts_is_merged_first_again():
+    """Where the merge by cost leaves a part flatter than ``sheet_flatness`` among the k parts,
+    the pieces are merged again with the pairs holding a sheet first: here the cost joins (1, 2)
+    and leaves the sheet 0 alone; merged again, the dear pair (0, 1) goes first, and the union
+    (vector area (0, 0, 1), area 3: flatness 1/3) is no sheet, so the merge then goes on by
+    cost. The history is the returned merge's."""
+    w = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, convexity=0.0, cut=0.0)
+    cost = merge_costs(_chain_with_a_sheet(1.0), w)
+    assert cost[1, 2] < cost[0, 1]                          # the cost alone merges (1, 2) first
+    new_id, history = greedy_merge(_chain_with_a_sheet(1.0), 2, w)
+    np.testing.assert_array_equal(new_id, [0, 0, 1])
+    assert history == [float(cost[0, 1])]
+    off = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, convexity=0.0, cut=0.0, sheet_flatness=None)
+    np.testing.assert_array_equal(greedy_merge(_chain_with_a_sheet(1.0), 2, off)[0], [0, 1, 1])
+    # not flatter than the threshold (0.9 against 0.9): the cost decides
+    np.testing.assert_array_equal(greedy_merge(_chain_with_a_sheet(0.9), 2, w)[0], [0, 1, 1])
+    np.testing.assert_array_equal(greedy_merge(_chain_with_a_sheet(0.95), 2, w)[0], [0, 0, 1])
+    # a graph without vector areas has no sheets
+    g = _chain_with_a_sheet(1.0)
+    g.sums = None
+    np.testing.assert_array_equal(greedy_merge(g, 2, w)[0], [0, 1, 1])
+
+
+def test_a_sheet_the_cost_merges_away_changes_nothing():
+    """A sheet among the pieces that the merge by cost joins to a neighbour anyway: the parts
+    and the history are those of the rule off (the rule reads the k parts, not the pieces)."""
+    g = _chain_with_a_sheet(1.0)
+    g.mean = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]])     # now (0, 1) is the cheap pair
+    g.concave = np.array([[0, 0, 0], [0, 0, 0.5], [0, 0.5, 0]], dtype=float)
+    w = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, convexity=0.0, cut=0.0)
+    off = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, convexity=0.0, cut=0.0, sheet_flatness=None)
+    on_id, on_history = greedy_merge(g, 2, w)
+    off_id, off_history = greedy_merge(g, 2, off)
+    np.testing.assert_array_equal(on_id, [0, 0, 1])
+    np.testing.assert_array_equal(on_id, off_id)
+    assert on_history == off_history
+
+
+def test_a_sheet_with_no_neighbour_left_lets_the_others_merge():
+    """A sheet on its own component (no adjacent part) does not stop the merge: the others
+    merge by cost."""
+    g = _chain_with_a_sheet(1.0)
+    g.length = np.array([[0, 0, 0], [0, 0, 1], [0, 1, 0]], dtype=float)
+    g.concave = np.zeros((3, 3))
+    w = MergeWeights.hand_set(symmetry=1.0, concavity=2.0, convexity=0.0, cut=0.0)
+    np.testing.assert_array_equal(greedy_merge(g, 2, w)[0], [0, 1, 1])
+
+
+def test_region_graph_vector_areas_of_the_hinge_by_hand():
+    """Each face's unit normal times its area, summed by part: the hinge folded by π/2 has
+    normals (0, 0, 1) and (0, -1, 0) (the second triangle turned about x), areas 1/2 each, so
+    one part of both has the vector area (0, -1/2, 1/2) and flatness √2 / 2."""
+    v, f = hinge(np.pi / 2)
+    normals = unit_face_normals(v, f)
+    np.testing.assert_allclose(normals, [[0, 0, 1], [0, -1, 0]], atol=1e-15)
+    apart = region_graph(np.array([0, 1]), dual_edges(v, f), np.ones((2, 2)), np.array([0.5, 0.5]),
+                         normals=normals)
+    np.testing.assert_allclose(apart.sums["vector_area"], [[0, 0, 0.5], [0, -0.5, 0]], atol=1e-15)
+    np.testing.assert_allclose(apart.state().flatness(), [1.0, 1.0])
+    one = region_graph(np.array([0, 0]), dual_edges(v, f), np.ones((2, 2)), np.array([0.5, 0.5]),
+                       normals=normals)
+    np.testing.assert_allclose(one.state().flatness(), [math.sqrt(0.5)])
+    assert region_graph(np.array([0, 0]), dual_edges(v, f), np.ones((2, 2)), np.array([0.5, 0.5])).sums is None
+
+
+def test_closed_surface_is_no_sheet_and_its_halves_are_not_either():
+    """A sphere's flatness is 0 (its vector area vanishes); a hemisphere's is the disc over the
+    half sphere, 1/2 (within the tessellation's error)."""
+    s = shapes.icosphere(4)
+    area = face_areas(s.vertices, s.faces)
+    half = (s.vertices[s.faces].mean(axis=1)[:, 2] > 0).astype(np.int64)
+    g = region_graph(half, dual_edges(s.vertices, s.faces), np.ones((len(s.faces), 2)), area,
+                     normals=unit_face_normals(s.vertices, s.faces))
+    np.testing.assert_allclose(g.state().flatness(), [0.5, 0.5], atol=0.01)
+    whole = region_graph(np.zeros(len(s.faces), dtype=np.int64), dual_edges(s.vertices, s.faces),
+                         np.ones((len(s.faces), 2)), area, normals=unit_face_normals(s.vertices, s.faces))
+    assert whole.state().flatness()[0] < 1e-12

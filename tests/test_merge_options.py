@@ -40,7 +40,8 @@ def test_default_weights_are_the_package_file():
     assert dict(mo.LEARNED_WEIGHTS) == mo.read_merge_weights(PACKAGE_FILE) == values
     default = mo.MergeWeights()
     assert {name: getattr(default, name) for name in mo.LEARNED_FIELDS} == values
-    assert {f.name for f in dataclasses.fields(mo.MergeWeights)} - set(mo.LEARNED_FIELDS) == {"crease_angle"}
+    assert {f.name for f in dataclasses.fields(mo.MergeWeights)} - set(mo.LEARNED_FIELDS) == {"crease_angle",
+                                                                                           "sheet_flatness"}
     with pytest.raises(TypeError):
         mo.LEARNED_WEIGHTS["symmetry"] = 0.0     # the defaults are read once and cannot be changed
 
@@ -146,7 +147,24 @@ def test_concave_choice_is_recorded():
 
 
 def test_part_descriptors_segment_without_the_choice():
-    """The part columns keep the segmentations they were measured with: no second merge."""
+    """The part columns keep the segmentations they were measured with: no second merge, no
+    sheet rule, the learned weights otherwise."""
     from torchakvf.parts.part_descriptors import PART_OPTIONS, PART_OVERSEGMENTATION
 
     assert PART_OPTIONS.merge_choice is None and PART_OPTIONS.overseg == PART_OVERSEGMENTATION
+    assert PART_OPTIONS.merge == mo.MergeWeights(sheet_flatness=None)
+
+
+def test_sheet_flatness_default_checks_and_record():
+    """Both merges default to the sheet rule at 0.9; None turns it off; a value outside (0, 1]
+    is a one-line ParameterError; records keep it (None where off)."""
+    assert mo.MergeWeights().sheet_flatness == 0.9
+    assert SegmentOptions().merge_choice.weights.sheet_flatness == 0.9
+    assert mo.MergeWeights(sheet_flatness=None).sheet_flatness is None
+    assert mo.MergeWeights(sheet_flatness=1.0).sheet_flatness == 1.0
+    for bad in (0.0, -0.5, 1.5, float("nan")):
+        with pytest.raises(ParameterError, match=r"sheet_flatness must be None or in \(0, 1\]"):
+            mo.MergeWeights(sheet_flatness=bad)
+    assert SegmentOptions().recorded()["merge"]["sheet_flatness"] == 0.9
+    off = SegmentOptions(merge=mo.MergeWeights(sheet_flatness=None)).recorded()["merge"]
+    assert off["sheet_flatness"] is None and list(off) == list(mo.MERGE_RECORD_FIELDS)

@@ -141,3 +141,17 @@ def test_thickness_on_a_given_ray_caster_is_the_same_bits():
     s = trimesh.creation.capsule(height=1.0, radius=0.3)
     v, f = np.asarray(s.vertices), np.asarray(s.faces)
     np.testing.assert_array_equal(face_thickness(v, f, caster=RayCaster(v, f)), face_thickness(v, f))
+
+
+def test_flatness_of_a_state_and_its_merges_by_hand():
+    """|Σ a n| / Σ a: a plane patch 1, two patches facing apart 0, at right angles √2 / 2; a
+    merge adds the vector areas; an emptied part reads 0; no vector areas: None."""
+    st = _state()
+    assert st.flatness() is None
+    st.vector_area = np.array([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0]])   # areas 1, 4, 1
+    np.testing.assert_allclose(st.flatness(), [1.0, 0.25, 1.0])
+    st.merge(1, 2)
+    np.testing.assert_allclose(st.vector_area, [[0, 0, 1.0], [1.0, 0, -1.0], [0, 0, 0]])
+    np.testing.assert_allclose(st.flatness(), [1.0, math.sqrt(2) / 5, 0.0])
+    st.merge(0, 1)
+    np.testing.assert_allclose(st.flatness(), [1.0 / 6, 0.0, 0.0])

@@ -162,3 +162,20 @@ def test_second_merge_flag_is_recorded(tmp_path, capsys):
     assert by_stem(tmp_path / "off")["a"]["params"]["merge_choice"] is None
     on = by_stem(tmp_path / "on")["a"]["params"]["merge_choice"]
     assert (on["ratio"], on["floor"]) == (3.0, 0.05)
+
+
+def test_sheet_rule_flag_is_recorded(tmp_path, capsys):
+    """--sheet-rule off: both merges' weights record no sheet rule (sheet_flatness None), with
+    the second merge on or off; by default both record 0.9."""
+    s = shapes.dumbbell(n_around=12)
+    src = write_off(tmp_path / "in" / "a.off", s.vertices, s.faces)
+    runs = {"on": [], "off": ["--sheet-rule", "off"], "off2": ["--sheet-rule", "off", "--second-merge", "off"]}
+    for out, flag in runs.items():
+        rc, stdout, err = cli_run(["segment", src, "--out", tmp_path / out, "-k", "2", "--n-fields", "8",
+                                   "--formats", "seg", *flag], capsys)
+        assert rc == 0 and "1 ok, 0 failed" in stdout, err
+    on, off, off2 = (by_stem(tmp_path / out)["a"]["params"] for out in runs)
+    assert on["merge"]["sheet_flatness"] == 0.9 and on["merge_choice"]["weights"]["sheet_flatness"] == 0.9
+    assert off["merge"]["sheet_flatness"] is None and off["merge_choice"]["weights"]["sheet_flatness"] is None
+    assert off["merge_choice"]["weights"]["concavity"] == 16.0          # the hand-set cost otherwise
+    assert off2["merge"]["sheet_flatness"] is None and off2["merge_choice"] is None

@@ -186,6 +186,13 @@ class MergeWeights:
     rand_gamma: float | None = LEARNED_WEIGHTS["rand_gamma"]
     #: the log-odds of "one part" where s = 0 (read only with ``rand_gamma``)
     intercept: float = LEARNED_WEIGHTS["intercept"]
+    #: a part whose flatness |Σ a_f n_f| / Σ a_f (its vector area over its area: 1 for a plane
+    #: patch, 0 for a closed surface) exceeds this is a sheet, a face of a solid rather than a
+    #: part of it (the floor of a socket, the end face of a tube): where the merge by cost
+    #: leaves one among the k parts, the pieces are merged again with the pairs that hold a
+    #: sheet first (:func:`~torchakvf.parts.merge.greedy_merge`). In (0, 1]; None: off. Chosen
+    #: on the procedural corpus and the PSB (docs/design.md, "Sheets")
+    sheet_flatness: float | None = 0.9
 
     #: terms whose weight may be negative (their sign is learned, not known beforehand)
     SIGNED = ("convexity", "cut", "short_cut", "thin", "centricity", "sight_excess", "intercept")
@@ -223,6 +230,8 @@ class MergeWeights:
                 raise ParameterError(f"merge weight {name} must be a finite number, got {getattr(self, name)!r}")
         if self.rand_gamma is not None and not self.rand_gamma >= 0:
             raise ParameterError(f"rand_gamma must be None or >= 0, got {self.rand_gamma!r}")
+        if self.sheet_flatness is not None and not 0 < self.sheet_flatness <= 1:
+            raise ParameterError(f"sheet_flatness must be None or in (0, 1], got {self.sheet_flatness!r}")
         if not 0 < self.crease_angle <= math.pi:
             raise ParameterError(f"crease_angle must be in (0, π] radians, got {self.crease_angle!r}")
 
@@ -274,7 +283,7 @@ OVERSEG_FIELDS = tuple(f.name for f in dataclass_fields(OverSegmentation))
 MERGE_RECORD_FIELDS = ("symmetry", "concavity", "size", "ratio", "part_size", "convexity", "cut", "crease_angle",
                        "extra_max", "min_k", "size_ratio", "short_cut", "thickness", "thin", "crease_split",
                        "crease_rings", "crease_concave", "centricity", "rand_gamma", "intercept", "sight",
-                       "sight_excess", "unite_fragments", "crease_per_piece")
+                       "sight_excess", "unite_fragments", "crease_per_piece", "sheet_flatness")
 
 
 __all__ = ["MergeWeights", "OverSegmentation", "ConcaveChoice", "LEARNED_WEIGHTS", "LEARNED_FIELDS", "OVERSEG_FIELDS",

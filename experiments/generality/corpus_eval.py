@@ -34,8 +34,10 @@ PSB_FIT = dict(symmetry=4.099, concavity=28.69, convexity=-0.206, cut=-0.4207, p
 def setting_options(name: str):
     """SegmentOptions overrides of a named setting: "default", "hand-set" (the hand-set merge
     weights), "psb-fit" (:data:`PSB_FIT`), "paper" (the paper's method), or a JSON object of
-    MergeWeights and OverSegmentation changes (each field to its own class)."""
-    from torchakvf.options import OVERSEG_FIELDS, MergeWeights, OverSegmentation
+    MergeWeights and OverSegmentation changes (each field to its own class; the sheet rule's
+    fields, ``sheet_*``, go to the second merge's weights as well: ``{"sheet_flatness": null}``
+    is the rule off)."""
+    from torchakvf.options import OVERSEG_FIELDS, ConcaveChoice, MergeWeights, OverSegmentation
 
     if name == "default":
         return {}
@@ -48,7 +50,12 @@ def setting_options(name: str):
     changes = json.loads(name)
     over = {k: v for k, v in changes.items() if k in OVERSEG_FIELDS}
     weights = {k: v for k, v in changes.items() if k not in OVERSEG_FIELDS}
-    return dict(merge=MergeWeights(**weights), **({"overseg": OverSegmentation(**over)} if over else {}))
+    out = dict(merge=MergeWeights(**weights), **({"overseg": OverSegmentation(**over)} if over else {}))
+    sheet = {k: v for k, v in changes.items() if k.startswith("sheet_")}
+    if sheet:
+        # the sheet rule is both merges' (the second merge's hand-set cost takes it too)
+        out["merge_choice"] = ConcaveChoice(weights=MergeWeights.hand_set(**sheet))
+    return out
 
 
 def score_item(args):

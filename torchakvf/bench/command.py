@@ -12,7 +12,9 @@ from ..pipeline.arguments import (
     add_graph_cut_argument,
     add_method_argument,
     add_second_merge_argument,
+    add_sheet_rule_argument,
     add_solver_argument,
+    merge_overrides,
     parse_device,
     parse_int,
     register_command,
@@ -64,6 +66,7 @@ def add_bench_arguments(p) -> None:
     add_batched_argument(p)
     add_graph_cut_argument(p)
     add_second_merge_argument(p)
+    add_sheet_rule_argument(p)
     add_method_argument(p, None, METHODS)
 
 
@@ -91,8 +94,7 @@ def run_bench_command(args) -> int:
     given = {k: v for k, v in given.items() if v is not None}
     if args.graph_cut == "off":
         given["graphcut"] = None
-    if args.second_merge == "off":
-        given["merge_choice"] = None
+    given.update(merge_overrides(args))
     settings = BenchSettings(limit=limit, baseline_every=every, categories=categories,
                              coarse_faces=coarse or None, batch_faces=batch_faces, workers=workers,
                              device=device, budgets=args.budgets,

@@ -19,7 +19,9 @@ from ..pipeline.arguments import (
     add_graph_cut_argument,
     add_method_argument,
     add_second_merge_argument,
+    add_sheet_rule_argument,
     add_solver_argument,
+    merge_overrides,
     parse_device,
     positive_int,
     register_command,
@@ -113,6 +115,7 @@ def add_eval_arguments(p) -> None:
     add_solver_argument(p, default=None)
     add_graph_cut_argument(p)
     add_second_merge_argument(p)
+    add_sheet_rule_argument(p)
     add_method_argument(p, None, METHODS)
     p.add_argument("--device", default="cpu",
                    help="torch device of the predictions, e.g. cpu or cuda (default cpu; one "
@@ -128,8 +131,7 @@ def _segment_overrides(args) -> dict:
     given = {k: v for k, v in given.items() if v is not None}
     if args.graph_cut == "off":
         given["graphcut"] = None
-    if args.second_merge == "off":
-        given["merge_choice"] = None
+    given.update(merge_overrides(args))
     return given
 
 

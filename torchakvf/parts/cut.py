@@ -19,7 +19,7 @@ from ..options import PART_FLOOR_OF_MEAN, GraphCut, SegmentOptions
 from .boundaries import face_margins, isoline_face_labels, refine_along_isolines, vertex_distances
 from .concave_choice import prefers_other, same_partition
 from .concavity import DualEdges, dual_edges
-from .creases import crease_band_of, crease_patches, split_by_patches, unite_patch_fragments
+from .creases import crease_band_of, crease_patches, split_by_patches, unit_face_normals, unite_patch_fragments
 from .discovery import absorb_single_neighbour_regions, connecting_region, remove_small_parts
 from .field_counts import cluster_count
 from .generators import part_generators
@@ -31,6 +31,7 @@ from .merge import (
     merge_parts,
     merged_distances,
     mesh_sums_inputs,
+    needs_normals,
     needs_part_sums,
     needs_sight,
     needs_thickness,
@@ -106,6 +107,8 @@ class MeshCache:
     caster : the mesh's :class:`~torchakvf.mesh.raycast.RayCaster`, made when first needed: the
         thickness and the lines of sight cast on one tree
     sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines`, made when first needed
+    normals : [F, 3] the mesh's unit face normals, made when a merge first reads them
+        (:meth:`normals_of`)
     """
 
     adjacency: np.ndarray | None = None
@@ -117,6 +120,16 @@ class MeshCache:
     over: ClusteredParts | None = None
     caster: RayCaster | None = None
     sight: SightLines | None = None
+    normals: np.ndarray | None = None
+
+    def normals_of(self, mesh, weights) -> np.ndarray | None:
+        """The unit face normals of ``mesh`` (the one the parts are cut on), made once, where
+        ``weights`` read them (:func:`~torchakvf.parts.merge.needs_normals`); else None."""
+        if not needs_normals(weights):
+            return None
+        if self.normals is None:
+            self.normals = unit_face_normals(mesh.vertices, mesh.faces)
+        return self.normals
 
     def bends_at(self, crease: float) -> tuple:
         """:func:`~torchakvf.parts.merge.boundary_bends` of ``dual`` at ``crease``, made once."""
@@ -325,10 +338,12 @@ def segmentation_labels(over: ClusteredParts, cache: MeshCache, opts: SegmentOpt
             cache.sight = SightLines(clean.vertices, clean.faces, caster=cache.ray_caster(clean))
         sight = cache.sight
     if opts.merges_parts:
-        key = (crease, centroids is not None, thickness is not None, sight is not None)
+        normals = cache.normals_of(clean, opts.merge)
+        key = (crease, centroids is not None, thickness is not None, sight is not None, normals is not None)
         if key not in over.graphs:
             over.graphs[key] = region_graph(labels, dual, feats, area, crease, unit=unit, bends=bends,
-                                            centroids=centroids, thickness=thickness, sight=sight)
+                                            centroids=centroids, thickness=thickness, sight=sight,
+                                            normals=normals)
         graph = over.graphs[key]
         merged = merge_parts(labels, clean.faces, clean.vertices, feats, area, k, opts.merge,
                              MergeCache(dual=dual, unit=unit, bends=bends, graph=graph))
@@ -384,10 +399,11 @@ def _second_merge(over: ClusteredParts, cache: MeshCache, weights, k: int) -> np
     clean, dual = over.mesh, cache.dual
     crease = weights.crease_angle
     bends = cache.bends_at(crease)
-    key = ("second", crease)
+    normals = cache.normals_of(clean, weights)
+    key = ("second", crease, normals is not None)
     if key not in over.graphs:
         over.graphs[key] = region_graph(over.labels, dual, over.feats, over.area, crease, unit=over.unit,
-                                        bends=bends)
+                                        bends=bends, normals=normals)
     return merge_parts(over.labels, clean.faces, clean.vertices, over.feats, over.area, k, weights,
                        MergeCache(dual=dual, unit=over.unit, bends=bends, graph=over.graphs[key]))
 

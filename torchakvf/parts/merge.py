@@ -38,6 +38,7 @@ from ..mesh.raycast import RayCaster
 from ..options import MergeWeights
 from ..restarts import first_near_min
 from .concavity import DualEdges, crease_weights, dual_edges
+from .creases import unit_face_normals
 from .grouping import compact_labels, group_sums
 from .merge_terms import TERM_NAMES, MergeState, face_thickness, pair_terms, part_sums
 from .sightlines import PartSight, SightLines
@@ -62,9 +63,10 @@ class RegionGraph:
     length : [K, K] symmetric shared-boundary length (0 = not adjacent)
     concave : [K, K] symmetric length-weighted sum of concavity along the shared boundary
     convex : [K, K] the same of convex bending (None: not computed, counted as 0)
-    sums : :func:`~torchakvf.parts.merge_terms.part_sums` (centroids, thickness) and the
-        lines of sight ("seen", "lines": :meth:`SightLines.counts`) where the weights read them
-        (None or missing: those terms count 0)
+    sums : :func:`~torchakvf.parts.merge_terms.part_sums` (centroids, thickness), the
+        lines of sight ("seen", "lines": :meth:`SightLines.counts`) and the vector areas
+        ("vector_area" [K, 3]) where the weights read them (None or missing: those terms count
+        0, and no part is a sheet)
     """
 
     labels: np.ndarray
@@ -89,7 +91,7 @@ class RegionGraph:
                           thick=copy("thick"), thick_area=copy("thick_area"), centroid=copy("centroid"),
                           center=sums.get("center"), radius=float(sums.get("radius", 1.0)),
                           thick_median=float(sums.get("thick_median", 1.0)), seen=copy("seen"),
-                          lines=copy("lines"))
+                          lines=copy("lines"), vector_area=copy("vector_area"))
 
 
 #: The :class:`MergeWeights` field weighing each column of
@@ -118,6 +120,12 @@ def needs_sight(weights: MergeWeights) -> bool:
     return weights.sight != 0 or weights.sight_excess != 0
 
 
+def needs_normals(weights: MergeWeights) -> bool:
+    """Whether the merge reads the parts' vector areas (the sheet rule: then the mesh's unit
+    face normals go to :func:`region_graph`)."""
+    return weights.sheet_flatness is not None
+
+
 def needs_part_sums(weights: MergeWeights) -> bool:
     """Whether the cost reads :func:`~torchakvf.parts.merge_terms.part_sums` at all."""
     return needs_thickness(weights) or weights.centricity != 0
@@ -143,7 +151,8 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
                  face_area: np.ndarray, crease_angle: float = math.pi, *,
                  unit: np.ndarray | None = None, bends: tuple | None = None,
                  centroids: np.ndarray | None = None, thickness: np.ndarray | None = None,
-                 sight: SightLines | PartSight | None = None) -> RegionGraph:
+                 sight: SightLines | PartSight | None = None,
+                 normals: np.ndarray | None = None) -> RegionGraph:
     """The region adjacency graph of ``labels`` [F] on the mesh whose dual graph is ``dual``.
 
     features : [F, n] per-face untangled feature rows (normalized here, as k-means does);
@@ -156,6 +165,9 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
     sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` where the sight term is
         wanted (:func:`needs_sight`), or the counts of these labels by their ids
         (:class:`~torchakvf.parts.sightlines.PartSight`) where they are at hand; None: not read.
+    normals : [F, 3] unit outward face normals where the sheet rule is wanted
+        (:func:`needs_normals`): each part's vector area Σ a_f n_f, in the units of
+        ``face_area``; None: no part is a sheet.
     """
     labels = np.asarray(labels)
     present = labels >= 0
@@ -184,6 +196,10 @@ def region_graph(labels: np.ndarray, dual: DualEdges, features: np.ndarray,
             sums["seen"], sums["lines"] = counts.seen, counts.lines
         else:
             sums["seen"], sums["lines"] = sight.counts(lab, K)
+    if normals is not None:
+        sums = dict(sums or {})
+        n = np.asarray(normals, dtype=np.float64)
+        sums["vector_area"] = group_sums(compact, (n if every else n[present]) * w[:, None], K)
     return RegionGraph(lab, area, mean, length + length.T, concave + concave.T, convex + convex.T, sums)
 
 
@@ -223,16 +239,36 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     :data:`~torchakvf.restarts.ROUND_OFF_TIE`, relative), go to the first pair in row-major
     order, so the result is the same on any machine. The merged part keeps the smaller id;
     only its row of costs changes.
+
+    Sheets: with ``weights.sheet_flatness`` and the graph's vector areas, where the k parts
+    merged by cost include a part flatter than it (a sheet:
+    :meth:`~torchakvf.parts.merge_terms.MergeState.flatness`), the pieces are merged again, and
+    while a sheet has an adjacent part the merge is the cheapest pair among those with a
+    sheet. A plane patch has no volume, so it is a face of a part, never a part of its own; the
+    cost alone keeps a socket's floor, cut off by its concave crease, as a part
+    (docs/design.md, "Sheets"). The history is that of the merge whose parts are returned.
     """
     if k < 1:
         raise ParameterError(f"k must be >= 1, got {k!r}")
+    owner, history, state = _merge_down(graph, k, weights, sheets_first=False)
+    flat = None if weights.sheet_flatness is None else state.flatness()
+    if flat is not None and (flat > weights.sheet_flatness).any():
+        owner, history, state = _merge_down(graph, k, weights, sheets_first=True)
+    roots = np.unique(owner)
+    return np.searchsorted(roots, owner), history
+
+
+def _merge_down(graph: RegionGraph, k: int, weights: MergeWeights,
+                sheets_first: bool) -> tuple[np.ndarray, list, MergeState]:
+    """(owner [K]: the part each part joined, the cost of each merge, the merged state) of
+    :func:`greedy_merge`'s loop; sheets_first: the pairs holding a sheet go first."""
     K = graph.n_parts
     state = graph.state()
     cost = merge_costs(graph, weights, k)
     owner = np.arange(K)
     history = []
     for _ in range(K - k):
-        flat = first_near_min(cost)
+        flat = first_near_min(_sheet_pairs(cost, state, weights.sheet_flatness) if sheets_first else cost)
         i, j = divmod(flat, K)
         if not np.isfinite(cost[i, j]):
             break
@@ -247,8 +283,17 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
         row = state_costs(state, np.array([i]), weights, k)[0]
         row[i] = np.inf
         cost[i, :] = cost[:, i] = row
-    roots = np.unique(owner)
-    return np.searchsorted(roots, owner), history
+    return owner, history, state
+
+
+def _sheet_pairs(cost: np.ndarray, state: MergeState, flatness: float) -> np.ndarray:
+    """``cost`` [K, K] where no part is flatter than ``flatness`` (or none of those has an
+    adjacent part left), else the costs of the pairs with such a part (+inf elsewhere)."""
+    sheet = state.flatness() > flatness
+    if not sheet.any():
+        return cost
+    among = np.where(sheet[:, None] | sheet[None, :], cost, np.inf)
+    return among if np.isfinite(among).any() else cost
 
 
 @dataclass
@@ -258,7 +303,8 @@ class MergeCache:
 
     dual : :func:`dual_edges` of the mesh; unit : [F, n] :func:`unit_rows` of the features;
     bends : :func:`boundary_bends` (dual, the weights' crease angle); graph :
-    :func:`region_graph` of the labels at the weights' crease angle (it does not depend on k);
+    :func:`region_graph` of the labels at the weights' crease angle, with what the weights read
+    (it does not depend on k);
     thickness : [F] :func:`face_thickness` of the mesh (read where the weights read it and no
     graph is given); sight : the mesh's :class:`~torchakvf.parts.sightlines.SightLines` (read
     where the weights read the lines of sight and no graph is given).
@@ -297,8 +343,10 @@ def merge_parts(labels: np.ndarray, faces: np.ndarray, vertices: np.ndarray, fea
         dual = dual_edges(vertices, faces) if cache.dual is None else cache.dual
         centroids, thickness = mesh_sums_inputs(vertices, faces, weights, cache.thickness)
         sight = (cache.sight or SightLines(vertices, faces)) if needs_sight(weights) else None
+        normals = unit_face_normals(vertices, faces) if needs_normals(weights) else None
         graph = region_graph(labels, dual, features, face_area, weights.crease_angle, unit=cache.unit,
-                             bends=cache.bends, centroids=centroids, thickness=thickness, sight=sight)
+                             bends=cache.bends, centroids=centroids, thickness=thickness, sight=sight,
+                             normals=normals)
     new_id, _ = greedy_merge(graph, k, weights)
     out = np.where(graph.labels >= 0, new_id[np.maximum(graph.labels, 0)], graph.labels)
     return out.astype(np.asarray(labels).dtype, copy=False)
@@ -399,6 +447,7 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
 
 
 __all__ = ["MergeWeights", "MergeCache", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_sight",
-           "needs_part_sums", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends", "merged_distances",
+           "needs_part_sums", "needs_normals", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends",
+           "merged_distances",
            "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
            "greedy_merge", "merge_parts"]

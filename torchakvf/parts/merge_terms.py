@@ -99,7 +99,9 @@ class MergeState:
     centroid : [K, 3] Σ a_f c_f; center : [3] the surface's area centroid; radius : its RMS
     distance to it; total : the surface area; seen, lines : [K, K] of the segments between the
     parts' samples (the diagonal: between a part's own samples), those that stay inside the solid
-    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`). (thick, centroid, seen None: not computed.)
+    and all of them (:class:`~torchakvf.parts.sightlines.SightLines`); vector_area : [K, 3]
+    Σ a_f n_f over each part's faces (n_f the unit outward normal; :meth:`flatness`). (thick,
+    centroid, seen, vector_area None: not computed.)
     """
 
     area: np.ndarray
@@ -115,10 +117,20 @@ class MergeState:
     thick_median: float = 1.0
     seen: np.ndarray | None = None
     lines: np.ndarray | None = None
+    vector_area: np.ndarray | None = None
 
     @property
     def total(self) -> float:
         return max(float(self.area.sum()), 1e-300)
+
+    def flatness(self) -> np.ndarray | None:
+        """[K] |Σ a_f n_f| / Σ a_f of each part, in [0, 1]: 1 for a plane patch, 0 for a closed
+        surface; for a part cut off a solid, the area of a surface spanning its boundary over
+        its own. 0 for an emptied part; None without vector areas."""
+        if self.vector_area is None:
+            return None
+        norm = np.linalg.norm(self.vector_area, axis=1)
+        return np.where(self.area > 0, norm / np.maximum(self.area, 1e-300), 0.0)
 
     def merge(self, i: int, j: int) -> None:
         """Part j joins part i (j's rows become zero)."""
@@ -126,7 +138,7 @@ class MergeState:
         self.mean[i] = (self.area[i] * self.mean[i] + self.area[j] * self.mean[j]) / max(tot, 1e-300)
         self.area[i], self.area[j] = tot, 0.0
         self.mean[j] = 0.0
-        for vec in (self.thick, self.thick_area, self.centroid):
+        for vec in (self.thick, self.thick_area, self.centroid, self.vector_area):
             if vec is not None:
                 vec[i] += vec[j]
                 vec[j] = 0.0

@@ -54,7 +54,7 @@ from ..mesh.batch import MeshBatch
 from ..mesh.clean import face_areas
 from ..mesh.coarse import canonical_numbering
 from ..mesh.surface_map import SurfacePoints
-from ..options import OverSegmentation, SegmentOptions, segment_options
+from ..options import MergeWeights, OverSegmentation, SegmentOptions, segment_options
 from .field_counts import akvf_count
 from .topology import face_adjacency
 
@@ -70,8 +70,10 @@ PART_SEEDS = (0, 1, 2)
 #: crease patches' fragments united were measured).
 PART_OVERSEGMENTATION = OverSegmentation(ratio=3.0, extra_max=16, unite_fragments=False)
 #: The segmentations' options: that over-segmentation, and the first merge's parts alone (no
-#: :class:`~torchakvf.options.ConcaveChoice`), as the columns were measured with.
-PART_OPTIONS = SegmentOptions(overseg=PART_OVERSEGMENTATION, merge_choice=None)
+#: :class:`~torchakvf.options.ConcaveChoice`) without the sheet rule
+#: (``MergeWeights.sheet_flatness``), as the columns were measured with.
+PART_OPTIONS = SegmentOptions(overseg=PART_OVERSEGMENTATION, merge_choice=None,
+                              merge=MergeWeights(sheet_flatness=None))
 #: Distance (unit-area lengths) beyond which a cut is "far": about ten face widths at 4000 faces.
 DISTANCE_CAP = 0.2
 #: Added to a distance before the log, so a face on a cut (d = 0) has a finite value.

@@ -13,7 +13,8 @@ from ..fields.akvf import KRYLOV_MIN_EDGES, SOLVERS
 
 __all__ = ["MAX_SEED", "parse_int", "parse_float", "parse_seed", "parse_device", "parse_remedy",
            "positive_int", "add_solver_argument", "add_batched_argument", "add_graph_cut_argument",
-           "add_method_argument", "register_command"]
+           "add_method_argument", "add_second_merge_argument", "add_sheet_rule_argument", "merge_overrides",
+           "register_command"]
 
 #: Largest ``--seed``: every generator the package seeds (torch.Generator, numpy) takes it,
 #: and it fits the int64 a seed may be stored in.
@@ -94,6 +95,29 @@ def add_second_merge_argument(p: argparse.ArgumentParser) -> None:
                    help="method merge: also merge the pieces by the hand-set cost and keep those parts "
                         "where their flattest boundary is far more concave (default on; off: about 10%% "
                         "less time, the learned merge alone)")
+
+
+def add_sheet_rule_argument(p: argparse.ArgumentParser) -> None:
+    """``--sheet-rule on|off``: both merges of method merge join flat parts (a socket's floor, a
+    tube's end face) to a neighbour before any other pair (segment, eval, bench)."""
+    p.add_argument("--sheet-rule", default="on", choices=["on", "off"],
+                   help="method merge: a part whose faces nearly all face one way (flatness above "
+                        "0.9: the floor of a socket, the end face of a tube) merges before any other "
+                        "pair (default on; off: the merges by their cost alone)")
+
+
+def merge_overrides(args) -> dict:
+    """The SegmentOptions changes ``--second-merge`` and ``--sheet-rule`` ask for (none at
+    their defaults): ``merge_choice`` None, and the merges' weights without the sheet rule."""
+    from ..merge_options import ConcaveChoice, MergeWeights
+
+    given = {}
+    if args.sheet_rule == "off":
+        given["merge"] = MergeWeights(sheet_flatness=None)
+        given["merge_choice"] = ConcaveChoice(weights=MergeWeights.hand_set(sheet_flatness=None))
+    if args.second_merge == "off":
+        given["merge_choice"] = None
+    return given
 
 
 def add_solver_argument(p: argparse.ArgumentParser, default) -> None:

@@ -17,7 +17,9 @@ from .arguments import (
     add_graph_cut_argument,
     add_method_argument,
     add_second_merge_argument,
+    add_sheet_rule_argument,
     add_solver_argument,
+    merge_overrides,
     parse_device,
     parse_float,
     parse_int,
@@ -126,6 +128,7 @@ def _add_segment(sub) -> None:
     add_solver_argument(p, default="auto")
     add_graph_cut_argument(p)
     add_second_merge_argument(p)
+    add_sheet_rule_argument(p)
     add_method_argument(p, DEFAULT_METHOD, METHODS)
     p.set_defaults(func=run_segment)
 
@@ -149,7 +152,7 @@ def run_segment(args) -> int:
     options = SegmentOptions(eps=eps, seed=parse_seed(args.seed),
                              remedy=parse_remedy(args.remedy or DEFAULT_REMEDY), solver=args.solver,
                              method=args.method, graphcut=args.graph_cut == "on", batched=args.batched,
-                             **({"merge_choice": None} if args.second_merge == "off" else {}),
+                             **merge_overrides(args),
                              **({"overseg": scan_overseg(None)} if auto else {}))
     task = SegmentTask(k, options, n_fields=n_fields, coarse_faces=coarse or None,
                        formats=parse_formats(args.formats), subdivide=args.subdivide, k_range=(lo, hi))
