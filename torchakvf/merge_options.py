@@ -191,7 +191,7 @@ class MergeWeights:
     #: part of it (the floor of a socket, the end face of a tube): where the merge by cost
     #: leaves one among the k parts, the pieces are merged again with the pairs that hold a
     #: sheet first (:func:`~torchakvf.parts.merge.greedy_merge`). In (0, 1]; None: off. Chosen
-    #: on the procedural corpus and the PSB (docs/design.md, "Sheets")
+    #: on the procedural corpus and the PSB (docs/design.md, "Flat parts (sheets)")
     sheet_flatness: float | None = 0.9
 
     #: terms whose weight may be negative (their sign is learned, not known beforehand)

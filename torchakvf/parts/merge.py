@@ -246,7 +246,7 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     while a sheet has an adjacent part the merge is the cheapest pair among those with a
     sheet. A plane patch has no volume, so it is a face of a part, never a part of its own; the
     cost alone keeps a socket's floor, cut off by its concave crease, as a part
-    (docs/design.md, "Sheets"). The history is that of the merge whose parts are returned.
+    (docs/design.md, "Flat parts (sheets)"). The history is that of the merge whose parts are returned.
     """
     if k < 1:
         raise ParameterError(f"k must be >= 1, got {k!r}")
