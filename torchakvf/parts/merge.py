@@ -246,7 +246,8 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     while a sheet has an adjacent part the merge is the cheapest pair among those with a
     sheet. A plane patch has no volume, so it is a face of a part, never a part of its own; the
     cost alone keeps a socket's floor, cut off by its concave crease, as a part
-    (docs/design.md, "Flat parts (sheets)"). The history is that of the merge whose parts are returned.
+    (docs/design.md, "Flat parts (sheets)"). The history is that of the merge whose parts are
+    returned.
     """
     if k < 1:
         raise ParameterError(f"k must be >= 1, got {k!r}")
@@ -448,6 +449,5 @@ def merged_distances(distances: np.ndarray, before: np.ndarray, after: np.ndarra
 
 __all__ = ["MergeWeights", "MergeCache", "FIELD_OF_TERM", "term_weights", "needs_thickness", "needs_sight",
            "needs_part_sums", "needs_normals", "mesh_sums_inputs", "state_costs", "unit_rows", "boundary_bends",
-           "merged_distances",
-           "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph", "merge_costs",
-           "greedy_merge", "merge_parts"]
+           "merged_distances", "partition_cost", "next_merge_cost", "RegionGraph", "oversegment_k", "region_graph",
+           "merge_costs", "greedy_merge", "merge_parts"]
