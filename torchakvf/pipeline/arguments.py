@@ -98,12 +98,13 @@ def add_second_merge_argument(p: argparse.ArgumentParser) -> None:
 
 
 def add_sheet_rule_argument(p: argparse.ArgumentParser) -> None:
-    """``--sheet-rule on|off``: both merges of method merge join flat parts (a socket's floor, a
-    tube's end face) to a neighbour before any other pair (segment, eval, bench)."""
+    """``--sheet-rule on|off``: where a merge of method merge leaves a flat part (a socket's
+    floor, a tube's end face) among its k parts, the pieces are merged again with it first
+    (segment, eval, bench)."""
     p.add_argument("--sheet-rule", default="on", choices=["on", "off"],
-                   help="method merge: a part whose faces nearly all face one way (flatness above "
-                        "0.9: the floor of a socket, the end face of a tube) merges before any other "
-                        "pair (default on; off: the merges by their cost alone)")
+                   help="method merge: where a merge leaves a part whose faces nearly all face one way "
+                        "(flatness above 0.9: the floor of a socket, the end face of a tube), merge the "
+                        "pieces again with it first (default on; off: the merges by their cost alone)")
 
 
 def merge_overrides(args) -> dict:
