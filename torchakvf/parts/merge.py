@@ -251,21 +251,22 @@ def greedy_merge(graph: RegionGraph, k: int, weights: MergeWeights) -> tuple[np.
     """
     if k < 1:
         raise ParameterError(f"k must be >= 1, got {k!r}")
-    owner, history, state = _merge_down(graph, k, weights, sheets_first=False)
+    cost = merge_costs(graph, weights, k)
+    owner, history, state = _merge_down(graph, k, weights, cost.copy(), sheets_first=False)
     flat = None if weights.sheet_flatness is None else state.flatness()
     if flat is not None and (flat > weights.sheet_flatness).any():
-        owner, history, state = _merge_down(graph, k, weights, sheets_first=True)
+        owner, history, state = _merge_down(graph, k, weights, cost, sheets_first=True)
     roots = np.unique(owner)
     return np.searchsorted(roots, owner), history
 
 
-def _merge_down(graph: RegionGraph, k: int, weights: MergeWeights,
+def _merge_down(graph: RegionGraph, k: int, weights: MergeWeights, cost: np.ndarray,
                 sheets_first: bool) -> tuple[np.ndarray, list, MergeState]:
     """(owner [K]: the part each part joined, the cost of each merge, the merged state) of
-    :func:`greedy_merge`'s loop; sheets_first: the pairs holding a sheet go first."""
+    :func:`greedy_merge`'s loop from the pieces' costs ``cost`` [K, K] (:func:`merge_costs`,
+    updated in place); sheets_first: the pairs holding a sheet go first."""
     K = graph.n_parts
     state = graph.state()
-    cost = merge_costs(graph, weights, k)
     owner = np.arange(K)
     history = []
     for _ in range(K - k):
